@@ -1,0 +1,293 @@
+"""Writes ``assets/cat325.xml`` from :mod:`hexgym.parameters` and :mod:`hexgym.machine`.
+
+The MJCF is generated so the pins, masses, joint ranges and the closed-chain assembly can
+never drift from the kinematics module; the generated file is committed and a test checks it
+matches this generator. Run ``hexgym build-assets`` after changing a parameter.
+
+Structure: the four main hinges form a kinematic tree; every hydraulic cylinder is a barrel
+body (hinged at its base pin) with a rod body on a slide joint, and the bucket's four-bar is a
+guide link and a power link; each loop is closed by a ``connect`` equality between two pin
+sites. Body frames are chosen so that qpos0 (all joints at their ``ref``) is an assembled
+configuration with the main joints at 0.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from hexgym import machine
+from hexgym import parameters as p
+
+CYLINDER_RGBA = "0.15 0.15 0.15 1"
+ROD_RGBA = "0.85 0.85 0.88 1"
+# The four actuators are integrated-velocity servos on the main hinges: ctrl is the commanded
+# joint rate (rad/s), the activation integrates it into a position target that a stiff, damped
+# spring tracks, so a zero command holds the joint as a closed spool does. The hydraulic models
+# turn cylinder speeds into joint rates with the moment arms of hexgym.machine (Eqn 5). Acting
+# on the tree joints (not on the cylinder slides, which are closed to the links by soft
+# constraints) keeps the servos stable. (kp, kv) per joint: kp is integrated explicitly, so it is
+# capped by omega*dt <= 0.3 at the smallest joint inertia over the workspace (swing 8.3e4,
+# boom 8.8e4, stick 1.35e4, bucket 7.6e2 kg m^2; up to 5.1e5, 4.5e5, 6.8e4, 6.9e3 with 2 t in
+# the bucket); kv (integrated implicitly) damps near-critically at a typical inertia.
+SERVO_GAINS = {"swing": (2e8, 1.3e7), "boom": (1e9, 2.8e7), "stick": (1.5e8, 4.2e6), "bucket": (1e7, 3.5e5)}
+MAX_JOINT_RATE = {"swing": 1.5, "boom": 1.0, "stick": 1.0, "bucket": 2.0}  # rad/s, ctrl range
+PAYLOAD_CENTRE = (0.80, -0.30)  # bucket frame: centroid of a heaped load in the shell [est]
+HOME = np.array([0.0, 0.35, 0.85, 0.75])  # main joints of keyframe "home": bucket near the ground
+
+
+def _fmt(*values: float) -> str:
+    return " ".join(f"{v:.6g}" if abs(v) > 1e-12 else "0" for v in values)
+
+
+def _planar(xz: tuple[float, float] | np.ndarray) -> str:
+    return _fmt(xz[0], 0.0, xz[1])
+
+
+def _quat(angle: float) -> str:
+    """Quaternion of an in-plane rotation by ``angle`` (x towards z, i.e. about -y)."""
+    return _fmt(np.cos(angle / 2.0), 0.0, -np.sin(angle / 2.0), 0.0)
+
+
+def _box_inertia(mass: float, size: tuple[float, float, float]) -> str:
+    x, y, z = size
+    return _fmt(mass * (y * y + z * z) / 12, mass * (x * x + z * z) / 12, mass * (x * x + y * y) / 12)
+
+
+def _inertial(pos: tuple[float, float, float], mass: float, size: tuple[float, float, float]) -> str:
+    return f'<inertial pos="{_fmt(*pos)}" mass="{_fmt(mass)}" diaginertia="{_box_inertia(mass, size)}"/>'
+
+
+def _cylinder(name: str, base: tuple[float, float] | np.ndarray, parent_angle0: dict[str, float], indent: str) -> str:
+    """Barrel body at ``base`` (parent frame) with the rod body on the slide joint ``name_cylinder``."""
+    cyl = p.CYLINDERS[name]
+    ext0 = parent_angle0[f"{name}_extension"]
+    length0 = cyl.retracted_length + ext0
+    barrel_len = cyl.retracted_length - 0.15  # barrel ends short of the rod clevis when retracted
+    ys = [0.0] if cyl.count == 1 else [-0.42, 0.42]  # the boom's pair straddles the boom
+    barrel_geoms = "".join(
+        f'\n{indent}    <geom class="barrel" size="{_fmt(cyl.bore / 2 + 0.03)}" '
+        f'fromto="{_fmt(0.05, y, 0, barrel_len, y, 0)}"/>'
+        for y in ys
+    )
+    rod_geoms = "".join(
+        f'\n{indent}      <geom class="rod" size="{_fmt(cyl.rod / 2)}" '
+        f'fromto="{_fmt(-cyl.stroke - 0.05, y, 0, -0.05, y, 0)}"/>'
+        f'\n{indent}      <geom class="clevis" pos="{_fmt(0, y, 0)}"/>'
+        for y in ys
+    )
+    rod_mass = cyl.rod_mass * cyl.count
+    barrel_mass = cyl.barrel_mass * cyl.count
+    return f"""
+{indent}<body name="{name}_cylinder_barrel" pos="{_planar(base)}" quat="{_quat(parent_angle0[f"{name}_barrel"])}">
+{indent}  {_inertial((barrel_len / 2, 0, 0), barrel_mass, (barrel_len, 0.25, 0.25))}
+{indent}  <joint name="{name}_cylinder_pivot" class="passive"/>{barrel_geoms}
+{indent}  <body name="{name}_cylinder_rod" pos="{_fmt(length0, 0, 0)}">
+{indent}    {_inertial((-cyl.stroke / 2, 0, 0), rod_mass, (cyl.stroke, 0.15, 0.15))}
+{indent}    <joint name="{name}_cylinder" class="cylinder" ref="{_fmt(ext0)}" range="0 {_fmt(cyl.stroke)}"/>
+{indent}    <site name="{name}_cylinder_rod_end" class="pin"/>{rod_geoms}
+{indent}  </body>
+{indent}</body>"""
+
+
+def _range(name: str) -> str:
+    lo, hi = machine.joint_range(name)
+    return _fmt(lo, hi)
+
+
+def model_xml(home_key: str | None = None) -> str:
+    """The MJCF text of the machine; ``home_key`` is the ``<key>`` element of keyframe ``home``."""
+    a0 = machine.passive_joints(np.zeros(4))
+    boom_pin = np.array([p.BOOM_LENGTH, 0.0])
+    bucket_pin = np.array([p.STICK_LENGTH, 0.0])
+    power_link_pos = np.array([p.GUIDE_LINK_LENGTH, 0.0])
+    upper_z = p.SWING_BEARING_HEIGHT
+    key = "" if home_key is None else f"\n  <keyframe>\n    {home_key}\n  </keyframe>\n"
+    return f"""<mujoco model="cat325">
+  <!-- Generated by hexgym/mjcf.py from hexgym/parameters.py; edit those, then run `hexgym build-assets`. -->
+  <compiler angle="radian" meshdir="meshes" autolimits="true"/>
+
+  <option timestep="0.002" integrator="implicitfast"/>
+
+  <default>
+    <default class="cat325">
+      <joint damping="0" armature="0"/>
+      <equality solref="0.004 1" solimp="0.99 0.999 0.001"/>
+      <default class="front_joint">
+        <joint type="hinge" axis="0 1 0" damping="2000" limited="true"/>
+      </default>
+      <default class="passive">
+        <joint type="hinge" axis="0 -1 0"/>
+      </default>
+      <default class="cylinder">
+        <joint type="slide" axis="1 0 0" limited="true"/>
+      </default>
+      <default class="visual">
+        <geom type="mesh" contype="0" conaffinity="0" group="2" density="0" material="cat_yellow"/>
+        <default class="barrel">
+          <geom type="cylinder" material="cylinder_black"/>
+        </default>
+        <default class="rod">
+          <geom type="cylinder" material="chrome"/>
+        </default>
+        <default class="clevis">
+          <geom type="sphere" size="0.09" material="cylinder_black"/>
+        </default>
+      </default>
+      <default class="collision">
+        <geom group="3" contype="2" conaffinity="1" density="0" condim="3" friction="0.8 0.02 0.001"/>
+      </default>
+      <default class="pin">
+        <site type="sphere" size="0.05" group="4" rgba="0.9 0.2 0.2 1"/>
+      </default>
+    </default>
+  </default>
+
+  <asset>
+    <material name="cat_yellow" rgba="0.96 0.72 0.06 1" specular="0.3" shininess="0.4"/>
+    <material name="cylinder_black" rgba="{CYLINDER_RGBA}" specular="0.2"/>
+    <material name="chrome" rgba="{ROD_RGBA}" specular="0.9" shininess="0.9"/>
+    <material name="track_black" rgba="0.12 0.12 0.12 1" specular="0.1"/>
+    <material name="steel" rgba="0.35 0.35 0.37 1" specular="0.4"/>
+    <material name="glass" rgba="0.25 0.35 0.45 0.85" specular="0.8" shininess="0.9"/>
+    <mesh name="undercarriage" file="undercarriage.stl"/>
+    <mesh name="upper_deck" file="upper_deck.stl"/>
+    <mesh name="cab" file="cab.stl"/>
+    <mesh name="engine_housing" file="engine_housing.stl"/>
+    <mesh name="counterweight" file="counterweight.stl"/>
+    <mesh name="boom" file="boom.stl"/>
+    <mesh name="stick" file="stick.stl"/>
+    <mesh name="bucket" file="bucket.stl"/>
+    <mesh name="guide_link" file="guide_link.stl"/>
+    <mesh name="power_link" file="power_link.stl"/>
+  </asset>
+
+  <worldbody>
+    <body name="undercarriage" childclass="cat325">
+      {_inertial((0, 0, 0.5), p.UNDERCARRIAGE_MASS, (p.TRACK_LENGTH, p.TRACK_GAUGE + p.TRACK_SHOE_WIDTH, 1.0))}
+      <geom class="visual" mesh="undercarriage" material="track_black"/>
+      <geom class="collision" type="box" size="{_fmt(p.TRACK_LENGTH / 2, p.TRACK_SHOE_WIDTH / 2, p.TRACK_HEIGHT / 2)}"
+        pos="{_fmt(0, p.TRACK_GAUGE / 2, p.TRACK_HEIGHT / 2)}"/>
+      <geom class="collision" type="box" size="{_fmt(p.TRACK_LENGTH / 2, p.TRACK_SHOE_WIDTH / 2, p.TRACK_HEIGHT / 2)}"
+        pos="{_fmt(0, -p.TRACK_GAUGE / 2, p.TRACK_HEIGHT / 2)}"/>
+      <body name="upper" pos="0 0 {_fmt(upper_z)}">
+        <inertial pos="-0.55 0 0.55" mass="{_fmt(p.UPPER_MASS)}"
+          diaginertia="{_fmt(0.45 * p.UPPER_YAW_INERTIA, 0.75 * p.UPPER_YAW_INERTIA, p.UPPER_YAW_INERTIA)}"/>
+        <joint name="swing" type="hinge" axis="0 0 1" damping="5000"/>
+        <geom class="visual" mesh="upper_deck"/>
+        <geom class="visual" mesh="cab"/>
+        <geom class="visual" mesh="engine_housing"/>
+        <geom class="visual" mesh="counterweight"/>
+        <site name="boom_foot_pin" class="pin" pos="{_planar(p.BOOM_FOOT)}"/>
+        <site name="boom_cylinder_base_pin" class="pin" pos="{_planar(p.BOOM_CYLINDER_BASE)}"/>
+        <site name="cab_camera" pos="0.5 0.55 {_fmt(p.CAB_ROOF_HEIGHT - upper_z - 0.45)}" class="pin"/>
+        <camera name="cab" pos="0.5 0.55 {_fmt(p.CAB_ROOF_HEIGHT - upper_z - 0.45)}" xyaxes="0 -1 0 0.25 0 1" fovy="75"/>
+{_cylinder("boom", p.BOOM_CYLINDER_BASE, a0, "        ")}
+        <body name="boom" pos="{_planar(p.BOOM_FOOT)}">
+          {_inertial((2.9, 0, 0.55), p.BOOM_MASS, (6.2, 0.6, 0.75))}
+          <joint name="boom" class="front_joint" axis="0 -1 0" range="{_range("boom")}"/>
+          <geom class="visual" mesh="boom"/>
+          <geom class="collision" type="capsule" size="0.3" fromto="0.3 0 0.2 {_fmt(p.BOOM_KNEE[0], 0, p.BOOM_KNEE[1])}"/>
+          <geom class="collision" type="capsule" size="0.3"
+            fromto="{_fmt(p.BOOM_KNEE[0], 0, p.BOOM_KNEE[1], p.BOOM_LENGTH - 0.3, 0, 0.05)}"/>
+          <site name="boom_cylinder_rod_pin" class="pin" pos="{_planar(p.BOOM_CYLINDER_ROD_PIN)}"/>
+          <site name="stick_cylinder_base_pin" class="pin" pos="{_planar(p.STICK_CYLINDER_BASE)}"/>
+          <site name="stick_pin" class="pin" pos="{_planar(boom_pin)}"/>
+{_cylinder("stick", p.STICK_CYLINDER_BASE, a0, "          ")}
+          <body name="stick" pos="{_planar(boom_pin)}" quat="{_quat(-np.pi / 2)}">
+            {_inertial((1.3, 0, 0.1), p.STICK_MASS, (3.6, 0.45, 0.5))}
+            <joint name="stick" class="front_joint" range="{_range("stick")}"/>
+            <geom class="visual" mesh="stick"/>
+            <geom class="collision" type="capsule" size="0.25" fromto="0.2 0 0.1 {_fmt(p.STICK_LENGTH - 0.3, 0, 0.05)}"/>
+            <site name="stick_cylinder_rod_pin" class="pin" pos="{_planar(p.STICK_CYLINDER_ROD_PIN)}"/>
+            <site name="bucket_cylinder_base_pin" class="pin" pos="{_planar(p.BUCKET_CYLINDER_BASE)}"/>
+            <site name="guide_link_pivot_pin" class="pin" pos="{_planar(p.GUIDE_LINK_PIVOT)}"/>
+            <site name="bucket_pin" class="pin" pos="{_planar(bucket_pin)}"/>
+{_cylinder("bucket", p.BUCKET_CYLINDER_BASE, a0, "            ")}
+            <body name="guide_link" pos="{_planar(p.GUIDE_LINK_PIVOT)}" quat="{_quat(a0["guide_link"])}">
+              {_inertial((p.GUIDE_LINK_LENGTH / 2, 0, 0), p.GUIDE_LINK_MASS, (p.GUIDE_LINK_LENGTH, 0.5, 0.15))}
+              <joint name="guide_link" class="passive"/>
+              <geom class="visual" mesh="guide_link"/>
+              <site name="bucket_cylinder_rod_pin" class="pin" pos="{_planar(power_link_pos)}"/>
+              <body name="power_link" pos="{_planar(power_link_pos)}" quat="{_quat(a0["power_link"])}">
+                {_inertial((p.POWER_LINK_LENGTH / 2, 0, 0), p.POWER_LINK_MASS, (p.POWER_LINK_LENGTH, 0.6, 0.15))}
+                <joint name="power_link" class="passive"/>
+                <geom class="visual" mesh="power_link"/>
+                <site name="power_link_bucket_end" class="pin" pos="{_fmt(p.POWER_LINK_LENGTH, 0, 0)}"/>
+              </body>
+            </body>
+            <body name="bucket" pos="{_planar(bucket_pin)}">
+              {_inertial((0.75, 0, -0.3), p.BUCKET_MASS, (1.4, p.BUCKET_WIDTH, 1.0))}
+              <joint name="bucket" class="front_joint" range="{_range("bucket")}"/>
+              <geom class="visual" mesh="bucket"/>
+              <site name="bucket_link_pin" class="pin" pos="{_planar(p.BUCKET_LINK_PIN)}"/>
+              <site name="tip" class="pin" pos="{_planar(p.BUCKET_TIP)}"/>
+              <body name="payload" pos="{_planar(PAYLOAD_CENTRE)}">
+                <site name="payload" class="pin"/>
+              </body>
+            </body>
+          </body>
+        </body>
+      </body>
+    </body>
+  </worldbody>
+
+  <equality>
+    <connect name="boom_cylinder" class="cat325" site1="boom_cylinder_rod_end" site2="boom_cylinder_rod_pin"/>
+    <connect name="stick_cylinder" class="cat325" site1="stick_cylinder_rod_end" site2="stick_cylinder_rod_pin"/>
+    <connect name="bucket_cylinder" class="cat325" site1="bucket_cylinder_rod_end" site2="bucket_cylinder_rod_pin"/>
+    <connect name="power_link" class="cat325" site1="power_link_bucket_end" site2="bucket_link_pin"/>
+  </equality>
+
+  <actuator>
+    <!-- Joint-rate servos (ctrl: rad/s) that hold their pose at zero command, torque-limited at
+         the line reliefs; the hydraulic models (reference or learned) set them. -->
+{_actuators()}
+  </actuator>
+{key}</mujoco>
+"""
+
+
+def _max_torque(name: str) -> float:
+    """Largest torque the line relief allows over the joint's range (servo force limit), N m."""
+    if name == "swing":
+        return p.SWING_TORQUE
+    cyl = p.CYLINDERS[name]
+    lo, hi = machine.joint_range(name)
+    arm = max(machine.moment_arm(name, a) for a in np.linspace(lo, hi, 201))
+    return p.LINE_RELIEF[name] * cyl.head_area * arm
+
+
+def _actuators() -> str:
+    lines = []
+    for name in machine.JOINTS:
+        kp, kv = SERVO_GAINS[name]
+        rate, torque = MAX_JOINT_RATE[name], _max_torque(name)
+        actrange = "" if name == "swing" else f' actrange="{_range(name)}"'
+        lines.append(
+            f'    <intvelocity name="{name}" joint="{name}" kp="{_fmt(kp)}" kv="{_fmt(kv)}"{actrange}\n'
+            f'      ctrlrange="{_fmt(-rate, rate)}" forcerange="{_fmt(-torque, torque)}"/>'
+        )
+    return "\n".join(lines)
+
+
+def home_keyframe(model_xml_text: str, meshdir: str) -> str:
+    """The ``<key name="home">`` element: assembled qpos and matching actuator activations."""
+    import mujoco
+
+    from hexgym.physics import assembled_state
+
+    spec = mujoco.MjSpec.from_string(model_xml_text)
+    spec.meshdir = meshdir
+    qpos, act = assembled_state(spec.compile(), HOME)
+    return f'<key name="home" qpos="{_fmt(*qpos)}"\n      act="{_fmt(*act)}"/>'
+
+
+def write_model(path: Path) -> None:
+    """Generate the MJCF (with its ``home`` keyframe) and write it atomically to ``path``."""
+    text = model_xml(home_keyframe(model_xml(), str(path.parent / "meshes")))
+    tmp = path.with_suffix(".xml.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
