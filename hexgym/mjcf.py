@@ -35,11 +35,13 @@ ROD_RGBA = "0.85 0.85 0.88 1"
 SERVO_GAINS = {"swing": (2e8, 1.3e7), "boom": (1e9, 2.8e7), "stick": (1.5e8, 4.2e6), "bucket": (1e7, 3.5e5)}
 MAX_JOINT_RATE = {"swing": 1.5, "boom": 1.0, "stick": 1.0, "bucket": 2.0}  # rad/s, ctrl range
 PAYLOAD_CENTRE = (0.80, -0.30)  # bucket frame: centroid of a heaped load in the shell [est]
+# operator's eye in the upper frame: cab on the left (+y), seated height below the roof [est]
+CAB_EYE = (0.85, 1.0, p.CAB_ROOF_HEIGHT - p.SWING_BEARING_HEIGHT - 0.5)
 HOME = np.array([0.0, 0.35, 0.85, 0.75])  # main joints of keyframe "home": bucket near the ground
 
 
 def _fmt(*values: float) -> str:
-    return " ".join(f"{v:.6g}" if abs(v) > 1e-12 else "0" for v in values)
+    return " ".join(f"{v:.12g}" if abs(v) > 1e-12 else "0" for v in values)
 
 
 def _planar(xz: tuple[float, float] | np.ndarray) -> str:
@@ -182,14 +184,14 @@ def model_xml(home_key: str | None = None) -> str:
         <geom class="visual" mesh="counterweight"/>
         <site name="boom_foot_pin" class="pin" pos="{_planar(p.BOOM_FOOT)}"/>
         <site name="boom_cylinder_base_pin" class="pin" pos="{_planar(p.BOOM_CYLINDER_BASE)}"/>
-        <site name="cab_camera" pos="0.5 0.55 {_fmt(p.CAB_ROOF_HEIGHT - upper_z - 0.45)}" class="pin"/>
-        <camera name="cab" pos="0.5 0.55 {_fmt(p.CAB_ROOF_HEIGHT - upper_z - 0.45)}" xyaxes="0 -1 0 0.25 0 1" fovy="75"/>
+        <camera name="cab" pos="{_fmt(*CAB_EYE)}" xyaxes="0 -1 0 0.25 0 1" fovy="75"/>
 {_cylinder("boom", p.BOOM_CYLINDER_BASE, a0, "        ")}
         <body name="boom" pos="{_planar(p.BOOM_FOOT)}">
           {_inertial((2.9, 0, 0.55), p.BOOM_MASS, (6.2, 0.6, 0.75))}
           <joint name="boom" class="front_joint" axis="0 -1 0" range="{_range("boom")}"/>
           <geom class="visual" mesh="boom"/>
-          <geom class="collision" type="capsule" size="0.3" fromto="0.3 0 0.2 {_fmt(p.BOOM_KNEE[0], 0, p.BOOM_KNEE[1])}"/>
+          <geom class="collision" type="capsule" size="0.3"
+            fromto="0.3 0 0.2 {_fmt(p.BOOM_KNEE[0], 0, p.BOOM_KNEE[1])}"/>
           <geom class="collision" type="capsule" size="0.3"
             fromto="{_fmt(p.BOOM_KNEE[0], 0, p.BOOM_KNEE[1], p.BOOM_LENGTH - 0.3, 0, 0.05)}"/>
           <site name="boom_cylinder_rod_pin" class="pin" pos="{_planar(p.BOOM_CYLINDER_ROD_PIN)}"/>
@@ -200,7 +202,8 @@ def model_xml(home_key: str | None = None) -> str:
             {_inertial((1.3, 0, 0.1), p.STICK_MASS, (3.6, 0.45, 0.5))}
             <joint name="stick" class="front_joint" range="{_range("stick")}"/>
             <geom class="visual" mesh="stick"/>
-            <geom class="collision" type="capsule" size="0.25" fromto="0.2 0 0.1 {_fmt(p.STICK_LENGTH - 0.3, 0, 0.05)}"/>
+            <geom class="collision" type="capsule" size="0.25"
+              fromto="0.2 0 0.1 {_fmt(p.STICK_LENGTH - 0.3, 0, 0.05)}"/>
             <site name="stick_cylinder_rod_pin" class="pin" pos="{_planar(p.STICK_CYLINDER_ROD_PIN)}"/>
             <site name="bucket_cylinder_base_pin" class="pin" pos="{_planar(p.BUCKET_CYLINDER_BASE)}"/>
             <site name="guide_link_pivot_pin" class="pin" pos="{_planar(p.GUIDE_LINK_PIVOT)}"/>

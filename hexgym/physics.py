@@ -28,7 +28,7 @@ _RETRACTED = np.array([p.CYLINDERS[n].retracted_length for n in machine.FRONT_CY
 def _joint_values(q: np.ndarray) -> dict[str, float]:
     """Every joint's value (main and passive) for main joint angles ``q``, as MuJoCo measures it."""
     passive, passive0 = machine.passive_joints(q), machine.passive_joints(np.zeros(4))
-    values = dict(zip(machine.JOINTS, (float(v) for v in q)))
+    values = dict(zip(machine.JOINTS, (float(v) for v in q), strict=True))
     for name in machine.FRONT_CYLINDERS:
         values[f"{name}_cylinder_pivot"] = passive[f"{name}_barrel"] - passive0[f"{name}_barrel"]
         values[f"{name}_cylinder"] = passive[f"{name}_extension"]
@@ -69,7 +69,8 @@ def force_actuated_model(path: str | Path | None = None, scene: bool = False) ->
     """The machine with its four servos replaced by plain force inputs (ctrl in N or N m).
 
     The reference hydraulic model computes cylinder forces and the swing torque itself and uses
-    this model; ctrl is then the joint torque (see :meth:`ExcavatorPhysics.set_actuator_forces`). Force limits are lifted too: the circuit's reliefs bound the pressures.
+    this model; ctrl is then the joint torque (see :meth:`ExcavatorPhysics.set_actuator_forces`).
+    Force limits are lifted too: the circuit's reliefs bound the pressures.
     """
     path = Path(path) if path is not None else asset_path(SCENE_FILE if scene else MODEL_FILE)
     try:

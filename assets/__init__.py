@@ -1,0 +1,1 @@
+"""Model files of the Cat 325-class excavator (MJCF, meshes), installed as ``hexgym.assets``."""

@@ -1,0 +1,80 @@
+"""The ``hexgym`` command line: one subcommand per job, each with ``--help``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from hexgym.demo import run_demo
+
+    paths = run_demo(args.out, fps=args.fps, width=args.width, height=args.height)
+    for kind, path in paths.items():
+        print(f"{kind}: {path}")
+    return 0
+
+
+def _cmd_model(args: argparse.Namespace) -> int:
+    from hexgym.model_info import model_summary
+
+    summary = model_summary()
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        for key, value in summary.items():
+            print(f"{key}: {value}")
+    return 0
+
+
+def _cmd_build_assets(args: argparse.Namespace) -> int:
+    from hexgym import meshes, mjcf
+
+    directory = Path(args.dir)
+    for path in meshes.write_meshes(directory / "meshes"):
+        print(f"wrote {path} ({path.stat().st_size} bytes)")
+    mjcf.write_model(directory / "cat325.xml")
+    print(f"wrote {directory / 'cat325.xml'}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser with all subcommands."""
+    parser = argparse.ArgumentParser(
+        prog="hexgym", description="A hydraulic excavator (Cat 325 class) simulator for robot learning."
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    demo = sub.add_parser("demo", help="replay a scripted spool sequence and write an MP4 and a PNG")
+    demo.add_argument("--out", default="out", help="output directory (default: out)")
+    demo.add_argument("--fps", type=float, default=20.0, help="video frame rate (default: 20)")
+    demo.add_argument("--width", type=int, default=960, help="frame width in pixels (default: 960)")
+    demo.add_argument("--height", type=int, default=544, help="frame height in pixels (default: 544)")
+    demo.set_defaults(func=_cmd_demo)
+
+    model = sub.add_parser("model", help="print the machine model's masses, joint ranges and cylinders")
+    model.add_argument("--json", action="store_true", help="print JSON")
+    model.set_defaults(func=_cmd_model)
+
+    build = sub.add_parser("build-assets", help="regenerate assets/meshes and assets/cat325.xml (developers)")
+    build.add_argument("--dir", default=str(Path(__file__).resolve().parent.parent / "assets"), help="assets dir")
+    build.set_defaults(func=_cmd_build_assets)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``hexgym`` console command."""
+    os.environ.setdefault("MUJOCO_GL", "egl")  # offscreen rendering without a display
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except (ValueError, FileNotFoundError, RuntimeError) as exc:
+        print(f"hexgym {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

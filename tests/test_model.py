@@ -1,0 +1,145 @@
+"""The MJCF model: generated from the parameters, compiles cleanly, masses, ranges, stability."""
+
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+from hexgym import machine, mjcf
+from hexgym import parameters as p
+from hexgym.physics import ExcavatorPhysics, force_actuated_model
+from hexgym.resources import AssetError, asset_path, assets_dir, load_model
+
+
+def _warnings(data: mujoco.MjData) -> dict[str, int]:
+    return {mujoco.mjtWarning(i).name: int(w.number) for i, w in enumerate(data.warning) if w.number}
+
+
+def test_committed_xml_matches_generator():
+    committed = asset_path("cat325.xml").read_text()
+    generated = mjcf.model_xml(mjcf.home_keyframe(mjcf.model_xml(), str(assets_dir() / "meshes")))
+    assert committed == generated, "assets/cat325.xml is stale: run `hexgym build-assets`"
+
+
+@pytest.mark.parametrize("scene", [False, True])
+def test_compiles_without_warnings(scene, capfd):
+    model = load_model(scene=scene)
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, model.key("home").id)
+    mujoco.mj_forward(model, data)
+    out, err = capfd.readouterr()
+    assert out == "" and err == ""
+    assert _warnings(data) == {}
+    assert model.nu == 4 and [model.actuator(i).name for i in range(4)] == list(machine.JOINTS)
+
+
+def test_operating_mass_and_parts():
+    model = load_model()
+    assert model.body_subtreemass[model.body("undercarriage").id] == pytest.approx(27000, rel=0.02)
+    assert model.body("boom").mass[0] == p.BOOM_MASS
+    assert model.body("stick").mass[0] == p.STICK_MASS
+    upper = model.body("upper").id
+    assert model.body_mass[upper] == p.UPPER_MASS
+    assert model.body_inertia[upper][2] == pytest.approx(p.UPPER_YAW_INERTIA)
+    bucket_and_linkage = sum(
+        model.body(n).mass[0]
+        for n in ("bucket", "guide_link", "power_link", "bucket_cylinder_barrel", "bucket_cylinder_rod")
+    )
+    assert bucket_and_linkage == pytest.approx(1100 + 230, abs=150)  # bucket + linkage ~1.1 t, + its cylinder
+
+
+def test_joint_ranges_are_the_cylinder_strokes():
+    model = load_model()
+    for name in machine.FRONT_CYLINDERS:
+        lo, hi = model.joint(name).range
+        cyl = p.CYLINDERS[name]
+        assert machine.cylinder_length(name, lo) == pytest.approx(cyl.retracted_length, abs=1e-6)
+        assert machine.cylinder_length(name, hi) == pytest.approx(cyl.extended_length, abs=1e-6)
+        slide = model.joint(f"{name}_cylinder")
+        assert tuple(slide.range) == pytest.approx((0.0, cyl.stroke))
+    # plausible 25 t envelope: boom about -50..+52 deg, stick and bucket wide
+    assert np.degrees(model.joint("boom").range) == pytest.approx([-50, 52], abs=3)
+    assert np.ptp(np.degrees(model.joint("stick").range)) > 110
+    assert np.ptp(np.degrees(model.joint("bucket").range)) > 160
+    assert not model.jnt_limited[model.joint("swing").id]
+
+
+def test_sites_named_after_pins():
+    model = load_model()
+    names = {model.site(i).name for i in range(model.nsite)}
+    for pin in (
+        "tip",
+        "boom_foot_pin",
+        "boom_cylinder_base_pin",
+        "boom_cylinder_rod_pin",
+        "stick_cylinder_base_pin",
+        "stick_cylinder_rod_pin",
+        "stick_pin",
+        "bucket_cylinder_base_pin",
+        "bucket_cylinder_rod_pin",
+        "guide_link_pivot_pin",
+        "bucket_link_pin",
+        "bucket_pin",
+    ):
+        assert pin in names
+
+
+def test_home_keyframe_is_assembled_and_holds():
+    physics = ExcavatorPhysics()
+    data = physics.data
+    assert np.abs(data.efc_pos[data.efc_type == mujoco.mjtConstraint.mjCNSTR_EQUALITY]).max() < 1e-9
+    np.testing.assert_allclose(physics.joint_positions(), mjcf.HOME, atol=1e-12)
+    physics.set_payload(2000.0)
+    physics.step(2500)  # 5 s with closed spools (zero rate commands) and a full bucket
+    np.testing.assert_allclose(physics.joint_positions(), mjcf.HOME, atol=6e-3)
+    assert np.abs(physics.joint_velocities()).max() < 1e-4
+
+
+def test_ten_seconds_of_random_commands_are_clean():
+    physics = ExcavatorPhysics(scene=True)
+    rng = np.random.default_rng(0)
+    lo, hi = physics.model.actuator_ctrlrange.T
+    for i in range(int(10.0 / physics.timestep)):
+        if i % 100 == 0:
+            physics.data.ctrl[:] = rng.uniform(lo, hi)
+        physics.step()
+    data = physics.data
+    assert _warnings(data) == {}
+    assert np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.qvel))
+    equality = data.efc_type == mujoco.mjtConstraint.mjCNSTR_EQUALITY
+    assert np.abs(data.efc_pos[equality]).max() < 2e-3  # the cylinders stay on their pins (m)
+    q = physics.joint_positions()
+    for k, name in enumerate(machine.FRONT_CYLINDERS, start=1):
+        lo_q, hi_q = physics.model.joint(name).range
+        assert lo_q - 0.02 <= q[k] <= hi_q + 0.02
+
+
+def test_force_actuated_model_takes_torques():
+    physics = ExcavatorPhysics(force_actuated_model())
+    assert physics.model.na == 0
+    physics.set_actuator_forces(np.zeros(3), 0.0)
+    physics.step(200)
+    assert physics.joint_velocities()[1] < -0.01  # no cylinder force: the boom falls
+
+
+@pytest.mark.parametrize("text", [None, "<mujoco><worldbody><geom type='mesh' mesh='nope'/></worldbody></mujoco>"])
+def test_missing_or_corrupt_asset_names_the_file(tmp_path: Path, text):
+    path = tmp_path / "broken.xml"
+    if text is not None:
+        path.write_text(text)
+    with pytest.raises(AssetError, match="broken.xml"):
+        load_model(path)
+    with pytest.raises(AssetError, match="no_such_file.xml"):
+        asset_path("no_such_file.xml")
+
+
+def test_payload_and_tip_force_change_the_loads():
+    physics = ExcavatorPhysics()
+    inertia0 = physics.swing_inertia()
+    physics.set_payload(2000.0)
+    assert physics.swing_inertia() > inertia0 + 2000 * 2.0**2
+    with pytest.raises(ValueError, match="payload"):
+        physics.set_payload(float("nan"))
+    with pytest.raises(ValueError, match="tip force"):
+        physics.apply_tip_force(np.array([1.0, np.nan, 0.0]))
