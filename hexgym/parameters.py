@@ -148,7 +148,9 @@ NFC_PRESSURE_FULL_FLOW = 0.8e6  # Pa: NFC signal at or below this -> maximum dis
 NFC_PRESSURE_MIN_FLOW = 2.5e6  # Pa: NFC signal at or above this -> idle displacement [est]
 NFC_PRESSURE_IDLE = 3.0e6  # Pa: NFC signal with all spools neutral at idle flow [est]
 NFC_ORIFICE_AREA = (  # m^2: idle flow through it builds NFC_PRESSURE_IDLE [derived]
-    PUMP_IDLE_FLOW_FRACTION * PUMP_MAX_FLOW / (DISCHARGE_COEFFICIENT * np.sqrt(2.0 * NFC_PRESSURE_IDLE / OIL_DENSITY))
+    PUMP_IDLE_FLOW_FRACTION
+    * PUMP_MAX_FLOW
+    / (DISCHARGE_COEFFICIENT * np.sqrt(2.0 * NFC_PRESSURE_IDLE / OIL_DENSITY))
 )
 NFC_RELIEF = 4.0e6  # Pa: relief beside the NFC orifice (caps the signal when bypass flow is high) [est]
 
@@ -156,7 +158,8 @@ NFC_RELIEF = 4.0e6  # Pa: relief beside the NFC orifice (caps the signal when by
 # setting plus its override ("relief gradient").
 RELIEF_OVERRIDE = 1.5e6  # Pa, cracking -> rated flow [est, 1-2 MPa]
 MAIN_RELIEF_RATED_FLOW = PUMP_MAX_FLOW  # m^3/s [derived]
-LINE_RELIEF_RATED_FLOW = 150.0 / 60000.0  # m^3/s, port reliefs and swing crossover reliefs [est]
+LINE_RELIEF_RATED_FLOW = PUMP_MAX_FLOW  # m^3/s, port and swing crossover reliefs: a braking swing
+# motor pumps full flow through its crossover relief [derived]
 LOAD_CHECK_CRACKING = 0.1e6  # Pa [est, spring of a valve-body load check]
 LOAD_CHECK_SPAN = 0.3e6  # Pa, cracking -> fully open [est]
 MAKEUP_CRACKING = 0.01e6  # Pa, anti-cavitation check from tank [est]
@@ -171,19 +174,24 @@ SWING_PORT_VOLUME = 1.5e-3  # m^3 per motor port incl. hoses [est]
 
 # Open-centre valve: spool stroke SPOOL_STROKE; metering opens after the dead band
 # (overlap) along progressive notches, area ~ z^METERING_EXPONENT with z the fraction of the
-# metering stroke; the centre bypass closes between BYPASS_CLOSE_START and BYPASS_CLOSED.
+# metering stroke. The centre bypass starts closing at BYPASS_CLOSE_START: its main land is
+# shut by BYPASS_LAND_CLOSED, leaving a bypass notch (BYPASS_NOTCH_AREA at neutral) that closes
+# linearly by BYPASS_CLOSED, so with standby flow the pump pressure builds over mid-stroke
+# (~2 MPa at 4 mm, ~10 MPa at 7 mm, ~30 MPa at 8 mm above the NFC pressure): open-centre metering.
 SPOOL_DEAD_BAND = 1.5e-3  # m [est, 1-2 mm overlap]
 BYPASS_CLOSE_START = 0.8e-3  # m [est]
+BYPASS_LAND_CLOSED = 3.0e-3  # m [est]
 BYPASS_CLOSED = 9.5e-3  # m [est: fully closed before full stroke]
+BYPASS_NOTCH_AREA = 20e-6  # m^2 [est]
 METERING_EXPONENT = 1.8  # [est, notched spools: progressive]
-BYPASS_EXPONENT = 1.5  # [est]
 # Max passage areas per function, m^2: pa = P->a, pb = P->b, at = a->T, bt = b->T, bypass [est;
 # meter-in sized for ~1 MPa at full pump flow, meter-out for the larger head-side return flow,
-# boom-down (a->T) throttled against the boom's weight, swing meter-out restrictive for braking].
+# boom-down (a->T) and stick-in (b->T) throttled against the weight they lower, swing meter-out
+# restrictive for braking].
 VALVE_AREAS = {
     "swing": {"pa": 100e-6, "pb": 100e-6, "at": 80e-6, "bt": 80e-6, "bypass": 250e-6},
     "boom": {"pa": 120e-6, "pb": 90e-6, "at": 110e-6, "bt": 100e-6, "bypass": 250e-6},
-    "stick": {"pa": 120e-6, "pb": 120e-6, "at": 150e-6, "bt": 150e-6, "bypass": 250e-6},
+    "stick": {"pa": 120e-6, "pb": 120e-6, "at": 150e-6, "bt": 80e-6, "bypass": 250e-6},
     "bucket": {"pa": 110e-6, "pb": 100e-6, "at": 140e-6, "bt": 100e-6, "bypass": 250e-6},
 }
 
@@ -191,7 +199,7 @@ VALVE_AREAS = {
 CYLINDER_COULOMB_FRICTION = 2.0e3  # N, seals [est, 1-3 kN for 130-150 mm bores]
 CYLINDER_VISCOUS_FRICTION = 5.0e3  # N s/m [est]
 CYLINDER_FRICTION_VELOCITY = 5e-3  # m/s, tanh smoothing of the Coulomb term [est]
-CYLINDER_LEAKAGE = 1e-13  # m^3/(s Pa) across the piston [est: 0.1 L/min at 20 MPa]
+CYLINDER_LEAKAGE = 2e-14  # m^3/(s Pa) across the piston [est: 25 mL/min at 20 MPa]
 CUSHION_LENGTH = 0.04  # m: the cushion spear closes the outlet over the last 40 mm [est, 30-50]
 CUSHION_AREA = 8e-6  # m^2 per cylinder: cushion orifice left when the spear is in [est]
 CUSHION_PORT_AREA = 600e-6  # m^2 per cylinder: unrestricted port [est]
