@@ -225,6 +225,7 @@ def model_xml(home_key: str | None = None) -> str:
               {_inertial((0.75, 0, -0.3), p.BUCKET_MASS, (1.4, p.BUCKET_WIDTH, 1.0))}
               <joint name="bucket" class="front_joint" range="{_range("bucket")}"/>
               <geom class="visual" mesh="bucket"/>
+              <geom name="bucket_collision" class="collision" type="mesh" mesh="bucket"/>
               <site name="bucket_link_pin" class="pin" pos="{_planar(p.BUCKET_LINK_PIN)}"/>
               <site name="tip" class="pin" pos="{_planar(p.BUCKET_TIP)}"/>
               <body name="payload" pos="{_planar(PAYLOAD_CENTRE)}">
