@@ -117,7 +117,7 @@ DISCHARGE_COEFFICIENT = 0.67  # [textbook]
 OIL_DENSITY = 870.0  # kg/m^3 [textbook]
 OIL_BULK_MODULUS = 1.1e9  # Pa, effective with hoses [textbook 1.0-1.2 GPa]
 SWING_MOTOR_DISPLACEMENT = 140e-6  # m^3/rev [est 130-150 cm^3]
-SWING_REDUCTION = 160.0  # [est 150-170]
+SWING_REDUCTION = 150.0  # [est 150-170]; 150 so that one pump's flow gives the 11 rpm below
 SWING_SPEED = 11.0 / 60.0 * 2.0 * np.pi  # rad/s at full spool [cmp 11.2-11.3 rpm]
 SWING_TORQUE = 75e3  # N m [cmp 73-74 kN m]
 BSFC = 215.0  # g/kWh near rated [est]
@@ -148,9 +148,7 @@ NFC_PRESSURE_FULL_FLOW = 0.8e6  # Pa: NFC signal at or below this -> maximum dis
 NFC_PRESSURE_MIN_FLOW = 2.5e6  # Pa: NFC signal at or above this -> idle displacement [est]
 NFC_PRESSURE_IDLE = 3.0e6  # Pa: NFC signal with all spools neutral at idle flow [est]
 NFC_ORIFICE_AREA = (  # m^2: idle flow through it builds NFC_PRESSURE_IDLE [derived]
-    PUMP_IDLE_FLOW_FRACTION
-    * PUMP_MAX_FLOW
-    / (DISCHARGE_COEFFICIENT * np.sqrt(2.0 * NFC_PRESSURE_IDLE / OIL_DENSITY))
+    PUMP_IDLE_FLOW_FRACTION * PUMP_MAX_FLOW / (DISCHARGE_COEFFICIENT * np.sqrt(2.0 * NFC_PRESSURE_IDLE / OIL_DENSITY))
 )
 NFC_RELIEF = 4.0e6  # Pa: relief beside the NFC orifice (caps the signal when bypass flow is high) [est]
 
