@@ -30,6 +30,25 @@ def _cmd_model(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    from hexgym.commandlog import read_command_log, write_trajectory_csv
+    from hexgym.reference import simulate_reference
+
+    commands = read_command_log(args.commands)
+    trajectory = simulate_reference(commands, start=args.start, payload_kg=args.payload_kg, dt_out=args.dt_out)
+    write_trajectory_csv(args.out, trajectory)
+    print(f"wrote {args.out}: {len(trajectory)} rows, {commands.duration:g} s simulated")
+    return 0
+
+
+def _cmd_reference_report(args: argparse.Namespace) -> int:
+    from hexgym.reference_report import run_report
+
+    print(json.dumps(run_report(args.out), indent=2))
+    print(f"plots: {Path(args.out) / 'interactions.png'}")
+    return 0
+
+
 def _cmd_build_assets(args: argparse.Namespace) -> int:
     from hexgym import meshes, mjcf
 
@@ -58,6 +77,21 @@ def build_parser() -> argparse.ArgumentParser:
     model = sub.add_parser("model", help="print the machine model's masses, joint ranges and cylinders")
     model.add_argument("--json", action="store_true", help="print JSON")
     model.set_defaults(func=_cmd_model)
+
+    simulate = sub.add_parser("simulate", help="replay a spool command log (CSV) and write the trajectory (CSV)")
+    simulate.add_argument("--model", choices=["reference"], default="reference", help="machine model")
+    simulate.add_argument("--commands", required=True, help="command log CSV: t,swing,boom,stick,bucket (s, mm)")
+    simulate.add_argument("--out", required=True, help="trajectory CSV to write")
+    simulate.add_argument("--start", default="home", help="keyframe to start from (default: home)")
+    simulate.add_argument("--payload-kg", type=float, default=0.0, help="material in the bucket, kg (default: 0)")
+    simulate.add_argument("--dt-out", type=float, default=0.05, help="output row interval, s (default: 0.05)")
+    simulate.set_defaults(func=_cmd_simulate)
+
+    report = sub.add_parser(
+        "reference-report", help="reference model: full-spool speeds, interaction plots (Figs 5-8), speed"
+    )
+    report.add_argument("--out", default="out/reference", help="output directory (default: out/reference)")
+    report.set_defaults(func=_cmd_reference_report)
 
     build = sub.add_parser("build-assets", help="regenerate assets/meshes and assets/cat325.xml (developers)")
     build.add_argument("--dir", default=str(Path(__file__).resolve().parent.parent / "assets"), help="assets dir")

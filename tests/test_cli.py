@@ -34,3 +34,37 @@ def test_console_script_is_installed():
         text=True,
     )
     assert result.returncode == 0 and "demo" in result.stdout
+
+
+def test_simulate_reference_writes_the_trajectory(tmp_path, capsys):
+    log = tmp_path / "log.csv"
+    log.write_text("t,swing,boom,stick,bucket\n0,0,0,0,0\n0.1,11,5,-3,2\n0.3,0,0,0,0\n")
+    out = tmp_path / "traj.csv"
+    assert main(["simulate", "--model", "reference", "--commands", str(log), "--out", str(out)]) == 0
+    lines = out.read_text().splitlines()
+    header = lines[0].split(",")
+    assert header[:12] == [
+        "t", "q_swing", "q_boom", "q_stick", "q_bucket", "qd_swing", "qd_boom", "qd_stick", "qd_bucket",
+        "tip_x", "tip_y", "tip_z",
+    ]  # fmt: skip
+    for column in ("pump1_pressure_pa", "pump2_pressure_pa", "pump1_flow_m3s", "pump_power_w", "fuel_rate_l_per_h"):
+        assert column in header
+    assert len(lines) == 1 + 7  # 0 .. 0.3 s every 0.05 s
+    assert float(lines[-1].split(",")[5]) > 0.0  # the swing turned
+
+
+@pytest.mark.parametrize(
+    ("body", "message"),
+    [
+        ("t,swing,boom,stick\n0,0,0,0\n", "bucket"),
+        ("t,swing,boom,stick,bucket\n0,0,0,0,0\n0.2,0,0,0,0\n0.1,0,0,0,0\n", "row 3"),
+        ("t,swing,boom,stick,bucket\n0,0,nan,0,0\n", "boom"),
+        ("t,swing,boom,stick,bucket\n0,0,0,12,0\n", "stick"),
+    ],
+)
+def test_simulate_refuses_a_malformed_log(tmp_path, capsys, body, message):
+    log, out = tmp_path / "log.csv", tmp_path / "traj.csv"
+    log.write_text(body)
+    assert main(["simulate", "--commands", str(log), "--out", str(out)]) == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists() and list(tmp_path.iterdir()) == [log]

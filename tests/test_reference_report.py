@@ -1,0 +1,23 @@
+"""The reference model against the machine's published behaviour (slow: ~30 s of simulation)."""
+
+import json
+
+import pytest
+
+from hexgym.reference_report import run_report
+
+
+@pytest.mark.slow
+def test_reference_report(tmp_path):
+    summary = run_report(tmp_path)
+    assert json.loads((tmp_path / "summary.json").read_text()) == summary
+    assert (tmp_path / "interactions.png").stat().st_size > 20_000
+    single, inter = summary["single_function"], summary["interactions"]
+    assert 10.3 < single["swing_rpm"] < 11.7  # Cat 320/325F: 11.2-11.3 rpm
+    assert single["boom_up_mps"] == pytest.approx(0.144, rel=0.05)  # one pump's flow / boom head area
+    assert single["bucket_curl_mps"] == pytest.approx(0.289, rel=0.05)
+    assert 30 < single["idle_flow_l_per_min"] < 46  # 10-20 % of 230 L/min
+    # Test 1: the heavier boom gets little flow until the bucket stops (paper Figs 5-6)
+    assert inter["test1_boom_mps_while_bucket_moves"] < 0.2 * inter["test1_boom_mps_alone_same_time"]
+    # Test 2: the swing is slowed while the stick moves (Figs 7-8)
+    assert inter["test2_swing_rad_s_while_stick_moves"] < 0.5 * inter["test2_swing_rad_s_alone_same_time"]
