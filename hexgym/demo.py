@@ -13,10 +13,11 @@ from pathlib import Path
 import numpy as np
 
 from hexgym import parameters as p
+from hexgym.commandlog import CommandLog
 from hexgym.physics import ExcavatorPhysics
 
 # t (s), swing, boom, stick, bucket spools (mm), each row held until the next (command-log style)
-DEMO_SPOOLS = np.array(
+_DEMO_TABLE = np.array(
     [
         [0.0, 0, 0, 0, 0],
         [0.5, 0, 8, -11, -11],  # reach out: boom up, stick out, bucket open
@@ -29,13 +30,8 @@ DEMO_SPOOLS = np.array(
     ],
     dtype=float,
 )
+DEMO_COMMANDS = CommandLog(_DEMO_TABLE[:, 0], _DEMO_TABLE[:, 1:])
 DEMO_DURATION = 16.0  # s
-
-
-def spools_at(schedule: np.ndarray, t: float) -> np.ndarray:
-    """Spool positions (mm) in force at time ``t`` of a ``t, swing, boom, stick, bucket`` table."""
-    row = int(np.searchsorted(schedule[:, 0], t, side="right")) - 1
-    return schedule[max(row, 0), 1:]
 
 
 def proportional_valve_rates(physics: ExcavatorPhysics, spools_mm: np.ndarray) -> np.ndarray:
@@ -61,7 +57,7 @@ def run_demo(
     frames = []
     while physics.time < duration:
         for _ in range(steps_per_frame):
-            physics.set_actuator_targets(proportional_valve_rates(physics, spools_at(DEMO_SPOOLS, physics.time)))
+            physics.set_actuator_targets(proportional_valve_rates(physics, DEMO_COMMANDS.spools_at(physics.time)))
             physics.step()
         frames.append(renderer.render(physics.data))
     renderer.close()

@@ -4,7 +4,7 @@ import imageio.v2 as imageio
 import imageio.v3 as iio
 import numpy as np
 
-from hexgym.demo import DEMO_SPOOLS, proportional_valve_rates, run_demo, spools_at
+from hexgym.demo import DEMO_COMMANDS, proportional_valve_rates, run_demo
 from hexgym.physics import ExcavatorPhysics
 from hexgym.render import FrameRenderer
 
@@ -35,8 +35,8 @@ def test_demo_writes_video_and_snapshot(tmp_path):
 
 
 def test_spool_schedule_and_valve():
-    assert np.array_equal(spools_at(DEMO_SPOOLS, 0.0), [0, 0, 0, 0])
-    assert np.array_equal(spools_at(DEMO_SPOOLS, 0.5), DEMO_SPOOLS[1, 1:])
+    assert np.array_equal(DEMO_COMMANDS.spools_at(0.0), [0, 0, 0, 0])
+    assert np.array_equal(DEMO_COMMANDS.spools_at(0.5), DEMO_COMMANDS.spools_mm[1])
     physics = ExcavatorPhysics()
     rates = proportional_valve_rates(physics, np.array([11.0, 11.0, -11.0, 5.5]))
     assert rates[0] > 1.1  # ~11 rpm swing
