@@ -49,6 +49,33 @@ def _cmd_reference_report(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_fit(args: argparse.Namespace) -> int:
+    from hexgym.fit import TABLES, fit_all
+
+    names = tuple(args.tables.split(",")) if args.tables else tuple(TABLES)
+    unknown = set(names) - set(TABLES)
+    if unknown:
+        raise ValueError(f"unknown table(s) {sorted(unknown)}; choose from {list(TABLES)}")
+    for name, path in fit_all(args.data, args.out, seed=args.seed, names=names).items():
+        print(f"{name}: {path}")
+    return 0
+
+
+def _cmd_tables(args: argparse.Namespace) -> int:
+    from hexgym.fit import tables_summary
+
+    summary = tables_summary(args.dir)
+    if args.json:
+        print(json.dumps(summary, indent=2))
+        return 0
+    for t in summary:
+        print(
+            f"{t['name']:7s} {t['n_points']:6d} points  LOO {t['loo_rmse_rel']:.4f}  "
+            f"held-out {t['holdout_rmse_rel']:.4f}  grid {t['grid_rmse_rel']:.4f}  <- {', '.join(t['inputs'])}"
+        )
+    return 0
+
+
 def _cmd_build_assets(args: argparse.Namespace) -> int:
     from hexgym import meshes, mjcf
 
@@ -92,6 +119,18 @@ def build_parser() -> argparse.ArgumentParser:
     )
     report.add_argument("--out", default="out/reference", help="output directory (default: out/reference)")
     report.set_defaults(func=_cmd_reference_report)
+
+    fit = sub.add_parser("fit", help="fit the four MBL tables (LWR + leave-one-out selection) from collected data")
+    fit.add_argument("--data", default="data", help="directory with <table>.npz data sets (default: data)")
+    fit.add_argument("--out", default=None, help="where to write the tables (default: the packaged tables)")
+    fit.add_argument("--seed", type=int, default=0, help="seed of the held-out split and the search (default: 0)")
+    fit.add_argument("--tables", default="", help="comma-separated subset, e.g. boom,stick (default: all)")
+    fit.set_defaults(func=_cmd_fit)
+
+    tables = sub.add_parser("tables", help="the fitted tables: inputs, output, points, parameters, accuracy")
+    tables.add_argument("--json", action="store_true", help="print JSON")
+    tables.add_argument("--dir", default=None, help="table directory (default: the packaged tables)")
+    tables.set_defaults(func=_cmd_tables)
 
     build = sub.add_parser("build-assets", help="regenerate assets/meshes and assets/cat325.xml (developers)")
     build.add_argument("--dir", default=str(Path(__file__).resolve().parent.parent / "assets"), help="assets dir")

@@ -1,0 +1,57 @@
+"""hexgym fit / tables on a small synthetic flow-sharing data set (the real data: `hexgym collect`)."""
+
+import numpy as np
+import pytest
+
+from hexgym import fit
+from hexgym.baselines import synthetic_flow_sharing
+
+
+@pytest.fixture(scope="module")
+def data_dir(tmp_path_factory):
+    directory = tmp_path_factory.mktemp("data")
+    X, y = synthetic_flow_sharing(700, seed=3)
+    rng = np.random.default_rng(4)
+    for name, (inputs, output) in fit.TABLES.items():
+        Xn = X if len(inputs) == 4 else np.column_stack([X, rng.uniform(-1, 1, len(y))])
+        np.savez(directory / f"{name}.npz", X=Xn, y=y, inputs=np.array(inputs), output=np.array(output))
+    return directory
+
+
+@pytest.fixture(scope="module")
+def fitted(data_dir, tmp_path_factory):
+    out = tmp_path_factory.mktemp("tables")
+    fit.fit_all(data_dir, out, seed=0)
+    return out
+
+
+def test_fit_writes_every_table_with_its_metrics(fitted):
+    summary = {t["name"]: t for t in fit.tables_summary(fitted)}
+    assert set(summary) == set(fit.TABLES)
+    for name, t in summary.items():
+        assert (tuple(t["inputs"]), t["output"]) == fit.TABLES[name]
+        assert t["n_points"] == 700
+        assert 0 < t["loo_rmse_rel"] < 0.1 and 0 < t["holdout_rmse_rel"] < 0.1
+        assert t["holdout_rmse_rel"] < t["baselines_holdout_rmse_rel"]["global_linear"]
+        assert set(t["params"]) >= {"bandwidth", "input_scales", "ridge"}
+
+
+def test_fit_is_deterministic(data_dir, fitted, tmp_path):
+    fit.fit_all(data_dir, tmp_path, seed=0, names=("boom",))
+    assert (tmp_path / "boom.npz").read_bytes() == (fitted / "boom.npz").read_bytes()
+
+
+def test_tables_answer_queries(fitted):
+    tables = fit.load_tables(fitted)
+    boom = tables["boom"]
+    value, confidence = boom.lookup(np.array([[0.011, 0.0, 1e5, 1e4]]), return_confidence=True)
+    assert np.isfinite(value).all() and confidence.shape == (1,)
+    with pytest.raises(ValueError):
+        boom.lookup(np.array([[np.nan, 0.0, 0.0, 0.0]]))
+
+
+def test_wrong_or_missing_data_is_named(data_dir, tmp_path):
+    with pytest.raises(FileNotFoundError, match="nothing.npz"):
+        fit.load_dataset(tmp_path / "nothing.npz", "boom")
+    with pytest.raises(ValueError, match="swing.npz"):
+        fit.load_dataset(data_dir / "swing.npz", "boom")
