@@ -1,5 +1,7 @@
 """hexgym fit / tables on a small synthetic flow-sharing data set (the real data: `hexgym collect`)."""
 
+# ruff: noqa: N806 - X follows the statistics notation
+
 import numpy as np
 import pytest
 
