@@ -213,10 +213,14 @@ class ExcavatorPhysics:
         mujoco.mj_forward(self.model, self.data)
 
     def apply_tip_force(self, force: np.ndarray) -> None:
-        """Apply ``force`` (N, world frame) at the teeth's current position; call every step it acts."""
+        """Apply ``force`` (N, world frame) at the teeth's current position; call every step it acts.
+
+        It is written as the equivalent joint forces into ``data.qfrc_applied`` (which it owns),
+        so the linkage loads see it as ``qfrc_applied``.
+        """
         force = np.asarray(force, dtype=float)
         if force.shape != (3,) or not np.all(np.isfinite(force)):
             raise ValueError(f"tip force must be 3 finite numbers, got {force!r}")
-        lever = self.data.site_xpos[self._tip] - self.data.xipos[self._bucket]
-        self.data.xfrc_applied[self._bucket, :3] = force
-        self.data.xfrc_applied[self._bucket, 3:] = np.cross(lever, force)
+        self.data.qfrc_applied[:] = 0.0
+        tip = self.data.site_xpos[self._tip]
+        mujoco.mj_applyFT(self.model, self.data, force, np.zeros(3), tip, self._bucket, self.data.qfrc_applied)

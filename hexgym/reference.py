@@ -37,6 +37,7 @@ from hexgym import parameters as p
 from hexgym.commandlog import CommandLog
 from hexgym.hydraulics import CYLINDER_NAMES, NODES, HydraulicCircuit, validate_spools
 from hexgym.physics import ExcavatorPhysics, force_actuated_model
+from hexgym.replay import replay
 
 DEFAULT_TIMESTEP = 0.002  # s, MuJoCo and hydraulics alike (see the module docstring)
 _CHAMBERS = NODES[4:]  # boom_head ... swing_b
@@ -191,22 +192,4 @@ def simulate_reference(
     fuel, chamber pressures, spools, cylinder extensions, velocities and forces, swing torque
     and inertia. Pass ``model`` to reuse a :class:`ReferenceModel` (it is reset here).
     """
-    sim = model if model is not None else ReferenceModel()
-    dt = sim.timestep
-    steps_per_row = int(round(dt_out / dt))
-    if not np.isfinite(dt_out) or steps_per_row < 1 or abs(steps_per_row * dt - dt_out) > 1e-9:
-        raise ValueError(f"dt_out must be a positive multiple of the model step {dt} s, got {dt_out}")
-    end = float(commands.t[-1]) if duration is None else float(duration)
-    if not np.isfinite(end) or end < 0.0:
-        raise ValueError(f"duration must be a finite time >= 0 s, got {duration}")
-    sim.reset(start, payload_kg)
-    n_rows = int(np.floor(end / dt_out + 1e-9)) + 1
-    rows = np.empty(n_rows, dtype=TRAJECTORY_DTYPE)
-    sim.spools_m = commands.spools_at(0.0) * 1e-3
-    rows[0] = sim.observe()
-    for k in range(1, n_rows):
-        for j in range(steps_per_row):
-            t = ((k - 1) * steps_per_row + j) * dt
-            sim.step(commands.spools_at(t + 1e-9 * dt) * 1e-3)
-        rows[k] = sim.observe()
-    return rows
+    return replay(model if model is not None else ReferenceModel(), commands, start, payload_kg, dt_out, duration)
