@@ -18,19 +18,12 @@ from pathlib import Path
 import numpy as np
 
 from hexgym.baselines import compare_baselines
+from hexgym.collect import TABLES as DATA_TABLES
 from hexgym.lwr import holdout_split, select_params
 from hexgym.tables import MBLTable, build_table, load_table, suggest_axes
 
-# name -> (inputs, output); spools in m, forces in N, inertia kg m^2, swing rate rad/s.
-TABLES: dict[str, tuple[tuple[str, ...], str]] = {
-    "boom": (("boom_spool", "bucket_spool", "boom_force", "bucket_force"), "boom_cylinder_velocity"),
-    "bucket": (("boom_spool", "bucket_spool", "boom_force", "bucket_force"), "bucket_cylinder_velocity"),
-    "stick": (("swing_spool", "stick_spool", "swing_inertia", "stick_force"), "stick_cylinder_velocity"),
-    "swing": (
-        ("swing_spool", "stick_spool", "stick_force", "swing_inertia", "swing_velocity"),
-        "swing_acceleration",
-    ),
-}
+# name -> (inputs, output), as the data sets name them (hexgym.collect): SI units in the names.
+TABLES: dict[str, tuple[tuple[str, ...], str]] = {name: (t.inputs, t.output) for name, t in DATA_TABLES.items()}
 SPOOL_STEP = 0.001  # m: the data's spool levels (1 mm, as the paper sampled)
 HOLDOUT_FRACTION = 0.2
 MAX_GRID_NODES = 60_000  # per table: ~1 MB of float64 per array, a few MB for all four
@@ -64,7 +57,7 @@ def fit_table(name: str, X: np.ndarray, y: np.ndarray, seed: int = 0) -> MBLTabl
     inputs, output = TABLES[name]
     train, _ = holdout_split(len(y), HOLDOUT_FRACTION, seed)
     params, _ = select_params(X[train], y[train], seed=seed)
-    steps = tuple(SPOOL_STEP if n.endswith("_spool") else None for n in inputs)
+    steps = tuple(SPOOL_STEP if n.endswith("_spool_m") else None for n in inputs)
     axes = suggest_axes(X, params, steps=steps, max_total=MAX_GRID_NODES)
     table = build_table(name, inputs, output, X, y, params, axes, holdout_fraction=HOLDOUT_FRACTION, seed=seed)
     span = table.metrics["output_range"]

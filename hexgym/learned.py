@@ -1,0 +1,160 @@
+"""The learned machine model: MuJoCo's linkage dynamics + the four MBL tables (paper Sec III).
+
+Every control period (default 10 ms), the paper's three steps:
+
+1. **Loads.** The cylinder force loads of the present state from the linkage model: the joint
+   torque that holds the links against gravity, velocity terms, the cylinders' and links' own
+   loads (the closed chains' constraint forces), contacts and any tip force,
+   ``tau = qfrc_bias - qfrc_passive - qfrc_applied - qfrc_constraint`` at the main joints, mapped
+   to cylinder forces by the moment arms (Eqn 5: ``f = tau / (dC/dq)``). The tables are
+   steady-state models, so the links' own acceleration is not part of the load.
+2. **Tables.** Boom, bucket and stick tables turn spools + loads into cylinder velocities; the
+   swing table gives the swing acceleration from the spools, the stick load, the swing inertia
+   (MuJoCo's mass matrix) and the swing rate.
+3. **Integration.** The cylinder velocities become joint-rate targets through the moment arms;
+   the swing's target rate is integrated from the acceleration. The MJCF's integrated-velocity
+   servos track the targets (a zero target holds the joint: no sag) and MuJoCo integrates.
+
+All Python happens in this step loop (see DESIGN.md on ``mjcb_control``).
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from hexgym import machine
+from hexgym import parameters as p
+from hexgym.fit import load_tables
+from hexgym.hydraulics import validate_spools
+from hexgym.physics import ExcavatorPhysics
+from hexgym.tables import MBLTable
+
+END_MARGIN = 0.005  # m from a stroke end: the cylinder is at its stop
+_STROKES = np.array([p.CYLINDERS[n].stroke for n in machine.FRONT_CYLINDERS])
+SWING_REST_RATE = 0.01  # rad/s: below this a swing with its spool closed is at rest
+DEFAULT_CONTROL_PERIOD = 0.01  # s: tables queried at 100 Hz; loads change slowly against it
+LEARNED_COLUMNS = (
+    ("t",)
+    + tuple(f"q_{j}" for j in machine.JOINTS)
+    + tuple(f"qd_{j}" for j in machine.JOINTS)
+    + ("tip_x", "tip_y", "tip_z")
+    + tuple(f"{j}_spool_mm" for j in machine.JOINTS)
+    + tuple(f"{c}_extension_m" for c in machine.FRONT_CYLINDERS)
+    + tuple(f"{c}_velocity_mps" for c in machine.FRONT_CYLINDERS)
+    + tuple(f"{c}_force_n" for c in machine.FRONT_CYLINDERS)
+    + ("swing_inertia_kgm2", "swing_acceleration_target")
+)
+LEARNED_DTYPE = np.dtype([(name, np.float64) for name in LEARNED_COLUMNS])
+
+
+class LearnedModel:
+    """MuJoCo linkage driven by the MBL tables.
+
+    Args:
+        tables: the four tables (default: the packaged ones, :func:`hexgym.fit.load_tables`).
+        model: a compiled machine or scene model with the servo actuators (default: the machine).
+        control_period: seconds between table queries; a multiple of the MuJoCo step.
+    """
+
+    def __init__(
+        self,
+        tables: dict[str, MBLTable] | None = None,
+        model: mujoco.MjModel | None = None,
+        control_period: float = DEFAULT_CONTROL_PERIOD,
+    ) -> None:
+        self.physics = ExcavatorPhysics(model)
+        self.tables = tables if tables is not None else load_tables()
+        self._substeps = int(round(control_period / self.physics.timestep))
+        if self._substeps < 1 or abs(self._substeps * self.physics.timestep - control_period) > 1e-9:
+            raise ValueError(f"control_period must be a multiple of the model step, got {control_period}")
+        self._dofs = np.array([self.physics.model.joint(n).dofadr[0] for n in machine.JOINTS])
+        self.spools_m = np.zeros(4)
+        self.swing_acceleration = 0.0
+        self._swing_rate_target = 0.0
+
+    @property
+    def timestep(self) -> float:
+        """One control period, s."""
+        return self._substeps * self.physics.timestep
+
+    def reset(self, start: str | np.ndarray = "home", payload_kg: float = 0.0) -> None:
+        """Start at a keyframe name or joint angles (rad), at rest, spools neutral."""
+        self.physics.set_payload(payload_kg)
+        if isinstance(start, str):
+            self.physics.reset(start)
+        else:
+            self.physics.set_joint_state(np.asarray(start, dtype=float))
+        self.physics.data.time = 0.0
+        self.spools_m = np.zeros(4)
+        self.swing_acceleration = 0.0
+        self._swing_rate_target = 0.0
+        self.physics.set_actuator_targets(np.zeros(4))
+        self.physics.step()  # one step so the constraint forces (part of the loads) exist
+        self.physics.data.time = 0.0
+
+    def joint_loads(self) -> np.ndarray:
+        """Torque each main joint's actuator must supply to hold the present motion (N m)."""
+        d = self.physics.data
+        tau = d.qfrc_bias - d.qfrc_passive - d.qfrc_applied - d.qfrc_constraint
+        return tau[self._dofs]
+
+    def cylinder_loads(self) -> np.ndarray:
+        """[boom, stick, bucket] cylinder force loads, N (+ = the cylinder must push)."""
+        return self.joint_loads()[1:] / self.physics.moment_arms()
+
+    def step(self, spools_m: np.ndarray, n: int = 1) -> None:
+        """Advance ``n`` control periods with the spools (m; swing, boom, stick, bucket) held."""
+        self.spools_m = validate_spools(spools_m).copy()
+        for _ in range(n):
+            self._control_period()
+
+    def effective_spools(self) -> np.ndarray:
+        """The spools as the tables should see them: a cylinder held at a stroke end by its spool passes no flow.
+
+        The tables were learned away from the stroke ends (there the stop, not the valve, sets the
+        speed), so they cannot know that a cylinder driven into its end has stalled: its partner on
+        the same pump then gets the flow (the boom rises once the bucket is fully curled). Closing
+        that spool for the lookup says so; what it leaves out is the stalled spool's closed centre
+        bypass, which in the circuit sends a little more flow to the partner.
+        """
+        spools = self.spools_m.copy()
+        ext = self.physics.cylinder_extensions()
+        at_start, at_end = ext <= END_MARGIN, ext >= _STROKES - END_MARGIN
+        stalled = (at_start & (spools[1:] < 0)) | (at_end & (spools[1:] > 0))
+        spools[1:][stalled] = 0.0
+        return spools
+
+    def _control_period(self) -> None:
+        ph = self.physics
+        u_swing, u_boom, u_stick, u_bucket = self.effective_spools()
+        f_boom, f_stick, f_bucket = self.cylinder_loads()
+        inertia = ph.swing_inertia()
+        t = self.tables
+        closed = np.abs([u_swing, u_boom, u_stick, u_bucket]) < p.SPOOL_DEAD_BAND
+        # a spool in its dead band blocks its cylinder's ports: the cylinder holds (no table noise)
+        v_boom = 0.0 if closed[1] else t["boom"]((u_boom, u_bucket, f_boom, f_bucket))
+        v_bucket = 0.0 if closed[3] else t["bucket"]((u_boom, u_bucket, f_boom, f_bucket))
+        v_stick = 0.0 if closed[2] else t["stick"]((u_swing, u_stick, inertia, f_stick))
+        # Step 3 for the swing: the model integrates its own rate from the table's acceleration
+        # (the table sees that rate); the servo makes the upper structure follow it
+        rate = self._swing_rate_target
+        self.swing_acceleration = t["swing"]((u_swing, u_stick, f_stick, inertia, rate))
+        new_rate = rate + self.swing_acceleration * self.timestep
+        if closed[0] and (new_rate * rate <= 0.0 or abs(new_rate) < SWING_REST_RATE):
+            new_rate = 0.0  # braked by the crossover reliefs: it stops, it does not turn back
+        self._swing_rate_target = new_rate
+        arms = ph.moment_arms()
+        targets = np.array([new_rate, v_boom / arms[0], v_stick / arms[1], v_bucket / arms[2]])
+        ph.set_actuator_targets(targets)
+        ph.step(self._substeps)
+
+    def observe(self) -> np.ndarray:
+        """One trajectory row (``LEARNED_DTYPE``): the common columns, spools, cylinders, loads."""
+        ph = self.physics
+        values = (
+            [ph.time, *ph.joint_positions(), *ph.joint_velocities(), *ph.tip_position()]
+            + [*(self.spools_m * 1e3), *ph.cylinder_extensions(), *ph.cylinder_velocities()]
+            + [*self.cylinder_loads(), ph.swing_inertia(), self.swing_acceleration]
+        )
+        return np.array(tuple(values), dtype=LEARNED_DTYPE)
