@@ -558,7 +558,7 @@ class HydraulicCircuit:
         dpressure = self.head_area * sensitivity[self._head_nodes, i]
         dpressure -= self.rod_area * sensitivity[self._rod_nodes, i]
         v = np.asarray(vel_mps, dtype=float)
-        sech2 = 1.0 / np.cosh(v / p.CYLINDER_FRICTION_VELOCITY) ** 2
+        sech2 = 1.0 - np.tanh(v / p.CYLINDER_FRICTION_VELOCITY) ** 2  # d tanh / dx; no overflow at speed
         friction = p.CYLINDER_COULOMB_FRICTION / p.CYLINDER_FRICTION_VELOCITY * sech2 + p.CYLINDER_VISCOUS_FRICTION
         ratio = p.SWING_REDUCTION
         dtorque = ratio * _SWING_DISPLACEMENT_RAD * (sensitivity[10, 3] - sensitivity[11, 3])
