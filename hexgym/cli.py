@@ -32,10 +32,18 @@ def _cmd_model(args: argparse.Namespace) -> int:
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from hexgym.commandlog import read_command_log, write_trajectory_csv
-    from hexgym.reference import simulate_reference
+    from hexgym.replay import replay
 
     commands = read_command_log(args.commands)
-    trajectory = simulate_reference(commands, start=args.start, payload_kg=args.payload_kg, dt_out=args.dt_out)
+    if args.model == "reference":
+        from hexgym.reference import ReferenceModel
+
+        model = ReferenceModel()
+    else:
+        from hexgym.learned import LearnedModel
+
+        model = LearnedModel()
+    trajectory = replay(model, commands, start=args.start, payload_kg=args.payload_kg, dt_out=args.dt_out)
     write_trajectory_csv(args.out, trajectory)
     print(f"wrote {args.out}: {len(trajectory)} rows, {commands.duration:g} s simulated")
     return 0
@@ -76,6 +84,14 @@ def _cmd_tables(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_validate(args: argparse.Namespace) -> int:
+    from hexgym.validate import run_validation
+
+    print(json.dumps(run_validation(args.out), indent=2))
+    print(f"plots: {Path(args.out)}/test1.png, test2.png, test3.png")
+    return 0
+
+
 def _cmd_build_assets(args: argparse.Namespace) -> int:
     from hexgym import meshes, mjcf
 
@@ -89,6 +105,8 @@ def _cmd_build_assets(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser with all subcommands."""
+    from hexgym.collect import add_collect_parser
+
     parser = argparse.ArgumentParser(
         prog="hexgym", description="A hydraulic excavator (Cat 325 class) simulator for robot learning."
     )
@@ -106,7 +124,9 @@ def build_parser() -> argparse.ArgumentParser:
     model.set_defaults(func=_cmd_model)
 
     simulate = sub.add_parser("simulate", help="replay a spool command log (CSV) and write the trajectory (CSV)")
-    simulate.add_argument("--model", choices=["reference"], default="reference", help="machine model")
+    simulate.add_argument(
+        "--model", choices=["reference", "learned"], default="reference", help="machine model (default: reference)"
+    )
     simulate.add_argument("--commands", required=True, help="command log CSV: t,swing,boom,stick,bucket (s, mm)")
     simulate.add_argument("--out", required=True, help="trajectory CSV to write")
     simulate.add_argument("--start", default="home", help="keyframe to start from (default: home)")
@@ -120,6 +140,8 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_argument("--out", default="out/reference", help="output directory (default: out/reference)")
     report.set_defaults(func=_cmd_reference_report)
 
+    add_collect_parser(sub)
+
     fit = sub.add_parser("fit", help="fit the four MBL tables (LWR + leave-one-out selection) from collected data")
     fit.add_argument("--data", default="data", help="directory with <table>.npz data sets (default: data)")
     fit.add_argument("--out", default=None, help="where to write the tables (default: the packaged tables)")
@@ -131,6 +153,12 @@ def build_parser() -> argparse.ArgumentParser:
     tables.add_argument("--json", action="store_true", help="print JSON")
     tables.add_argument("--dir", default=None, help="table directory (default: the packaged tables)")
     tables.set_defaults(func=_cmd_tables)
+
+    validate = sub.add_parser(
+        "validate", help="learned vs reference model on the paper's three tests: plots, tip errors, speed"
+    )
+    validate.add_argument("--out", default="out/validate", help="output directory (default: out/validate)")
+    validate.set_defaults(func=_cmd_validate)
 
     build = sub.add_parser("build-assets", help="regenerate assets/meshes and assets/cat325.xml (developers)")
     build.add_argument("--dir", default=str(Path(__file__).resolve().parent.parent / "assets"), help="assets dir")

@@ -8,14 +8,13 @@ model's speed as computing time per simulated second. Writes ``summary.json`` an
 
 from __future__ import annotations
 
-import json
-import os
 import time
 from pathlib import Path
 
 import numpy as np
 
 from hexgym.commandlog import CommandLog
+from hexgym.files import save_figure, write_json
 from hexgym.reference import ReferenceModel, simulate_reference
 
 FULL = 11.0  # mm
@@ -131,11 +130,7 @@ def plot_interactions(tests: dict[str, dict[str, np.ndarray]], path: Path) -> Pa
         ax.legend(loc="upper left")
         ax2.legend(loc="upper right")
     fig.tight_layout()
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    fig.savefig(tmp, dpi=90)
-    plt.close(fig)
-    os.replace(tmp, path)
-    return path
+    return save_figure(fig, path, dpi=90)
 
 
 def benchmark(sim: ReferenceModel, seconds: float = 10.0) -> dict[str, float]:
@@ -175,7 +170,5 @@ def run_report(out_dir: str | Path) -> dict[str, object]:
         "speed": benchmark(sim),
     }
     plot_interactions(tests, out_dir / "interactions.png")
-    tmp = out_dir / ".summary.json.tmp"
-    tmp.write_text(json.dumps(summary, indent=2))
-    os.replace(tmp, out_dir / "summary.json")
+    write_json(out_dir / "summary.json", summary)
     return summary

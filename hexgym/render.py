@@ -6,12 +6,13 @@ imported; the command line does this itself when nothing else was chosen.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Iterable
 from pathlib import Path
 
 import mujoco
 import numpy as np
+
+from hexgym.files import atomic_path
 
 CAMERAS = ("chase", "cab")
 
@@ -39,30 +40,23 @@ def _camera_names(model: mujoco.MjModel) -> list[str]:
     return [model.camera(i).name for i in range(model.ncam)]
 
 
-def _atomic_target(path: Path) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    return path.with_name(f".{path.stem}.tmp{path.suffix}")
-
-
 def write_png(frame: np.ndarray, path: str | Path) -> Path:
     """Write one frame as a PNG, atomically (a reader never sees a half-written file)."""
     import imageio.v3 as iio
 
-    path = Path(path)
-    tmp = _atomic_target(path)
-    iio.imwrite(tmp, frame)
-    os.replace(tmp, path)
-    return path
+    with atomic_path(path) as tmp:
+        iio.imwrite(tmp, frame)
+    return Path(path)
 
 
 def write_mp4(frames: Iterable[np.ndarray], path: str | Path, fps: float) -> Path:
     """Encode frames (H.264, yuv420p so every player opens it) to an MP4, atomically."""
     import imageio.v2 as imageio
 
-    path = Path(path)
-    tmp = _atomic_target(path)
-    with imageio.get_writer(tmp, fps=fps, codec="libx264", quality=7, pixelformat="yuv420p", macro_block_size=8) as w:
+    with (
+        atomic_path(path) as tmp,
+        imageio.get_writer(tmp, fps=fps, codec="libx264", quality=7, pixelformat="yuv420p", macro_block_size=8) as w,
+    ):
         for frame in frames:
             w.append_data(frame)
-    os.replace(tmp, path)
-    return path
+    return Path(path)

@@ -12,8 +12,6 @@ each model on Test 3 (one core) and their ratio.
 
 from __future__ import annotations
 
-import json
-import os
 import time
 from pathlib import Path
 
@@ -22,6 +20,7 @@ import numpy as np
 from hexgym import machine
 from hexgym import parameters as p
 from hexgym.commandlog import CommandLog
+from hexgym.files import save_figure, write_json
 from hexgym.learned import LearnedModel
 from hexgym.reference import ReferenceModel
 from hexgym.reference_report import POSE_LOW, POSE_SWING
@@ -141,11 +140,7 @@ def plot_test(result: dict[str, object], path: Path) -> Path:
         axes[5].legend(loc="upper right")
     axes[-1].set_xlabel("t (s)")
     fig.tight_layout()
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    fig.savefig(tmp, dpi=80)
-    plt.close(fig)
-    os.replace(tmp, path)
-    return path
+    return save_figure(fig, path, dpi=80)
 
 
 def run_validation(out_dir: str | Path, learned: LearnedModel | None = None) -> dict[str, object]:
@@ -167,7 +162,5 @@ def run_validation(out_dir: str | Path, learned: LearnedModel | None = None) -> 
                 "learned_realtime_factor": result["duration"] / wall_learned,
                 "speedup": wall_ref / wall_learned,
             }
-    tmp = out_dir / ".summary.json.tmp"
-    tmp.write_text(json.dumps(summary, indent=2))
-    os.replace(tmp, out_dir / "summary.json")
+    write_json(out_dir / "summary.json", summary)
     return summary
