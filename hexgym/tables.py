@@ -280,6 +280,7 @@ class MBLTable:
         payload = {"meta": np.array([json.dumps(meta, sort_keys=True)]), **self._arrays()}
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+        os.chmod(tmp, 0o644)  # mkstemp makes it owner-only; a table is package data everyone reads
         try:
             with os.fdopen(fd, "wb") as fh:  # a file object: numpy appends no ".npz" to the name
                 np.savez_compressed(fh, allow_pickle=False, **payload)

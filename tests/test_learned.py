@@ -1,0 +1,75 @@
+"""The learned model (MuJoCo linkage + the packaged MBL tables)."""
+
+import numpy as np
+import pytest
+
+from hexgym import machine
+from hexgym.commandlog import CommandLog
+from hexgym.learned import LearnedModel
+from hexgym.reference_report import POSE_LOW
+from hexgym.replay import replay
+from hexgym.validate import scenarios, tip_errors
+
+FULL = 0.011
+
+
+@pytest.fixture(scope="module")
+def model() -> LearnedModel:
+    return LearnedModel()
+
+
+def test_closed_spools_hold_a_full_bucket(model):
+    model.reset(POSE_LOW, payload_kg=2000.0)
+    model.step(np.zeros(4), n=300)  # 3 s
+    np.testing.assert_allclose(model.physics.joint_positions(), POSE_LOW, atol=5e-3)
+    assert np.abs(model.physics.joint_velocities()).max() < 1e-3
+
+
+def test_full_boom_spool_runs_at_one_pumps_speed(model):
+    model.reset(POSE_LOW)
+    model.step(np.array([0.0, FULL, 0.0, 0.0]), n=150)
+    assert model.physics.cylinder_velocities()[0] == pytest.approx(0.143, rel=0.15)  # reference: 0.143 m/s
+
+
+def test_bucket_takes_the_flow_until_it_stalls(model):
+    model.reset(POSE_LOW)
+    model.step(np.array([0.0, FULL, 0.0, FULL]), n=150)
+    boom, _, bucket = model.physics.cylinder_velocities()
+    assert bucket > 0.2 and boom < 0.03  # flow sharing on pump 1
+    model.step(np.array([0.0, FULL, 0.0, FULL]), n=350)  # the bucket reaches its stroke end
+    boom, _, bucket = model.physics.cylinder_velocities()
+    assert abs(bucket) < 0.01 and boom > 0.1
+
+
+def test_loads_follow_payload_and_tip_force(model):
+    model.reset(POSE_LOW)
+    empty = model.cylinder_loads()
+    model.reset(POSE_LOW, payload_kg=2000.0)
+    full = model.cylinder_loads()
+    assert full[0] > empty[0] + 20e3  # the boom cylinders carry the material
+    model.reset(POSE_LOW)
+    model.physics.apply_tip_force(np.array([0.0, 0.0, 50e3]))  # pushing the tip up unloads the boom
+    model.step(np.zeros(4))
+    assert model.cylinder_loads()[0] < empty[0] - 20e3
+
+
+@pytest.mark.parametrize("spools", [[0, np.nan, 0, 0], [0, 0, 0.012, 0], [0, 0, 0]])
+def test_bad_spools_are_refused(model, spools):
+    with pytest.raises(ValueError):
+        model.step(np.array(spools, dtype=float))
+
+
+def test_replay_gives_the_common_columns_and_zero_error_against_itself(model):
+    log = CommandLog(np.array([0.0, 0.2, 0.5]), np.array([[0, 0, 0, 0], [8, 5, -5, 3], [0, 0, 0, 0]], float))
+    traj = replay(model, log, start=POSE_LOW)
+    for column in ("t", *(f"q_{j}" for j in machine.JOINTS), *(f"qd_{j}" for j in machine.JOINTS), "tip_x"):
+        assert column in traj.dtype.names
+    errors = tip_errors(traj, traj)
+    assert np.all(errors["tip_error"] == 0) and np.all(errors["joint_contribution"] == 0)
+    assert np.all(errors["foot_to_tip"] > 1.0)
+
+
+def test_test3_is_an_operator_like_cycle_of_about_50_s():
+    log, _ = scenarios()["test3"]
+    assert 45 <= log.duration <= 55
+    assert np.abs(log.spools_mm).max() <= 11.0
