@@ -73,6 +73,11 @@ def _cmd_tables(args: argparse.Namespace) -> int:
     from hexgym.fit import tables_summary
 
     summary = tables_summary(args.dir)
+    if args.bench:
+        from hexgym.fit import lookup_benchmark
+
+        for item in summary:
+            item["seconds_per_query"] = lookup_benchmark(args.bench, args.dir)[item["name"]]
     if args.json:
         print(json.dumps(summary, indent=2))
         return 0
@@ -152,6 +157,7 @@ def build_parser() -> argparse.ArgumentParser:
     tables = sub.add_parser("tables", help="the fitted tables: inputs, output, points, parameters, accuracy")
     tables.add_argument("--json", action="store_true", help="print JSON")
     tables.add_argument("--dir", default=None, help="table directory (default: the packaged tables)")
+    tables.add_argument("--bench", metavar="DATA", default=None, help="also time lookups vs direct LWR on DATA")
     tables.set_defaults(func=_cmd_tables)
 
     validate = sub.add_parser(

@@ -117,3 +117,18 @@ def tables_summary(directory: str | Path | None = None) -> list[dict[str, object
             }
         )
     return out
+
+
+def lookup_benchmark(data_dir: str | Path, directory: str | Path | None = None, seed: int = 0) -> dict[str, dict]:
+    """Seconds per query of each table against its direct LWR, at held-out data points."""
+    from hexgym.lwr import LocallyWeightedRegression
+    from hexgym.tables import benchmark_lookup
+
+    out = {}
+    for name, table in load_tables(directory).items():
+        X, y = load_dataset(Path(data_dir) / f"{name}.npz", name)
+        train, test = holdout_split(len(y), HOLDOUT_FRACTION, seed)
+        lwr = LocallyWeightedRegression(table.params).fit(X[train][:MAX_POINTS], y[train][:MAX_POINTS])
+        out[name] = benchmark_lookup(table, lwr, X[test][:200], repeats=3)
+    return out
+
