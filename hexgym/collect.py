@@ -67,7 +67,6 @@ import math
 import multiprocessing as mp
 import os
 import sys
-import tempfile
 import time
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
@@ -78,6 +77,7 @@ import numpy as np
 
 from hexgym import machine
 from hexgym import parameters as p
+from hexgym.files import atomic_path
 
 GENERATOR_VERSION = 1
 DEFAULT_SAMPLES = 6400  # per group: the paper had 5500 (boom/bucket) and 6400 (stick/swing) points
@@ -551,15 +551,8 @@ def _chunk_arrays(group: str, episodes: list[tuple[int, EpisodeResult]]) -> dict
 
 def _save_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
     """Write ``arrays`` to ``path`` atomically (temporary file in the same folder, then rename)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:  # a file object: numpy appends no ".npz"
-            np.savez(fh, **arrays)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_path(path) as tmp, tmp.open("wb") as fh:  # a file object: numpy appends no ".npz"
+        np.savez(fh, **arrays)
 
 
 def _load_chunk(path: Path, expected: dict[str, Any]) -> dict[str, np.ndarray]:

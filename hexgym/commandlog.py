@@ -9,13 +9,13 @@ from __future__ import annotations
 
 import csv
 import math
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from hexgym import parameters as p
+from hexgym.files import atomic_path
 
 COLUMNS = ("t", "swing", "boom", "stick", "bucket")
 SPOOL_LIMIT_MM = p.SPOOL_STROKE * 1e3
@@ -130,12 +130,7 @@ def write_trajectory_csv(path: str | Path, trajectory: np.ndarray) -> None:
 
 
 def _write_csv_atomic(path: Path, header: tuple[str, ...], rows: np.ndarray) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with tmp.open("w", newline="") as f:
-            f.write(",".join(header) + "\n")
-            for row in rows:
-                f.write(",".join(f"{v:.9g}" for v in row) + "\n")
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    with atomic_path(path) as tmp, tmp.open("w", newline="") as f:
+        f.write(",".join(header) + "\n")
+        for row in rows:
+            f.write(",".join(f"{v:.9g}" for v in row) + "\n")

@@ -131,4 +131,3 @@ def lookup_benchmark(data_dir: str | Path, directory: str | Path | None = None, 
         lwr = LocallyWeightedRegression(table.params).fit(X[train][:MAX_POINTS], y[train][:MAX_POINTS])
         out[name] = benchmark_lookup(table, lwr, X[test][:200], repeats=3)
     return out
-

@@ -20,9 +20,7 @@ not meant for inertia or collision. Run ``python -m hexgym.meshes`` to regenerat
 
 from __future__ import annotations
 
-import os
 import pathlib
-import tempfile
 from functools import cache
 from typing import NamedTuple
 
@@ -31,6 +29,7 @@ import trimesh
 from scipy.optimize import brentq
 
 from hexgym import parameters as p
+from hexgym.files import atomic_path
 
 # --------------------------------------------------------------------------------------------
 # Cosmetic sizes, m (visual only, nothing physical depends on them) [est from photos of 20-30 t
@@ -727,15 +726,8 @@ def write_meshes(directory: pathlib.Path) -> list[pathlib.Path]:
     paths = []
     for name, mesh in build_meshes().items():
         path = directory / f"{name}.stl"
-        fd, tmp = tempfile.mkstemp(prefix=f".{name}.", suffix=".tmp", dir=directory)
-        try:
-            with os.fdopen(fd, "wb") as f:
-                f.write(trimesh.exchange.stl.export_stl(mesh))
-            os.chmod(tmp, 0o644)  # mkstemp makes it private; these are ordinary repo files
-            os.replace(tmp, path)
-        except BaseException:
-            pathlib.Path(tmp).unlink(missing_ok=True)
-            raise
+        with atomic_path(path) as tmp:
+            tmp.write_bytes(trimesh.exchange.stl.export_stl(mesh))
         paths.append(path)
     return paths
 

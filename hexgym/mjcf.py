@@ -13,13 +13,13 @@ configuration with the main joints at 0.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 
 from hexgym import machine
 from hexgym import parameters as p
+from hexgym.files import atomic_path
 
 CYLINDER_RGBA = "0.15 0.15 0.15 1"
 ROD_RGBA = "0.85 0.85 0.88 1"
@@ -293,6 +293,5 @@ def home_keyframe(model_xml_text: str, meshdir: str) -> str:
 def write_model(path: Path) -> None:
     """Generate the MJCF (with its ``home`` keyframe) and write it atomically to ``path``."""
     text = model_xml(home_keyframe(model_xml(), str(path.parent / "meshes")))
-    tmp = path.with_suffix(".xml.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        tmp.write_text(text)

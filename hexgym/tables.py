@@ -48,7 +48,6 @@ import hashlib
 import json
 import math
 import os
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -56,6 +55,7 @@ from typing import Any
 
 import numpy as np
 
+from hexgym.files import atomic_path
 from hexgym.lwr import (
     LocallyWeightedRegression,
     LWRParams,
@@ -278,18 +278,8 @@ class MBLTable:
         meta = self.metadata()
         meta["content_sha256"] = self.content_hash()
         payload = {"meta": np.array([json.dumps(meta, sort_keys=True)]), **self._arrays()}
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-        os.chmod(tmp, 0o644)  # mkstemp makes it owner-only; a table is package data everyone reads
-        try:
-            with os.fdopen(fd, "wb") as fh:  # a file object: numpy appends no ".npz" to the name
-                np.savez_compressed(fh, allow_pickle=False, **payload)
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        with atomic_path(path) as tmp, tmp.open("wb") as fh:  # a file object: numpy appends no ".npz"
+            np.savez_compressed(fh, allow_pickle=False, **payload)
         return path
 
 
