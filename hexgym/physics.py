@@ -20,7 +20,6 @@ from hexgym import machine
 from hexgym import parameters as p
 from hexgym.resources import MODEL_FILE, SCENE_FILE, AssetError, asset_path, load_model
 
-_PASSIVE_HINGES = ("boom_cylinder_pivot", "stick_cylinder_pivot", "bucket_cylinder_pivot", "guide_link", "power_link")
 _FD_STEP = 1e-6  # rad, central differences for the passive joints' velocities
 _RETRACTED = np.array([p.CYLINDERS[n].retracted_length for n in machine.FRONT_CYLINDERS])
 
