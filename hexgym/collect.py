@@ -215,7 +215,7 @@ def run_segment(
     The segment ends in ``windows_per_segment`` back-to-back windows of ``window_s``; each
     gives the means of the cylinder velocities, forces and swing inertia. ``tip_force_arm``
     (radial, vertical; N) is re-applied at the teeth before every step (MuJoCo keeps
-    ``xfrc_applied``, but the lever follows the bucket and the arm plane the swing). With
+    ``qfrc_applied``, but the lever follows the bucket and the arm plane the swing). With
     ``swing_samples`` the swing table's rows are taken along the way. A segment that runs a
     cylinder within ``margin_m`` of a stroke end stops there, keeping what was complete.
     """
