@@ -80,12 +80,7 @@ class LearnedModel:
 
     def reset(self, start: str | np.ndarray = "home", payload_kg: float = 0.0) -> None:
         """Start at a keyframe name or joint angles (rad), at rest, spools neutral."""
-        self.physics.set_payload(payload_kg)
-        if isinstance(start, str):
-            self.physics.reset(start)
-        else:
-            self.physics.set_joint_state(np.asarray(start, dtype=float))
-        self.physics.data.time = 0.0
+        self.physics.start_at(start, payload_kg)
         self.spools_m = np.zeros(4)
         self.swing_acceleration = 0.0
         self._swing_rate_target = 0.0

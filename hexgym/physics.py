@@ -117,6 +117,15 @@ class ExcavatorPhysics:
         mujoco.mj_resetDataKeyframe(self.model, self.data, self.model.key(keyframe).id)
         mujoco.mj_forward(self.model, self.data)
 
+    def start_at(self, start: str | np.ndarray = "home", payload_kg: float = 0.0) -> None:
+        """Start at rest at a keyframe name or main joint angles (rad), with a payload, at time 0."""
+        self.set_payload(payload_kg)
+        if isinstance(start, str):
+            self.reset(start)
+        else:
+            self.set_joint_state(np.asarray(start, dtype=float))
+        self.data.time = 0.0
+
     def set_joint_state(self, q: np.ndarray, qd: np.ndarray | None = None) -> None:
         """Place the machine at main joint angles ``q`` (rad) and velocities ``qd`` (rad/s)."""
         q = np.asarray(q, dtype=float)

@@ -97,14 +97,8 @@ class ReferenceModel:
 
     def reset(self, start: str | np.ndarray = "home", payload_kg: float = 0.0) -> None:
         """Start at a keyframe name or joint angles (rad), at rest, loads held, spools neutral."""
-        self.physics.set_payload(payload_kg)
-        if isinstance(start, str):
-            self.physics.reset(start)
-            q = self.physics.joint_positions()
-        else:
-            q = np.asarray(start, dtype=float)
-        self.physics.set_joint_state(q, np.zeros(4))
-        self.physics.data.time = 0.0
+        self.physics.start_at(start, payload_kg)
+        self.physics.set_joint_state(self.physics.joint_positions(), np.zeros(4))
         self.spools_m = np.zeros(len(machine.JOINTS))
         self.state = self.circuit.initial_state(self.holding_forces())
         self._mech = self._mechanics()
