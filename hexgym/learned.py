@@ -94,9 +94,12 @@ class LearnedModel:
         tau = d.qfrc_bias - d.qfrc_passive - d.qfrc_applied - d.qfrc_constraint
         return tau[self._dofs]
 
-    def cylinder_loads(self) -> np.ndarray:
-        """[boom, stick, bucket] cylinder force loads, N (+ = the cylinder must push)."""
-        return self.joint_loads()[1:] / self.physics.moment_arms()
+    def cylinder_loads(self, arms: np.ndarray | None = None) -> np.ndarray:
+        """[boom, stick, bucket] cylinder force loads, N (+ = the cylinder must push).
+
+        ``arms``: the present moment arms, if the caller already has them.
+        """
+        return self.joint_loads()[1:] / (self.physics.moment_arms() if arms is None else arms)
 
     def step(self, spools_m: np.ndarray, n: int = 1) -> None:
         """Advance ``n`` control periods with the spools (m; swing, boom, stick, bucket) held."""
@@ -123,7 +126,8 @@ class LearnedModel:
     def _control_period(self) -> None:
         ph = self.physics
         u_swing, u_boom, u_stick, u_bucket = self.effective_spools()
-        f_boom, f_stick, f_bucket = self.cylinder_loads()
+        arms = ph.moment_arms()  # once per period: the loads and the rate targets both need them
+        f_boom, f_stick, f_bucket = self.cylinder_loads(arms)
         inertia = ph.swing_inertia()
         t = self.tables
         closed = np.abs([u_swing, u_boom, u_stick, u_bucket]) < p.SPOOL_DEAD_BAND
@@ -139,7 +143,6 @@ class LearnedModel:
         if closed[0] and (new_rate * rate <= 0.0 or abs(new_rate) < SWING_REST_RATE):
             new_rate = 0.0  # braked by the crossover reliefs: it stops, it does not turn back
         self._swing_rate_target = new_rate
-        arms = ph.moment_arms()
         targets = np.array([new_rate, v_boom / arms[0], v_stick / arms[1], v_bucket / arms[2]])
         ph.set_actuator_targets(targets)
         ph.step(self._substeps)
