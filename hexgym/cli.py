@@ -103,8 +103,9 @@ def _cmd_build_assets(args: argparse.Namespace) -> int:
     directory = Path(args.dir)
     for path in meshes.write_meshes(directory / "meshes"):
         print(f"wrote {path} ({path.stat().st_size} bytes)")
-    mjcf.write_model(directory / "cat325.xml")
-    print(f"wrote {directory / 'cat325.xml'}")
+    for name, lean in (("cat325.xml", False), ("cat325_lean.xml", True)):
+        mjcf.write_model(directory / name, lean=lean)
+        print(f"wrote {directory / name}")
     return 0
 
 

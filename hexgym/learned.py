@@ -28,12 +28,19 @@ from hexgym import parameters as p
 from hexgym.fit import load_tables
 from hexgym.hydraulics import validate_spools
 from hexgym.physics import ExcavatorPhysics
+from hexgym.resources import load_model
 from hexgym.tables import MBLTable
 
 END_MARGIN = 0.005  # m from a stroke end: the cylinder is at its stop
 _STROKES = np.array([p.CYLINDERS[n].stroke for n in machine.FRONT_CYLINDERS])
+# The most a cylinder can push (head side) or pull (rod side) at its line relief, N
+_PUSH_LIMIT = np.array([p.LINE_RELIEF[n] * p.CYLINDERS[n].head_area for n in machine.FRONT_CYLINDERS])
+_PULL_LIMIT = np.array([p.LINE_RELIEF[n] * p.CYLINDERS[n].rod_area for n in machine.FRONT_CYLINDERS])
+# The most the swing motor can turn the upper structure with at its crossover relief, N m
+_SWING_TORQUE_LIMIT = (
+    p.SWING_MOTOR_DISPLACEMENT * p.SWING_REDUCTION / (2 * np.pi) * p.SWING_RELIEF * p.SWING_MECHANICAL_EFFICIENCY
+)
 SWING_REST_RATE = 0.01  # rad/s: below this a swing with its spool closed is at rest
-DEFAULT_CONTROL_PERIOD = 0.01  # s: tables queried at 100 Hz; loads change slowly against it
 LEARNED_COLUMNS = (
     ("t",)
     + tuple(f"q_{j}" for j in machine.JOINTS)
@@ -53,17 +60,21 @@ class LearnedModel:
 
     Args:
         tables: the four tables (default: the packaged ones, :func:`hexgym.fit.load_tables`).
-        model: a compiled machine or scene model with the servo actuators (default: the machine).
-        control_period: seconds between table queries; a multiple of the MuJoCo step.
+        model: a compiled machine or scene model with joint-rate servo actuators (default: the lean
+            machine, ``assets/cat325_lean.xml``, whose step is the control period).
+        control_period: seconds between table queries; a multiple of the MuJoCo step (default:
+            one step).
     """
 
     def __init__(
         self,
         tables: dict[str, MBLTable] | None = None,
         model: mujoco.MjModel | None = None,
-        control_period: float = DEFAULT_CONTROL_PERIOD,
+        control_period: float | None = None,
     ) -> None:
-        self.physics = ExcavatorPhysics(model)
+        self.physics = ExcavatorPhysics(model if model is not None else load_model(lean=True))
+        if control_period is None:
+            control_period = self.physics.timestep
         self.tables = tables if tables is not None else load_tables()
         self._substeps = int(round(control_period / self.physics.timestep))
         if self._substeps < 1 or abs(self._substeps * self.physics.timestep - control_period) > 1e-9:
@@ -107,27 +118,39 @@ class LearnedModel:
         for _ in range(n):
             self._control_period()
 
-    def effective_spools(self) -> np.ndarray:
-        """The spools as the tables should see them: a cylinder held at a stroke end by its spool passes no flow.
+    def effective_spools(self, loads: np.ndarray | None = None) -> np.ndarray:
+        """The spools as the tables should see them: a stalled function passes no flow.
 
-        The tables were learned away from the stroke ends (there the stop, not the valve, sets the
-        speed), so they cannot know that a cylinder driven into its end has stalled: its partner on
-        the same pump then gets the flow (the boom rises once the bucket is fully curled). Closing
-        that spool for the lookup says so; what it leaves out is the stalled spool's closed centre
-        bypass, which in the circuit sends a little more flow to the partner.
+        A function stalls when a cylinder is driven into its stroke end, or when its load exceeds
+        what its line relief lets it push or pull (a cylinder or the swing against the ground,
+        the truck or a digging force it cannot overcome). The tables were learned away from both
+        (there the stop or the relief, not the valve, sets the speed), so they cannot know it:
+        closing that spool for the lookup says so, and its partner on the same pump then gets the
+        flow (the boom rises once the bucket is fully curled). What it leaves out is the stalled
+        spool's closed centre bypass, which in the circuit sends a little more flow to the partner.
+
+        ``loads``: [swing torque, N m, and boom, stick, bucket cylinder forces, N]; default: the
+        present ones.
         """
+        if loads is None:
+            loads = np.concatenate([self.joint_loads()[:1], self.cylinder_loads()])
         spools = self.spools_m.copy()
         ext = self.physics.cylinder_extensions()
+        extending, retracting = spools[1:] > 0, spools[1:] < 0
         at_start, at_end = ext <= END_MARGIN, ext >= _STROKES - END_MARGIN
-        stalled = (at_start & (spools[1:] < 0)) | (at_end & (spools[1:] > 0))
+        stalled = (at_start & retracting) | (at_end & extending)
+        stalled |= (extending & (loads[1:] > _PUSH_LIMIT)) | (retracting & (loads[1:] < -_PULL_LIMIT))
         spools[1:][stalled] = 0.0
+        if abs(loads[0]) > _SWING_TORQUE_LIMIT and loads[0] * spools[0] > 0:
+            spools[0] = 0.0
         return spools
 
     def _control_period(self) -> None:
         ph = self.physics
-        u_swing, u_boom, u_stick, u_bucket = self.effective_spools()
         arms = ph.moment_arms()  # once per period: the loads and the rate targets both need them
-        f_boom, f_stick, f_bucket = self.cylinder_loads(arms)
+        tau = self.joint_loads()
+        f_boom, f_stick, f_bucket = tau[1:] / arms
+        u_swing, u_boom, u_stick, u_bucket = self.effective_spools(np.array([tau[0], f_boom, f_stick, f_bucket]))
         inertia = ph.swing_inertia()
         t = self.tables
         closed = np.abs([u_swing, u_boom, u_stick, u_bucket]) < p.SPOOL_DEAD_BAND

@@ -38,6 +38,9 @@ PAYLOAD_CENTRE = (0.80, -0.30)  # bucket frame: centroid of a heaped load in the
 # operator's eye in the upper frame: cab on the left (+y), seated height below the roof [est]
 CAB_EYE = (0.85, 1.0, p.CAB_ROOF_HEIGHT - p.SWING_BEARING_HEIGHT - 0.5)
 HOME = np.array([0.0, 0.35, 0.85, 0.75])  # main joints of keyframe "home": bucket near the ground
+TIMESTEP = 0.002  # s, the full model (the reference hydraulics need it: oil-spring modes of ~2 Hz and stiffer)
+LEAN_TIMESTEP = 0.025  # s, the lean model: quasi-steady velocities from the tables, no stiff dynamics
+LEAN_SERVO_DAMPING = 1e12  # N m s/rad, see _lean_actuators
 
 
 def _fmt(*values: float) -> str:
@@ -94,24 +97,111 @@ def _cylinder(name: str, base: tuple[float, float] | np.ndarray, parent_angle0: 
 {indent}</body>"""
 
 
+_EQUALITIES = """  <equality>
+    <connect name="boom_cylinder" class="cat325" site1="boom_cylinder_rod_end" site2="boom_cylinder_rod_pin"/>
+    <connect name="stick_cylinder" class="cat325" site1="stick_cylinder_rod_end" site2="stick_cylinder_rod_pin"/>
+    <connect name="bucket_cylinder" class="cat325" site1="bucket_cylinder_rod_end" site2="bucket_cylinder_rod_pin"/>
+    <connect name="power_link" class="cat325" site1="power_link_bucket_end" site2="bucket_link_pin"/>
+  </equality>
+"""
+
+
+_CYLINDER_BASES = {"boom": p.BOOM_CYLINDER_BASE, "stick": p.STICK_CYLINDER_BASE, "bucket": p.BUCKET_CYLINDER_BASE}
+
+
+def _four_bar(a0: dict[str, float], power_link_pos: np.ndarray) -> str:
+    """The bucket linkage's guide and power link bodies (full model only)."""
+    return f"""            <body name="guide_link" pos="{_planar(p.GUIDE_LINK_PIVOT)}" quat="{_quat(a0["guide_link"])}">
+              {_inertial((p.GUIDE_LINK_LENGTH / 2, 0, 0), p.GUIDE_LINK_MASS, (p.GUIDE_LINK_LENGTH, 0.5, 0.15))}
+              <joint name="guide_link" class="passive"/>
+              <geom class="visual" mesh="guide_link"/>
+              <site name="bucket_cylinder_rod_pin" class="pin" pos="{_planar(power_link_pos)}"/>
+              <body name="power_link" pos="{_planar(power_link_pos)}" quat="{_quat(a0["power_link"])}">
+                {_inertial((p.POWER_LINK_LENGTH / 2, 0, 0), p.POWER_LINK_MASS, (p.POWER_LINK_LENGTH, 0.6, 0.15))}
+                <joint name="power_link" class="passive"/>
+                <geom class="visual" mesh="power_link"/>
+                <site name="power_link_bucket_end" class="pin" pos="{_fmt(p.POWER_LINK_LENGTH, 0, 0)}"/>
+              </body>
+            </body>
+"""
+
+
+def _lumped_masses() -> dict[str, list[tuple[str, np.ndarray, float]]]:
+    """Point masses that stand in for the cylinders and the four-bar in the lean model.
+
+    Per carrying link: (name, planar position in its frame, mass). A cylinder pinned at both ends
+    hangs its weight on its two pins in the ratio of its centre of mass along it (at HOME), so its
+    mass is split between its base pin (on the link it pushes from) and its rod pin (on the link
+    it pushes); the bucket cylinder's rod pin and the guide link sit on the stick; the power link
+    is split between its two ends. Frozen at HOME: the cylinders' swing across the stroke and the
+    links' rotational inertia are left out (the cylinders are ~13 % of the front's mass; the
+    difference in the joint loads is measured in tests/test_model.py).
+    """
+    a_home = machine.passive_joints(HOME)
+    j_home, k_home = machine.bucket_link_points(HOME[3])
+    rod_pins = {
+        "boom": ("boom", np.array(p.BOOM_CYLINDER_ROD_PIN)),
+        "stick": ("stick", np.array(p.STICK_CYLINDER_ROD_PIN)),
+        "bucket": ("stick", j_home),
+    }
+    base_links = {"boom": "upper", "stick": "boom", "bucket": "stick"}
+    out: dict[str, list[tuple[str, np.ndarray, float]]] = {"upper": [], "boom": [], "stick": [], "bucket": []}
+    for name, cyl in p.CYLINDERS.items():
+        length = cyl.retracted_length + a_home[f"{name}_extension"]
+        barrel_len = cyl.retracted_length - 0.15
+        centre = (cyl.barrel_mass * barrel_len / 2 + cyl.rod_mass * (length - cyl.stroke / 2)) / (
+            cyl.barrel_mass + cyl.rod_mass
+        )
+        mass = (cyl.barrel_mass + cyl.rod_mass) * cyl.count
+        rod_link, rod = rod_pins[name]
+        base = np.array(_CYLINDER_BASES[name])
+        out[base_links[name]].append((f"{name}_cylinder_base_mass", base, mass * (1 - centre / length)))
+        out[rod_link].append((f"{name}_cylinder_rod_mass", rod, mass * centre / length))
+    guide_mid = (np.array(p.GUIDE_LINK_PIVOT) + j_home) / 2
+    out["stick"].append(("guide_link_mass", guide_mid, p.GUIDE_LINK_MASS))
+    out["stick"].append(("power_link_mass", j_home, p.POWER_LINK_MASS / 2))
+    out["bucket"].append(("power_link_bucket_mass", np.array(p.BUCKET_LINK_PIN), p.POWER_LINK_MASS / 2))
+    return out
+
+
+def _lumped_bodies(lumped: dict[str, list[tuple[str, np.ndarray, float]]], link: str, indent: str) -> str:
+    """Jointless bodies carrying the lumped point masses of ``link`` (lean model)."""
+    return "".join(
+        f'\n{indent}<body name="{name}" pos="{_planar(pos)}">{_inertial((0, 0, 0), mass, (0.3, 0.3, 0.3))}</body>'
+        for name, pos, mass in lumped.get(link, [])
+    )
+
+
 def _range(name: str) -> str:
     lo, hi = machine.joint_range(name)
     return _fmt(lo, hi)
 
 
-def model_xml(home_key: str | None = None) -> str:
-    """The MJCF text of the machine; ``home_key`` is the ``<key>`` element of keyframe ``home``."""
+def model_xml(home_key: str | None = None, lean: bool = False) -> str:
+    """The MJCF text of the machine; ``home_key`` is the ``<key>`` element of keyframe ``home``.
+
+    ``lean``: the fast variant for the learned model (see :func:`_lumped_masses`): no cylinder or
+    four-bar bodies, no equalities, a ``LEAN_TIMESTEP`` step.
+    """
     a0 = machine.passive_joints(np.zeros(4))
+    lumped = _lumped_masses() if lean else {}
+
+    def chain(cylinder: str, link: str, indent: str) -> str:
+        """The cylinder hinged on ``link`` (full model), or ``link``'s lumped masses (lean)."""
+        return (
+            _lumped_bodies(lumped, link, indent) if lean else _cylinder(cylinder, _CYLINDER_BASES[cylinder], a0, indent)
+        )
+
     boom_pin = np.array([p.BOOM_LENGTH, 0.0])
     bucket_pin = np.array([p.STICK_LENGTH, 0.0])
     power_link_pos = np.array([p.GUIDE_LINK_LENGTH, 0.0])
     upper_z = p.SWING_BEARING_HEIGHT
     key = "" if home_key is None else f"\n  <keyframe>\n    {home_key}\n  </keyframe>\n"
-    return f"""<mujoco model="cat325">
+    return f"""<mujoco model="{"cat325_lean" if lean else "cat325"}">
   <!-- Generated by hexgym/mjcf.py from hexgym/parameters.py; edit those, then run `hexgym build-assets`. -->
   <compiler angle="radian" meshdir="meshes" autolimits="true"/>
 
-  <option timestep="0.002" integrator="implicitfast"/>
+  <option timestep="{_fmt(LEAN_TIMESTEP if lean else TIMESTEP)}" integrator="implicitfast"/>
 
   <default>
     <default class="cat325">
@@ -185,7 +275,7 @@ def model_xml(home_key: str | None = None) -> str:
         <site name="boom_foot_pin" class="pin" pos="{_planar(p.BOOM_FOOT)}"/>
         <site name="boom_cylinder_base_pin" class="pin" pos="{_planar(p.BOOM_CYLINDER_BASE)}"/>
         <camera name="cab" pos="{_fmt(*CAB_EYE)}" xyaxes="0 -1 0 0.25 0 1" fovy="75"/>
-{_cylinder("boom", p.BOOM_CYLINDER_BASE, a0, "        ")}
+{chain("boom", "upper", "        ")}
         <body name="boom" pos="{_planar(p.BOOM_FOOT)}">
           {_inertial((2.9, 0, 0.55), p.BOOM_MASS, (6.2, 0.6, 0.75))}
           <joint name="boom" class="front_joint" axis="0 -1 0" range="{_range("boom")}"/>
@@ -197,7 +287,7 @@ def model_xml(home_key: str | None = None) -> str:
           <site name="boom_cylinder_rod_pin" class="pin" pos="{_planar(p.BOOM_CYLINDER_ROD_PIN)}"/>
           <site name="stick_cylinder_base_pin" class="pin" pos="{_planar(p.STICK_CYLINDER_BASE)}"/>
           <site name="stick_pin" class="pin" pos="{_planar(boom_pin)}"/>
-{_cylinder("stick", p.STICK_CYLINDER_BASE, a0, "          ")}
+{chain("stick", "boom", "          ")}
           <body name="stick" pos="{_planar(boom_pin)}" quat="{_quat(-np.pi / 2)}">
             {_inertial((1.3, 0, 0.1), p.STICK_MASS, (3.6, 0.45, 0.5))}
             <joint name="stick" class="front_joint" range="{_range("stick")}"/>
@@ -208,26 +298,14 @@ def model_xml(home_key: str | None = None) -> str:
             <site name="bucket_cylinder_base_pin" class="pin" pos="{_planar(p.BUCKET_CYLINDER_BASE)}"/>
             <site name="guide_link_pivot_pin" class="pin" pos="{_planar(p.GUIDE_LINK_PIVOT)}"/>
             <site name="bucket_pin" class="pin" pos="{_planar(bucket_pin)}"/>
-{_cylinder("bucket", p.BUCKET_CYLINDER_BASE, a0, "            ")}
-            <body name="guide_link" pos="{_planar(p.GUIDE_LINK_PIVOT)}" quat="{_quat(a0["guide_link"])}">
-              {_inertial((p.GUIDE_LINK_LENGTH / 2, 0, 0), p.GUIDE_LINK_MASS, (p.GUIDE_LINK_LENGTH, 0.5, 0.15))}
-              <joint name="guide_link" class="passive"/>
-              <geom class="visual" mesh="guide_link"/>
-              <site name="bucket_cylinder_rod_pin" class="pin" pos="{_planar(power_link_pos)}"/>
-              <body name="power_link" pos="{_planar(power_link_pos)}" quat="{_quat(a0["power_link"])}">
-                {_inertial((p.POWER_LINK_LENGTH / 2, 0, 0), p.POWER_LINK_MASS, (p.POWER_LINK_LENGTH, 0.6, 0.15))}
-                <joint name="power_link" class="passive"/>
-                <geom class="visual" mesh="power_link"/>
-                <site name="power_link_bucket_end" class="pin" pos="{_fmt(p.POWER_LINK_LENGTH, 0, 0)}"/>
-              </body>
-            </body>
-            <body name="bucket" pos="{_planar(bucket_pin)}">
+{chain("bucket", "stick", "            ")}
+{"" if lean else _four_bar(a0, power_link_pos)}            <body name="bucket" pos="{_planar(bucket_pin)}">
               {_inertial((0.75, 0, -0.3), p.BUCKET_MASS, (1.4, p.BUCKET_WIDTH, 1.0))}
               <joint name="bucket" class="front_joint" range="{_range("bucket")}"/>
               <geom class="visual" mesh="bucket"/>
               <geom name="bucket_collision" class="collision" type="mesh" mesh="bucket"/>
               <site name="bucket_link_pin" class="pin" pos="{_planar(p.BUCKET_LINK_PIN)}"/>
-              <site name="tip" class="pin" pos="{_planar(p.BUCKET_TIP)}"/>
+              <site name="tip" class="pin" pos="{_planar(p.BUCKET_TIP)}"/>{_lumped_bodies(lumped, "bucket", "              ")}
               <body name="payload" pos="{_planar(PAYLOAD_CENTRE)}">
                 <site name="payload" class="pin"/>
               </body>
@@ -238,17 +316,11 @@ def model_xml(home_key: str | None = None) -> str:
     </body>
   </worldbody>
 
-  <equality>
-    <connect name="boom_cylinder" class="cat325" site1="boom_cylinder_rod_end" site2="boom_cylinder_rod_pin"/>
-    <connect name="stick_cylinder" class="cat325" site1="stick_cylinder_rod_end" site2="stick_cylinder_rod_pin"/>
-    <connect name="bucket_cylinder" class="cat325" site1="bucket_cylinder_rod_end" site2="bucket_cylinder_rod_pin"/>
-    <connect name="power_link" class="cat325" site1="power_link_bucket_end" site2="bucket_link_pin"/>
-  </equality>
-
+{"" if lean else _EQUALITIES}
   <actuator>
     <!-- Joint-rate servos (ctrl: rad/s) that hold their pose at zero command, torque-limited at
          the line reliefs; the hydraulic models (reference or learned) set them. -->
-{_actuators()}
+{_lean_actuators() if lean else _actuators()}
   </actuator>
 {key}</mujoco>
 """
@@ -278,6 +350,25 @@ def _actuators() -> str:
     return "\n".join(lines)
 
 
+def _lean_actuators() -> str:
+    """Velocity servos of the lean model: ctrl is the joint rate the tables ask for, rad/s.
+
+    With the damping ``LEAN_SERVO_DAMPING`` integrated implicitly, the joint reaches the commanded
+    rate within one step (damping x step >> the largest joint inertia, ~5e5 kg m^2) at any step
+    size, so the joints integrate the tables' velocities as the paper does; a zero command holds a
+    joint with a creep of load / damping (< 1e-6 rad/s). The force limits are the line reliefs', as
+    in the full model: a cylinder pushing into the ground or the truck stalls at its relief.
+    """
+    lines = []
+    for name in machine.JOINTS:
+        rate = MAX_JOINT_RATE[name]
+        lines.append(
+            f'    <velocity name="{name}" joint="{name}" kv="{_fmt(LEAN_SERVO_DAMPING)}"\n'
+            f'      ctrlrange="{_fmt(-rate, rate)}"/>'
+        )
+    return "\n".join(lines)
+
+
 def home_keyframe(model_xml_text: str, meshdir: str) -> str:
     """The ``<key name="home">`` element: assembled qpos and matching actuator activations."""
     import mujoco
@@ -287,11 +378,12 @@ def home_keyframe(model_xml_text: str, meshdir: str) -> str:
     spec = mujoco.MjSpec.from_string(model_xml_text)
     spec.meshdir = meshdir
     qpos, act = assembled_state(spec.compile(), HOME)
-    return f'<key name="home" qpos="{_fmt(*qpos)}"\n      act="{_fmt(*act)}"/>'
+    act_attr = f'\n      act="{_fmt(*act)}"' if len(act) else ""  # the lean model's servos have no activation
+    return f'<key name="home" qpos="{_fmt(*qpos)}"{act_attr}/>'
 
 
-def write_model(path: Path) -> None:
+def write_model(path: Path, lean: bool = False) -> None:
     """Generate the MJCF (with its ``home`` keyframe) and write it atomically to ``path``."""
-    text = model_xml(home_keyframe(model_xml(), str(path.parent / "meshes")))
+    text = model_xml(home_keyframe(model_xml(lean=lean), str(path.parent / "meshes")), lean=lean)
     with atomic_path(path) as tmp:
         tmp.write_text(text)

@@ -45,7 +45,8 @@ def assembled_state(
     integrated-velocity servos hold the pose they start in.
     """
     q = np.asarray(q, dtype=float)
-    values = _joint_values(q)
+    present = {model.joint(i).name for i in range(model.njnt)}  # the lean model has no passive joints
+    values = {name: v for name, v in _joint_values(q).items() if name in present}
     qpos = np.array(model.qpos0, dtype=float)
     for name, value in values.items():
         qpos[model.jnt_qposadr[model.joint(name).id]] = value

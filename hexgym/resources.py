@@ -13,6 +13,7 @@ from pathlib import Path
 import mujoco
 
 MODEL_FILE = "cat325.xml"
+LEAN_MODEL_FILE = "cat325_lean.xml"  # the learned model's fast variant (hexgym/mjcf.py: lean)
 SCENE_FILE = "scene.xml"
 
 
@@ -33,14 +34,16 @@ def asset_path(name: str) -> Path:
     return path
 
 
-def load_model(path: str | Path | None = None, scene: bool = False) -> mujoco.MjModel:
+def load_model(path: str | Path | None = None, scene: bool = False, lean: bool = False) -> mujoco.MjModel:
     """Compile an MJCF file (default: the packaged machine, or with ``scene`` the world around it).
+
+    ``lean``: the packaged lean machine (no cylinder bodies, larger step) that the learned model runs on.
 
     Any failure (missing file, missing mesh, malformed XML) raises :class:`AssetError` with the
     file's path and MuJoCo's message.
     """
     if path is None:
-        path = asset_path(SCENE_FILE if scene else MODEL_FILE)
+        path = asset_path(LEAN_MODEL_FILE if lean else SCENE_FILE if scene else MODEL_FILE)
     path = Path(path)
     if not path.is_file():
         raise AssetError(f"model file not found: {path}")

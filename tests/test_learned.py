@@ -18,25 +18,30 @@ def model() -> LearnedModel:
     return LearnedModel()
 
 
+def periods(model: LearnedModel, seconds: float) -> int:
+    """Control periods in ``seconds``."""
+    return int(round(seconds / model.timestep))
+
+
 def test_closed_spools_hold_a_full_bucket(model):
     model.reset(POSE_LOW, payload_kg=2000.0)
-    model.step(np.zeros(4), n=300)  # 3 s
+    model.step(np.zeros(4), n=periods(model, 3.0))
     np.testing.assert_allclose(model.physics.joint_positions(), POSE_LOW, atol=5e-3)
     assert np.abs(model.physics.joint_velocities()).max() < 1e-3
 
 
 def test_full_boom_spool_runs_at_one_pumps_speed(model):
     model.reset(POSE_LOW)
-    model.step(np.array([0.0, FULL, 0.0, 0.0]), n=150)
+    model.step(np.array([0.0, FULL, 0.0, 0.0]), n=periods(model, 1.5))
     assert model.physics.cylinder_velocities()[0] == pytest.approx(0.143, rel=0.15)  # reference: 0.143 m/s
 
 
 def test_bucket_takes_the_flow_until_it_stalls(model):
     model.reset(POSE_LOW)
-    model.step(np.array([0.0, FULL, 0.0, FULL]), n=150)
+    model.step(np.array([0.0, FULL, 0.0, FULL]), n=periods(model, 1.5))
     boom, _, bucket = model.physics.cylinder_velocities()
     assert bucket > 0.2 and boom < 0.03  # flow sharing on pump 1
-    model.step(np.array([0.0, FULL, 0.0, FULL]), n=350)  # the bucket reaches its stroke end
+    model.step(np.array([0.0, FULL, 0.0, FULL]), n=periods(model, 3.5))  # the bucket reaches its stroke end
     boom, _, bucket = model.physics.cylinder_velocities()
     assert abs(bucket) < 0.01 and boom > 0.1
 

@@ -16,15 +16,36 @@ def _warnings(data: mujoco.MjData) -> dict[str, int]:
     return {mujoco.mjtWarning(i).name: int(w.number) for i, w in enumerate(data.warning) if w.number}
 
 
-def test_committed_xml_matches_generator():
-    committed = asset_path("cat325.xml").read_text()
-    generated = mjcf.model_xml(mjcf.home_keyframe(mjcf.model_xml(), str(assets_dir() / "meshes")))
-    assert committed == generated, "assets/cat325.xml is stale: run `hexgym build-assets`"
+@pytest.mark.parametrize(("name", "lean"), [("cat325.xml", False), ("cat325_lean.xml", True)])
+def test_committed_xml_matches_generator(name, lean):
+    committed = asset_path(name).read_text()
+    meshes = str(assets_dir() / "meshes")
+    generated = mjcf.model_xml(mjcf.home_keyframe(mjcf.model_xml(lean=lean), meshes), lean=lean)
+    assert committed == generated, f"assets/{name} is stale: run `hexgym build-assets`"
 
 
-@pytest.mark.parametrize("scene", [False, True])
-def test_compiles_without_warnings(scene, capfd):
-    model = load_model(scene=scene)
+def test_lean_model_has_the_full_models_mass_and_loads():
+    """The lean model lumps cylinders and four-bar into point masses: same mass, loads within 2 % of relief."""
+    from hexgym.learned import LearnedModel
+
+    full, lean = LearnedModel(model=load_model()), LearnedModel(model=load_model(lean=True))
+    assert lean.physics.model.nv == 4 and lean.physics.model.neq == 0
+    assert full.physics.model.body_subtreemass[1] == pytest.approx(lean.physics.model.body_subtreemass[1], rel=1e-9)
+    relief = np.array(
+        [p.LINE_RELIEF[c] * p.CYLINDERS[c].head_area for c in machine.FRONT_CYLINDERS]
+    )
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        q = np.array([0.0, *(rng.uniform(*machine.joint_range(j)) for j in machine.JOINTS[1:])])
+        full.reset(q, payload_kg=1000.0)
+        lean.reset(q, payload_kg=1000.0)
+        assert np.all(np.abs(lean.cylinder_loads() - full.cylinder_loads()) < 0.02 * relief)
+        assert lean.physics.swing_inertia() == pytest.approx(full.physics.swing_inertia(), rel=0.03)
+
+
+@pytest.mark.parametrize(("scene", "lean"), [(False, False), (True, False), (False, True)])
+def test_compiles_without_warnings(scene, lean, capfd):
+    model = load_model(scene=scene, lean=lean)
     data = mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, data, model.key("home").id)
     mujoco.mj_forward(model, data)
