@@ -83,6 +83,8 @@ class LearnedModel:
         self.spools_m = np.zeros(4)
         self.swing_acceleration = 0.0
         self._swing_rate_target = 0.0
+        rate_axis = self.tables["swing"].axes[-1]  # the swing table's last input is the swing rate
+        self._slowest_swing, self._fastest_swing = rate_axis[0], rate_axis[-1]
 
     @property
     def timestep(self) -> float:
@@ -100,10 +102,23 @@ class LearnedModel:
         self.physics.data.time = 0.0
 
     def joint_loads(self) -> np.ndarray:
-        """Torque each main joint's actuator must supply to hold the present motion (N m)."""
+        """Torque each main joint's actuator must supply to hold the present motion (N m).
+
+        Joint-limit forces are not part of it: at a stroke end the cylinder's stop carries the
+        load, not its oil.
+        """
         d = self.physics.data
-        tau = d.qfrc_bias - d.qfrc_passive - d.qfrc_applied - d.qfrc_constraint
+        tau = d.qfrc_bias - d.qfrc_passive - d.qfrc_applied - d.qfrc_constraint + self._limit_forces()
         return tau[self._dofs]
+
+    def _limit_forces(self) -> np.ndarray:
+        """The joint limits' share of ``qfrc_constraint`` (J^T f over the limit rows)."""
+        m, d = self.physics.model, self.physics.data
+        out = np.zeros(m.nv)
+        limit_rows = d.efc_type == mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT
+        if limit_rows.any():
+            mujoco.mj_mulJacTVec(m, d, out, np.where(limit_rows, d.efc_force, 0.0))
+        return out
 
     def cylinder_loads(self, arms: np.ndarray | None = None) -> np.ndarray:
         """[boom, stick, bucket] cylinder force loads, N (+ = the cylinder must push).
@@ -162,6 +177,10 @@ class LearnedModel:
         # (the table sees that rate); the servo makes the upper structure follow it
         rate = self._swing_rate_target
         self.swing_acceleration = t["swing"]((u_swing, u_stick, f_stick, inertia, rate))
+        if not self._slowest_swing < rate < self._fastest_swing and self.swing_acceleration * rate > 0.0:
+            # the table clamps the rate to its grid, the fastest swing in its data: beyond it, it
+            # would keep accelerating the swing at that edge's value; it must not go faster
+            self.swing_acceleration = 0.0
         new_rate = rate + self.swing_acceleration * self.timestep
         if closed[0] and (new_rate * rate <= 0.0 or abs(new_rate) < SWING_REST_RATE):
             new_rate = 0.0  # braked by the crossover reliefs: it stops, it does not turn back

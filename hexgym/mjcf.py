@@ -185,6 +185,7 @@ def model_xml(home_key: str | None = None, lean: bool = False) -> str:
     """
     a0 = machine.passive_joints(np.zeros(4))
     lumped = _lumped_masses() if lean else {}
+    bucket_masses = _lumped_bodies(lumped, "bucket", "              ")
 
     def chain(cylinder: str, link: str, indent: str) -> str:
         """The cylinder hinged on ``link`` (full model), or ``link``'s lumped masses (lean)."""
@@ -305,7 +306,7 @@ def model_xml(home_key: str | None = None, lean: bool = False) -> str:
               <geom class="visual" mesh="bucket"/>
               <geom name="bucket_collision" class="collision" type="mesh" mesh="bucket"/>
               <site name="bucket_link_pin" class="pin" pos="{_planar(p.BUCKET_LINK_PIN)}"/>
-              <site name="tip" class="pin" pos="{_planar(p.BUCKET_TIP)}"/>{_lumped_bodies(lumped, "bucket", "              ")}
+              <site name="tip" class="pin" pos="{_planar(p.BUCKET_TIP)}"/>{bucket_masses}
               <body name="payload" pos="{_planar(PAYLOAD_CENTRE)}">
                 <site name="payload" class="pin"/>
               </body>

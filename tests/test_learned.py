@@ -78,3 +78,23 @@ def test_test3_is_an_operator_like_cycle_of_about_50_s():
     log, _ = scenarios()["test3"]
     assert 45 <= log.duration <= 55
     assert np.abs(log.spools_mm).max() <= 11.0
+
+
+def test_swing_never_outruns_its_table(model):
+    """A long full swing levels off at the fastest swing in the table's data, never beyond it."""
+    model.reset(POSE_LOW)
+    model.step(np.array([FULL, 0.0, 0.0, 0.0]), n=periods(model, 8.0))
+    fastest = model.tables["swing"].axes[-1][-1]
+    assert 0.9 * fastest < model.physics.joint_velocities()[0] <= fastest + 1e-9
+
+
+def test_a_stroke_end_stop_carries_its_load_not_the_oil(model):
+    """At a joint limit (the cylinder's end stop) the stop's force is not read as cylinder load."""
+    hi = machine.joint_range("stick")[1]
+    inside, beyond = (np.array([0.0, -0.45, hi + d, -0.9]) for d in (-0.003, 0.003))
+    model.reset(inside)
+    free = model.cylinder_loads()[1]
+    model.reset(beyond)  # 3 mrad into the stop: the limit pushes back
+    limit = model._limit_forces()[model._dofs[2]]
+    assert abs(limit) > 0.2 * abs(free)
+    assert model.cylinder_loads()[1] == pytest.approx(free, rel=0.02)
