@@ -99,6 +99,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
 def _cmd_build_assets(args: argparse.Namespace) -> int:
     from hexgym import meshes, mjcf
+    from hexgym.files import atomic_path
 
     directory = Path(args.dir)
     for path in meshes.write_meshes(directory / "meshes"):
@@ -106,6 +107,10 @@ def _cmd_build_assets(args: argparse.Namespace) -> int:
     for name, lean in (("cat325.xml", False), ("cat325_lean.xml", True)):
         mjcf.write_model(directory / name, lean=lean)
         print(f"wrote {directory / name}")
+    scene_lean = directory / "scene_lean.xml"
+    with atomic_path(scene_lean) as tmp:
+        tmp.write_text(mjcf.lean_scene_xml((directory / "scene.xml").read_text()))
+    print(f"wrote {scene_lean}")
     return 0
 
 

@@ -14,6 +14,7 @@ import mujoco
 
 MODEL_FILE = "cat325.xml"
 LEAN_MODEL_FILE = "cat325_lean.xml"  # the learned model's fast variant (hexgym/mjcf.py: lean)
+LEAN_SCENE_FILE = "scene_lean.xml"  # scene.xml around the lean machine (generated)
 SCENE_FILE = "scene.xml"
 
 
@@ -43,7 +44,8 @@ def load_model(path: str | Path | None = None, scene: bool = False, lean: bool =
     file's path and MuJoCo's message.
     """
     if path is None:
-        path = asset_path(LEAN_MODEL_FILE if lean else SCENE_FILE if scene else MODEL_FILE)
+        names = {(False, False): MODEL_FILE, (True, False): SCENE_FILE, (False, True): LEAN_MODEL_FILE}
+        path = asset_path(names.get((scene, lean), LEAN_SCENE_FILE))
     path = Path(path)
     if not path.is_file():
         raise AssetError(f"model file not found: {path}")

@@ -24,6 +24,13 @@ def test_committed_xml_matches_generator(name, lean):
     assert committed == generated, f"assets/{name} is stale: run `hexgym build-assets`"
 
 
+def test_lean_scene_is_the_scene_around_the_lean_machine():
+    generated = mjcf.lean_scene_xml(asset_path("scene.xml").read_text())
+    assert asset_path("scene_lean.xml").read_text() == generated, "stale: run `hexgym build-assets`"
+    model = load_model(scene=True, lean=True)
+    assert model.nv == 4 and model.geom("ground").id >= 0 and model.camera("chase").id >= 0
+
+
 def test_lean_model_has_the_full_models_mass_and_loads():
     """The lean model lumps cylinders and four-bar into point masses: same mass, loads within 2 % of relief."""
     from hexgym.learned import LearnedModel
@@ -43,7 +50,7 @@ def test_lean_model_has_the_full_models_mass_and_loads():
         assert lean.physics.swing_inertia() == pytest.approx(full.physics.swing_inertia(), rel=0.03)
 
 
-@pytest.mark.parametrize(("scene", "lean"), [(False, False), (True, False), (False, True)])
+@pytest.mark.parametrize(("scene", "lean"), [(False, False), (True, False), (False, True), (True, True)])
 def test_compiles_without_warnings(scene, lean, capfd):
     model = load_model(scene=scene, lean=lean)
     data = mujoco.MjData(model)
