@@ -11,7 +11,7 @@ export MUJOCO_GL ?= egl
 
 setup: $(STAMP)
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml setup.py $(wildcard native/*.cc native/*.h)
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet torch==2.13.0
@@ -20,6 +20,9 @@ $(STAMP): pyproject.toml
 
 demo: $(STAMP)
 	$(BIN)/hexgym demo --out out
+	@# the trained agent too, when the package ships one
+	@if [ -f hexgym/policies/ppo_loading.zip ]; then \
+		$(BIN)/hexgym video --policy shipped --out out/agent.mp4 --seconds 60 --snapshot out/agent.png; fi
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q

@@ -5,4 +5,12 @@ Modules: :mod:`hexgym.parameters` (every physical number), :mod:`hexgym.machine`
 (generate ``assets/``), :mod:`hexgym.render` (offscreen video), :mod:`hexgym.cli` (``hexgym``).
 """
 
+from hexgym.envs import register_envs as _register_envs
+
 __version__ = "0.1.0"
+
+_register_envs()  # `import hexgym` makes gymnasium.make("HexLoading-v0") work
+
+from hexgym.native import load_plugin as _load_plugin  # noqa: E402
+
+_load_plugin()  # registers the native hexgym.mbl plugin with MuJoCo when the build compiled it

@@ -12,9 +12,33 @@ from pathlib import Path
 def _cmd_demo(args: argparse.Namespace) -> int:
     from hexgym.demo import run_demo
 
-    paths = run_demo(args.out, fps=args.fps, width=args.width, height=args.height)
-    for kind, path in paths.items():
+    result = run_demo(args.out, fps=args.fps, width=args.width, height=args.height, duration=args.seconds)
+    metrics = result.pop("metrics")
+    for kind, path in result.items():
         print(f"{kind}: {path}")
+    print(f"scripted loader: {metrics['delivered_t']:.2f} t delivered in {metrics['sim_seconds']:g} s, "
+          f"{metrics['dumps']} dumps, {metrics['fuel_l']:.2f} L fuel")  # fmt: skip
+    return 0
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    from hexgym.bench import print_bench, run_bench
+
+    print_bench(run_bench(steps=args.steps, seed=args.seed), args.json)
+    return 0
+
+
+def _cmd_scripted(args: argparse.Namespace) -> int:
+    from hexgym.envs.loading import HexLoadingEnv
+    from hexgym.envs.scripted import run_scripted
+    from hexgym.files import write_json
+
+    env = HexLoadingEnv(time_limit=args.seconds)
+    runs = [run_scripted(env, seed=args.seed + i) for i in range(args.episodes)]
+    for run in runs:
+        print(json.dumps({k: v for k, v in run.items() if k != "return_terms"}))
+    if args.json:
+        print(f"wrote {write_json(args.json, runs)}")
     return 0
 
 
@@ -40,9 +64,9 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
         model = ReferenceModel()
     else:
-        from hexgym.learned import LearnedModel
+        from hexgym.native import make_learned_model
 
-        model = LearnedModel()
+        model = make_learned_model(args.backend)
     trajectory = replay(model, commands, start=args.start, payload_kg=args.payload_kg, dt_out=args.dt_out)
     write_trajectory_csv(args.out, trajectory)
     print(f"wrote {args.out}: {len(trajectory)} rows, {commands.duration:g} s simulated")
@@ -100,6 +124,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 def _cmd_build_assets(args: argparse.Namespace) -> int:
     from hexgym import meshes, mjcf
     from hexgym.files import atomic_path
+    from hexgym.resources import LEAN_MODEL_FILE, LEAN_SCENE_FILE, SCENE_FILE
 
     directory = Path(args.dir)
     for path in meshes.write_meshes(directory / "meshes"):
@@ -107,10 +132,56 @@ def _cmd_build_assets(args: argparse.Namespace) -> int:
     for name, lean in (("cat325.xml", False), ("cat325_lean.xml", True)):
         mjcf.write_model(directory / name, lean=lean)
         print(f"wrote {directory / name}")
-    scene_lean = directory / "scene_lean.xml"
-    with atomic_path(scene_lean) as tmp:
-        tmp.write_text(mjcf.lean_scene_xml((directory / "scene.xml").read_text()))
-    print(f"wrote {scene_lean}")
+    from hexgym.mjcf_native import MBL_MODEL_FILE, write_mbl_model
+
+    print(f"wrote {write_mbl_model(directory / MBL_MODEL_FILE)}")
+    with atomic_path(directory / LEAN_SCENE_FILE) as tmp:
+        tmp.write_text(mjcf.scene_xml_around((directory / SCENE_FILE).read_text(), LEAN_MODEL_FILE))
+    print(f"wrote {directory / LEAN_SCENE_FILE}")
+    return 0
+
+
+def _cmd_train(args: argparse.Namespace) -> int:
+    from hexgym.training import train
+
+    path = train(args.algo, args.env, timesteps=args.timesteps, seed=args.seed, log_dir=args.log_dir,
+                 hyperparams=args.hyperparams, n_envs=args.n_envs, init_from=args.init_from,
+                 checkpoint_every=args.checkpoint_every, progress_bar=not args.no_progress)  # fmt: skip
+    print(f"model: {path}")
+    return 0
+
+
+def _cmd_clone(args: argparse.Namespace) -> int:
+    from hexgym.training import clone_scripted
+
+    path = clone_scripted(args.out, episodes=args.episodes, dagger_rounds=args.dagger_rounds,
+                          dagger_episodes=args.dagger_episodes, epochs=args.epochs, seed=args.seed,
+                          hyperparams=args.hyperparams)  # fmt: skip
+    print(f"model: {path}")
+    return 0
+
+
+def _cmd_evaluate(args: argparse.Namespace) -> int:
+    from hexgym.evaluate import evaluate
+
+    env_kwargs = {"time_limit": args.seconds} if args.seconds is not None else None
+    result = evaluate(args.policy, episodes=args.episodes, seed=args.seed, env_kwargs=env_kwargs, json_out=args.json)
+    print(json.dumps({k: v for k, v in result.items() if k != "per_episode"}, indent=2))
+    if args.json:
+        print(f"wrote {args.json}")
+    return 0
+
+
+def _cmd_video(args: argparse.Namespace) -> int:
+    from hexgym.video import record_video
+
+    result = record_video(
+        args.policy, args.out, camera=args.camera, episodes=args.episodes, seed=args.seed, seconds=args.seconds,
+        width=args.width, height=args.height, snapshot=args.snapshot,
+    )  # fmt: skip
+    print(f"video: {result['video']} ({result['frames']} frames)")
+    if "snapshot" in result:
+        print(f"snapshot: {result['snapshot']}")
     return 0
 
 
@@ -123,12 +194,28 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    demo = sub.add_parser("demo", help="replay a scripted spool sequence and write an MP4 and a PNG")
+    demo = sub.add_parser("demo", help="the scripted loader on HexLoading-v0, filmed: an MP4 and a PNG")
     demo.add_argument("--out", default="out", help="output directory (default: out)")
-    demo.add_argument("--fps", type=float, default=20.0, help="video frame rate (default: 20)")
+    demo.add_argument(
+        "--fps", type=float, default=None, help="playback rate; frames are taken at 10 Hz (default: 10, real time)"
+    )
+    demo.add_argument("--seconds", type=float, default=60.0, help="simulated time (default: 60)")
     demo.add_argument("--width", type=int, default=960, help="frame width in pixels (default: 960)")
     demo.add_argument("--height", type=int, default=544, help="frame height in pixels (default: 544)")
     demo.set_defaults(func=_cmd_demo)
+
+    bench = sub.add_parser("bench", help="HexLoading-v0 vs Gymnasium Hopper-v5 steps per second, one process")
+    bench.add_argument("--steps", type=int, default=2000, help="random steps per environment (default: 2000)")
+    bench.add_argument("--seed", type=int, default=0, help="seed of the resets and actions (default: 0)")
+    bench.add_argument("--json", metavar="OUT", default=None, help="also write the figures to this JSON file")
+    bench.set_defaults(func=_cmd_bench)
+
+    scripted = sub.add_parser("scripted", help="run the scripted loader on HexLoading-v0: cycles, t/h, fuel")
+    scripted.add_argument("--episodes", type=int, default=1, help="episodes, seeds seed..seed+N-1 (default: 1)")
+    scripted.add_argument("--seed", type=int, default=0, help="first seed (default: 0)")
+    scripted.add_argument("--seconds", type=float, default=180.0, help="episode time budget, s (default: 180)")
+    scripted.add_argument("--json", metavar="OUT", default=None, help="also write the runs to this JSON file")
+    scripted.set_defaults(func=_cmd_scripted)
 
     model = sub.add_parser("model", help="print the machine model's masses, joint ranges and cylinders")
     model.add_argument("--json", action="store_true", help="print JSON")
@@ -143,6 +230,12 @@ def build_parser() -> argparse.ArgumentParser:
     simulate.add_argument("--start", default="home", help="keyframe to start from (default: home)")
     simulate.add_argument("--payload-kg", type=float, default=0.0, help="material in the bucket, kg (default: 0)")
     simulate.add_argument("--dt-out", type=float, default=0.05, help="output row interval, s (default: 0.05)")
+    simulate.add_argument(
+        "--backend",
+        choices=("auto", "python", "native"),
+        default="auto",
+        help="learned model: native plugin or Python (default: auto = native when built)",
+    )
     simulate.set_defaults(func=_cmd_simulate)
 
     report = sub.add_parser(
@@ -175,7 +268,56 @@ def build_parser() -> argparse.ArgumentParser:
     build = sub.add_parser("build-assets", help="regenerate assets/meshes and assets/cat325.xml (developers)")
     build.add_argument("--dir", default=str(Path(__file__).resolve().parent.parent / "assets"), help="assets dir")
     build.set_defaults(func=_cmd_build_assets)
+
+    _add_agent_parsers(sub)
     return parser
+
+
+def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
+    """``train``, ``clone``, ``evaluate`` and ``video``: agents for HexLoading-v0."""
+    policy_help = "'shipped' (packaged agent), 'scripted' (the scripted loader) or a model .zip"
+    train = sub.add_parser("train", help="train a PPO or SAC agent (rl-zoo3 hyperparameters; resumes checkpoints)")
+    train.add_argument("--algo", choices=("ppo", "sac"), default="ppo", help="algorithm (default: ppo)")
+    train.add_argument("--env", default="HexLoading-v0", help="environment id (default: HexLoading-v0)")
+    train.add_argument("--timesteps", type=int, default=None, help="total steps (default: the YAML's n_timesteps)")
+    train.add_argument("--seed", type=int, default=0, help="seed (default: 0)")
+    train.add_argument("-f", "--log-dir", default="logs", help="run directory root (default: logs)")
+    train.add_argument("--hyperparams", default=None, help="rl-zoo3 YAML (default: training/hyperparams/<algo>.yml)")
+    train.add_argument("--n-envs", type=int, default=None, help="parallel environments (default: one per core)")
+    train.add_argument("--init-from", default=None, help="start from this model .zip, e.g. from `hexgym clone`")
+    train.add_argument("--checkpoint-every", type=int, default=20000, help="steps between checkpoints")
+    train.add_argument("--no-progress", action="store_true", help="no progress bar")
+    train.set_defaults(func=_cmd_train)
+
+    clone = sub.add_parser("clone", help="behaviour-clone the scripted loader (with DAgger) into a PPO model")
+    clone.add_argument("--out", required=True, help="model .zip to write (statistics beside it)")
+    clone.add_argument("--episodes", type=int, default=16, help="scripted episodes (default: 16)")
+    clone.add_argument("--dagger-rounds", type=int, default=4, help="DAgger rounds (default: 4)")
+    clone.add_argument("--dagger-episodes", type=int, default=8, help="episodes per DAgger round (default: 8)")
+    clone.add_argument("--epochs", type=int, default=30, help="fitting epochs per round (default: 30)")
+    clone.add_argument("--seed", type=int, default=1000, help="first episode seed (default: 1000)")
+    clone.add_argument("--hyperparams", default=None, help="PPO YAML giving the network (default: ppo.yml)")
+    clone.set_defaults(func=_cmd_clone)
+
+    evaluate = sub.add_parser("evaluate", help="measure a policy on HexLoading-v0: success, t/h, cycle, fuel")
+    evaluate.add_argument("--policy", default="shipped", help=policy_help + " (default: shipped)")
+    evaluate.add_argument("--episodes", type=int, default=20, help="episodes, seeds seed..seed+N-1 (default: 20)")
+    evaluate.add_argument("--seed", type=int, default=0, help="first seed (default: 0)")
+    evaluate.add_argument("--seconds", type=float, default=None, help="episode time limit, s (default: the env's)")
+    evaluate.add_argument("--json", metavar="OUT", default=None, help="also write the figures to this JSON file")
+    evaluate.set_defaults(func=_cmd_evaluate)
+
+    video = sub.add_parser("video", help="render rollouts of a policy to an MP4 with a time/payload overlay")
+    video.add_argument("--policy", default="shipped", help=policy_help + " (default: shipped)")
+    video.add_argument("--out", required=True, help="MP4 file to write")
+    video.add_argument("--camera", choices=("chase", "cab"), default="chase", help="camera (default: chase)")
+    video.add_argument("--episodes", type=int, default=1, help="episodes (default: 1)")
+    video.add_argument("--seed", type=int, default=0, help="first seed (default: 0)")
+    video.add_argument("--seconds", type=float, default=None, help="episode length, s (default: the env's 180)")
+    video.add_argument("--width", type=int, default=640, help="frame width (default: 640)")
+    video.add_argument("--height", type=int, default=384, help="frame height (default: 384)")
+    video.add_argument("--snapshot", default=None, help="also write a PNG of a mid-episode frame")
+    video.set_defaults(func=_cmd_video)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -85,6 +85,7 @@ class LearnedModel:
         self._swing_rate_target = 0.0
         rate_axis = self.tables["swing"].axes[-1]  # the swing table's last input is the swing rate
         self._slowest_swing, self._fastest_swing = rate_axis[0], rate_axis[-1]
+        self._constraint_load = np.zeros(self.physics.model.nv)  # see _step_physics
 
     @property
     def timestep(self) -> float:
@@ -98,7 +99,8 @@ class LearnedModel:
         self.swing_acceleration = 0.0
         self._swing_rate_target = 0.0
         self.physics.set_actuator_targets(np.zeros(4))
-        self.physics.step()  # one step so the constraint forces (part of the loads) exist
+        self._constraint_load[:] = 0.0
+        self._step_physics(1)  # one step so the constraint forces (part of the loads) exist
         self.physics.data.time = 0.0
 
     def joint_loads(self) -> np.ndarray:
@@ -108,8 +110,21 @@ class LearnedModel:
         load, not its oil.
         """
         d = self.physics.data
-        tau = d.qfrc_bias - d.qfrc_passive - d.qfrc_applied - d.qfrc_constraint + self._limit_forces()
+        tau = d.qfrc_bias - d.qfrc_passive - d.qfrc_applied - self._constraint_load
         return tau[self._dofs]
+
+    def _step_physics(self, n: int) -> None:
+        """``physics.step(n)``, keeping each step's constraint load: ``qfrc_constraint`` less its
+        joint-limit share, both from that step's solve. (After ``mj_step1`` the constraint rows
+        already belong to the next state while ``efc_force`` and ``qfrc_constraint`` are the last
+        solve's, so the share cannot be taken then: a limit row that vanished would leave its
+        force, ~1e10 N m against the stiff servos, in the load.)
+        """
+        m, d = self.physics.model, self.physics.data
+        for _ in range(n):
+            mujoco.mj_step2(m, d)
+            self._constraint_load = d.qfrc_constraint - self._limit_forces()
+            mujoco.mj_step1(m, d)
 
     def _limit_forces(self) -> np.ndarray:
         """The joint limits' share of ``qfrc_constraint`` (J^T f over the limit rows)."""
@@ -187,7 +202,7 @@ class LearnedModel:
         self._swing_rate_target = new_rate
         targets = np.array([new_rate, v_boom / arms[0], v_stick / arms[1], v_bucket / arms[2]])
         ph.set_actuator_targets(targets)
-        ph.step(self._substeps)
+        self._step_physics(self._substeps)
 
     def observe(self) -> np.ndarray:
         """One trajectory row (``LEARNED_DTYPE``): the common columns, spools, cylinders, loads."""

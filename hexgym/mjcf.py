@@ -56,9 +56,13 @@ def _quat(angle: float) -> str:
     return _fmt(np.cos(angle / 2.0), 0.0, -np.sin(angle / 2.0), 0.0)
 
 
-def _box_inertia(mass: float, size: tuple[float, float, float]) -> str:
+def _box_diag(mass: float, size: tuple[float, float, float]) -> np.ndarray:
     x, y, z = size
-    return _fmt(mass * (y * y + z * z) / 12, mass * (x * x + z * z) / 12, mass * (x * x + y * y) / 12)
+    return np.array([mass * (y * y + z * z) / 12, mass * (x * x + z * z) / 12, mass * (x * x + y * y) / 12])
+
+
+def _box_inertia(mass: float, size: tuple[float, float, float]) -> str:
+    return _fmt(*_box_diag(mass, size))
 
 
 def _inertial(pos: tuple[float, float, float], mass: float, size: tuple[float, float, float]) -> str:
@@ -164,12 +168,30 @@ def _lumped_masses() -> dict[str, list[tuple[str, np.ndarray, float]]]:
     return out
 
 
-def _lumped_bodies(lumped: dict[str, list[tuple[str, np.ndarray, float]]], link: str, indent: str) -> str:
-    """Jointless bodies carrying the lumped point masses of ``link`` (lean model)."""
-    return "".join(
-        f'\n{indent}<body name="{name}" pos="{_planar(pos)}">{_inertial((0, 0, 0), mass, (0.3, 0.3, 0.3))}</body>'
-        for name, pos, mass in lumped.get(link, [])
-    )
+_POINT_MASS_SIZE = 0.3  # m: each lumped mass is a small box, so that no inertia is exactly zero
+
+
+def _merged_inertial(
+    pos: tuple[float, float, float], mass: float, diag: np.ndarray, points: list[tuple[str, np.ndarray, float]]
+) -> str:
+    """One ``<inertial>`` for a link and the point masses it carries (lean model), about their centre.
+
+    MuJoCo's ``fusestatic`` would merge jointless bodies the same way, but it would also merge the
+    ``payload`` body, whose mass the environment changes; merging here keeps the lean model at
+    seven bodies (a step costs ~10 % less than with one body per point mass).
+    """
+    masses = np.array([mass] + [m for _, _, m in points])
+    centres = np.array([pos] + [(x[0], 0.0, x[1]) for _, x, _ in points], dtype=float)
+    box = np.diag(np.full(3, _POINT_MASS_SIZE**2 / 6))  # a cube's inertia per kg
+    inertias = [np.diag(diag)] + [m * box for _, _, m in points]
+    total = masses.sum()
+    com = masses @ centres / total
+    inertia = np.zeros((3, 3))
+    for m, c, i in zip(masses, centres, inertias, strict=True):
+        r = c - com
+        inertia += i + m * (r @ r * np.eye(3) - np.outer(r, r))
+    full = (inertia[0, 0], inertia[1, 1], inertia[2, 2], inertia[0, 1], inertia[0, 2], inertia[1, 2])
+    return f'<inertial pos="{_fmt(*com)}" mass="{_fmt(total)}" fullinertia="{_fmt(*full)}"/>'
 
 
 def _range(name: str) -> str:
@@ -185,17 +207,28 @@ def model_xml(home_key: str | None = None, lean: bool = False) -> str:
     """
     a0 = machine.passive_joints(np.zeros(4))
     lumped = _lumped_masses() if lean else {}
-    bucket_masses = _lumped_bodies(lumped, "bucket", "              ")
 
-    def chain(cylinder: str, link: str, indent: str) -> str:
-        """The cylinder hinged on ``link`` (full model), or ``link``'s lumped masses (lean)."""
-        return (
-            _lumped_bodies(lumped, link, indent) if lean else _cylinder(cylinder, _CYLINDER_BASES[cylinder], a0, indent)
-        )
+    def chain(cylinder: str) -> str:
+        """The cylinder's bodies (full model; the lean model has its mass in the links)."""
+        indent = " " * {"boom": 8, "stick": 10, "bucket": 12}[cylinder]
+        return "" if lean else _cylinder(cylinder, _CYLINDER_BASES[cylinder], a0, indent) + "\n"
+
+    def link_inertial(link: str, pos: tuple[float, float, float], mass: float, size: tuple[float, float, float]) -> str:
+        """The link's inertial; in the lean model merged with the point masses it carries."""
+        if lean:
+            return _merged_inertial(pos, mass, _box_diag(mass, size), lumped[link])
+        return _inertial(pos, mass, size)
+
+    four_bar = "" if lean else _four_bar(a0, np.array([p.GUIDE_LINK_LENGTH, 0.0]))
+    upper_diag = np.array([0.45, 0.75, 1.0]) * p.UPPER_YAW_INERTIA
+    upper_inertial = (
+        _merged_inertial((-0.55, 0, 0.55), p.UPPER_MASS, upper_diag, lumped["upper"])
+        if lean
+        else f'<inertial pos="-0.55 0 0.55" mass="{_fmt(p.UPPER_MASS)}"\n          diaginertia="{_fmt(*upper_diag)}"/>'
+    )
 
     boom_pin = np.array([p.BOOM_LENGTH, 0.0])
     bucket_pin = np.array([p.STICK_LENGTH, 0.0])
-    power_link_pos = np.array([p.GUIDE_LINK_LENGTH, 0.0])
     upper_z = p.SWING_BEARING_HEIGHT
     key = "" if home_key is None else f"\n  <keyframe>\n    {home_key}\n  </keyframe>\n"
     return f"""<mujoco model="{"cat325_lean" if lean else "cat325"}">
@@ -266,8 +299,7 @@ def model_xml(home_key: str | None = None, lean: bool = False) -> str:
       <geom class="collision" type="box" size="{_fmt(p.TRACK_LENGTH / 2, p.TRACK_SHOE_WIDTH / 2, p.TRACK_HEIGHT / 2)}"
         pos="{_fmt(0, -p.TRACK_GAUGE / 2, p.TRACK_HEIGHT / 2)}"/>
       <body name="upper" pos="0 0 {_fmt(upper_z)}">
-        <inertial pos="-0.55 0 0.55" mass="{_fmt(p.UPPER_MASS)}"
-          diaginertia="{_fmt(0.45 * p.UPPER_YAW_INERTIA, 0.75 * p.UPPER_YAW_INERTIA, p.UPPER_YAW_INERTIA)}"/>
+        {upper_inertial}
         <joint name="swing" type="hinge" axis="0 0 1" damping="5000"/>
         <geom class="visual" mesh="upper_deck"/>
         <geom class="visual" mesh="cab"/>
@@ -276,9 +308,8 @@ def model_xml(home_key: str | None = None, lean: bool = False) -> str:
         <site name="boom_foot_pin" class="pin" pos="{_planar(p.BOOM_FOOT)}"/>
         <site name="boom_cylinder_base_pin" class="pin" pos="{_planar(p.BOOM_CYLINDER_BASE)}"/>
         <camera name="cab" pos="{_fmt(*CAB_EYE)}" xyaxes="0 -1 0 0.25 0 1" fovy="75"/>
-{chain("boom", "upper", "        ")}
-        <body name="boom" pos="{_planar(p.BOOM_FOOT)}">
-          {_inertial((2.9, 0, 0.55), p.BOOM_MASS, (6.2, 0.6, 0.75))}
+{chain("boom")}        <body name="boom" pos="{_planar(p.BOOM_FOOT)}">
+          {link_inertial("boom", (2.9, 0, 0.55), p.BOOM_MASS, (6.2, 0.6, 0.75))}
           <joint name="boom" class="front_joint" axis="0 -1 0" range="{_range("boom")}"/>
           <geom class="visual" mesh="boom"/>
           <geom class="collision" type="capsule" size="0.3"
@@ -288,9 +319,8 @@ def model_xml(home_key: str | None = None, lean: bool = False) -> str:
           <site name="boom_cylinder_rod_pin" class="pin" pos="{_planar(p.BOOM_CYLINDER_ROD_PIN)}"/>
           <site name="stick_cylinder_base_pin" class="pin" pos="{_planar(p.STICK_CYLINDER_BASE)}"/>
           <site name="stick_pin" class="pin" pos="{_planar(boom_pin)}"/>
-{chain("stick", "boom", "          ")}
-          <body name="stick" pos="{_planar(boom_pin)}" quat="{_quat(-np.pi / 2)}">
-            {_inertial((1.3, 0, 0.1), p.STICK_MASS, (3.6, 0.45, 0.5))}
+{chain("stick")}          <body name="stick" pos="{_planar(boom_pin)}" quat="{_quat(-np.pi / 2)}">
+            {link_inertial("stick", (1.3, 0, 0.1), p.STICK_MASS, (3.6, 0.45, 0.5))}
             <joint name="stick" class="front_joint" range="{_range("stick")}"/>
             <geom class="visual" mesh="stick"/>
             <geom class="collision" type="capsule" size="0.25"
@@ -299,14 +329,13 @@ def model_xml(home_key: str | None = None, lean: bool = False) -> str:
             <site name="bucket_cylinder_base_pin" class="pin" pos="{_planar(p.BUCKET_CYLINDER_BASE)}"/>
             <site name="guide_link_pivot_pin" class="pin" pos="{_planar(p.GUIDE_LINK_PIVOT)}"/>
             <site name="bucket_pin" class="pin" pos="{_planar(bucket_pin)}"/>
-{chain("bucket", "stick", "            ")}
-{"" if lean else _four_bar(a0, power_link_pos)}            <body name="bucket" pos="{_planar(bucket_pin)}">
-              {_inertial((0.75, 0, -0.3), p.BUCKET_MASS, (1.4, p.BUCKET_WIDTH, 1.0))}
+{chain("bucket")}{four_bar}            <body name="bucket" pos="{_planar(bucket_pin)}">
+              {link_inertial("bucket", (0.75, 0, -0.3), p.BUCKET_MASS, (1.4, p.BUCKET_WIDTH, 1.0))}
               <joint name="bucket" class="front_joint" range="{_range("bucket")}"/>
               <geom class="visual" mesh="bucket"/>
               <geom name="bucket_collision" class="collision" type="mesh" mesh="bucket"/>
               <site name="bucket_link_pin" class="pin" pos="{_planar(p.BUCKET_LINK_PIN)}"/>
-              <site name="tip" class="pin" pos="{_planar(p.BUCKET_TIP)}"/>{bucket_masses}
+              <site name="tip" class="pin" pos="{_planar(p.BUCKET_TIP)}"/>
               <body name="payload" pos="{_planar(PAYLOAD_CENTRE)}">
                 <site name="payload" class="pin"/>
               </body>
@@ -383,17 +412,17 @@ def home_keyframe(model_xml_text: str, meshdir: str) -> str:
     return f'<key name="home" qpos="{_fmt(*qpos)}"{act_attr}/>'
 
 
-def lean_scene_xml(scene_text: str) -> str:
-    """The scene around the lean machine: ``scene.xml`` with its include of the machine swapped.
+def scene_xml_around(scene_text: str, machine_file: str) -> str:
+    """The scene around another machine file: ``scene.xml`` with its include of the machine swapped.
 
-    ``assets/scene_lean.xml`` is generated from the hand-written ``assets/scene.xml`` by this, so
-    the two worlds cannot drift apart.
+    ``assets/scene_lean.xml`` (the lean machine) is generated from the hand-written
+    ``assets/scene.xml`` by this, so the two worlds cannot drift apart.
     """
     include = '<include file="cat325.xml"/>'
     if include not in scene_text:
         raise ValueError(f"scene does not include the machine as {include}")
     header = "<!-- Generated by hexgym/mjcf.py from scene.xml; edit that, then run `hexgym build-assets`. -->\n"
-    return header + scene_text.replace(include, '<include file="cat325_lean.xml"/>')
+    return header + scene_text.replace(include, f'<include file="{machine_file}"/>')
 
 
 def write_model(path: Path, lean: bool = False) -> None:

@@ -220,3 +220,37 @@ SWING_FRICTION_SPEED = 0.5  # rad/s at the motor shaft, tanh smoothing [est]
 BSFC_LOAD_FRACTION = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
 BSFC_MAP = (420.0, 300.0, 262.0, 243.0, 232.0, 224.0, 218.0, BSFC, 216.0, 220.0)  # g/kWh [est]
 ENGINE_NO_LOAD_FUEL = 3.0  # kg/h at rated speed, no load [derived: Willans-line extrapolation]
+
+# --------------------------------------------------------------------------------------------
+# Earthwork / truck (HexLoading-v0, hexgym.envs). The material is MATERIAL_DENSITY's sand and
+# gravel; the bucket's profile numbers are the bucket mesh's (hexgym.meshes, tested to agree).
+MATERIAL_FRICTION_ANGLE = np.radians(35.0)  # internal friction of loose sand and gravel [textbook 30-40 deg]
+MATERIAL_REPOSE_ANGLE = np.radians(34.0)  # angle of repose, dry sand and gravel [textbook 30-38 deg]
+MATERIAL_TOOL_FRICTION_ANGLE = np.radians(23.0)  # soil on steel, about 2/3 of the internal angle [textbook]
+BUCKET_STRUCK_CAPACITY = 0.938  # m^3 [derived: hexgym.meshes.bucket_struck_volume()]
+BUCKET_LIP = (0.140, -0.288)  # bucket frame (x, z): the top lip M of the mouth [derived: hexgym.meshes]
+BUCKET_EDGE = (1.291, -0.526)  # bucket frame: the cutting edge E (teeth root) [derived: hexgym.meshes]
+BUCKET_TEETH_DIRECTION = (0.209, -0.978)  # bucket frame unit vector, edge -> out along the floor [derived]
+BUCKET_SPILL_TIME_CONSTANT = 0.3  # s: excess material leaves the bucket with this time constant [est]
+DIG_REFERENCE_SPEED = 0.05  # m/s: digging resistance reaches its full value above this edge speed [est]
+DIG_VELOCITY_FILTER = 0.1  # s: the resistance follows the edge's velocity low-passed by this [est: without
+# it the force -> cylinder load -> table speed -> force loop oscillates at the control period]
+PILE_HEIGHT_RANGE = (1.3, 1.6)  # m, flat-topped heap of stockpiled material [est]
+PILE_TOP_RADIUS_RANGE = (1.0, 1.4)  # m, its flat top; flanks at the angle of repose [est]
+PILE_DISTANCE_RANGE = (7.0, 7.8)  # m from the swing axis to the pile's centre [est: within reach]
+PILE_SWING_RANGE = np.radians((-10.0, 10.0))  # direction of the pile from the machine's x axis [est]
+# A tandem-axle dump truck (e.g. a 10-wheeler): bed inside dimensions, floor height, rim [est]
+TRUCK_BED_LENGTH = 5.0  # m inside [est, 4.9-5.5]
+TRUCK_BED_WIDTH = 2.3  # m inside [est, 2.2-2.4]
+TRUCK_BED_FLOOR_HEIGHT = 1.55  # m above ground [est]
+TRUCK_BED_WALL_HEIGHT = 1.05  # m above the floor: rim at 2.6 m [est]
+TRUCK_CAPACITY = 13000.0  # kg payload [est: tandem dump truck, 12-15 t]
+TRUCK_DISTANCE_RANGE = (6.6, 7.4)  # m from the swing axis to the bed's centre [est: within dump reach]
+TRUCK_SWING_RANGE = np.radians((70.0, 110.0))  # |angle| of the truck from the machine's x axis, either side [est]
+# Fuel of the learned model: mechanical power at the actuators through the open-centre valves
+# and the pumps, plus the standby (bypass) flow's power, then BSFC (hexgym.hydraulics.fuel_rate)
+HYDRAULIC_VALVE_EFFICIENCY = 0.7  # actuator power / pump power: metering and line losses [est 0.6-0.8]
+STANDBY_HYDRAULIC_POWER = 2.0 * PUMP_IDLE_FLOW_FRACTION * PUMP_MAX_FLOW * NFC_PRESSURE_IDLE  # W [derived]
+HARD_CONTACT_FORCE = 50e3  # N: bucket/stick contact force above this counts as a hard contact [est]
+HARD_CONTACT_FORCE_CAP = 265e3  # N: counted at most this: the operating weight, beyond which the real
+# machine would lift itself off its tracks rather than press harder [derived: ~27 t x g]

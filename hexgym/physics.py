@@ -112,6 +112,27 @@ class ExcavatorPhysics:
         self.payload_kg = 0.0
         self.reset()
 
+    # -- pickling ------------------------------------------------------------------------
+    def __getstate__(self) -> dict:
+        """Pickle the model and the simulation state (``mjSTATE_INTEGRATION``), not the ``MjData``.
+
+        Unpickling an ``MjData`` copies its plugin instances' pointers, so two datas would share
+        (and both free) the native plugin's instance; a fresh ``MjData`` set to the state has its own.
+        """
+        state = self.__dict__.copy()
+        kind = mujoco.mjtState.mjSTATE_INTEGRATION
+        sim_state = np.empty(mujoco.mj_stateSize(self.model, kind))
+        mujoco.mj_getState(self.model, self.data, sim_state, kind)
+        state["data"] = sim_state
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        sim_state = state.pop("data")
+        self.__dict__.update(state)
+        self.data = mujoco.MjData(self.model)
+        mujoco.mj_setState(self.model, self.data, sim_state, mujoco.mjtState.mjSTATE_INTEGRATION)
+        mujoco.mj_step1(self.model, self.data)  # positions and velocities derived, as after step()
+
     # -- state ---------------------------------------------------------------------------
     def reset(self, keyframe: str = "home") -> None:
         """Reset to a keyframe of the model (time 0, payload kept)."""
@@ -218,7 +239,12 @@ class ExcavatorPhysics:
             mass_kg * (size[0] ** 2 + size[2] ** 2) / 12,
             mass_kg * (size[0] ** 2 + size[1] ** 2) / 12,
         ]
+        # mj_setConst recomputes the model's constants at qpos0 in this MjData: keep the state
+        kind = mujoco.mjtState.mjSTATE_INTEGRATION
+        state = np.empty(mujoco.mj_stateSize(self.model, kind))
+        mujoco.mj_getState(self.model, self.data, state, kind)
         mujoco.mj_setConst(self.model, self.data)
+        mujoco.mj_setState(self.model, self.data, state, kind)
         mujoco.mj_forward(self.model, self.data)
 
     def apply_tip_force(self, force: np.ndarray) -> None:

@@ -17,6 +17,56 @@ from hexgym.files import atomic_path
 CAMERAS = ("chase", "cab")
 
 
+class ModelMirror:
+    """Shows a simulation of the lean machine with the full one: cylinders, rods and bucket links drawn.
+
+    The lean model (``assets/cat325_lean.xml``) has no cylinder or four-bar bodies; for pictures,
+    :meth:`sync` poses the full model (``target``, the same world around the full machine) at the
+    lean simulation's main joint angles with the closed chains assembled (:func:`assembled_state`),
+    and copies what the world shows: mocap bodies, heightfields and the sizes and colours of the
+    geoms both models name alike (e.g. a load drawn in the bucket or the truck). Returns from
+    :meth:`sync` which heightfields changed, so a renderer can re-upload them.
+    """
+
+    def __init__(self, source: mujoco.MjModel, target: mujoco.MjModel) -> None:
+        from hexgym import machine
+
+        self.target = target
+        self._source_q = np.array([source.jnt_qposadr[source.joint(n).id] for n in machine.JOINTS])
+        if source.nmocap != target.nmocap:
+            raise ValueError(f"models differ in mocap bodies: {source.nmocap} vs {target.nmocap}")
+        self._geoms = [
+            (i, target.geom(source.geom(i).name).id)
+            for i in range(source.ngeom)
+            if source.geom(i).name and mujoco.mj_name2id(target, mujoco.mjtObj.mjOBJ_GEOM, source.geom(i).name) >= 0
+        ]
+        self._hfields = [
+            (source.hfield(i).name, i, target.hfield(source.hfield(i).name).id) for i in range(source.nhfield)
+        ]
+        self._source = source
+
+    def sync(self, source_data: mujoco.MjData, target_data: mujoco.MjData) -> list[int]:
+        """Pose ``target_data`` like ``source_data``; the target heightfield ids whose data changed."""
+        from hexgym.physics import assembled_state
+
+        src, tgt = self._source, self.target
+        qpos, _ = assembled_state(tgt, source_data.qpos[self._source_q])
+        target_data.qpos[:] = qpos
+        target_data.mocap_pos[:], target_data.mocap_quat[:] = source_data.mocap_pos, source_data.mocap_quat
+        target_data.time = source_data.time
+        for i, j in self._geoms:
+            tgt.geom_size[j], tgt.geom_rgba[j] = src.geom_size[i], src.geom_rgba[i]
+        changed = []
+        for _, i, j in self._hfields:
+            a, n = src.hfield_adr[i], src.hfield_nrow[i] * src.hfield_ncol[i]
+            b = tgt.hfield_adr[j]
+            if not np.array_equal(tgt.hfield_data[b : b + n], src.hfield_data[a : a + n]):
+                tgt.hfield_data[b : b + n] = src.hfield_data[a : a + n]
+                changed.append(j)
+        mujoco.mj_forward(tgt, target_data)
+        return changed
+
+
 class FrameRenderer:
     """Renders RGB frames of ``(model, data)`` from a named camera of the scene."""
 

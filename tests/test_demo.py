@@ -4,7 +4,7 @@ import imageio.v2 as imageio
 import imageio.v3 as iio
 import numpy as np
 
-from hexgym.demo import DEMO_COMMANDS, run_demo
+from hexgym.demo import run_demo
 from hexgym.physics import ExcavatorPhysics
 from hexgym.render import FrameRenderer
 
@@ -34,7 +34,6 @@ def test_demo_writes_video_and_snapshot(tmp_path):
     assert not list(tmp_path.glob(".*tmp*"))  # atomic writes leave no temporaries
 
 
-def test_spool_schedule():
-    assert np.array_equal(DEMO_COMMANDS.spools_at(0.0), [0, 0, 0, 0])
-    assert np.array_equal(DEMO_COMMANDS.spools_at(0.5), DEMO_COMMANDS.spools_mm[1])
-    assert np.abs(DEMO_COMMANDS.spools_mm).max() <= 11.0
+def test_demo_reports_the_scripted_run(tmp_path):
+    result = run_demo(tmp_path, width=64, height=48, duration=0.5)
+    assert result["metrics"]["sim_seconds"] == 0.5 and result["metrics"]["delivered_t"] == 0.0

@@ -24,9 +24,10 @@ def test_committed_xml_matches_generator(name, lean):
     assert committed == generated, f"assets/{name} is stale: run `hexgym build-assets`"
 
 
-def test_lean_scene_is_the_scene_around_the_lean_machine():
-    generated = mjcf.lean_scene_xml(asset_path("scene.xml").read_text())
-    assert asset_path("scene_lean.xml").read_text() == generated, "stale: run `hexgym build-assets`"
+@pytest.mark.parametrize(("scene", "machine_file"), [("scene_lean.xml", "cat325_lean.xml")])
+def test_generated_scenes_are_the_scene_around_their_machine(scene, machine_file):
+    generated = mjcf.scene_xml_around(asset_path("scene.xml").read_text(), machine_file)
+    assert asset_path(scene).read_text() == generated, "stale: run `hexgym build-assets`"
     model = load_model(scene=True, lean=True)
     assert model.nv == 4 and model.geom("ground").id >= 0 and model.camera("chase").id >= 0
 
@@ -38,9 +39,7 @@ def test_lean_model_has_the_full_models_mass_and_loads():
     full, lean = LearnedModel(model=load_model()), LearnedModel(model=load_model(lean=True))
     assert lean.physics.model.nv == 4 and lean.physics.model.neq == 0
     assert full.physics.model.body_subtreemass[1] == pytest.approx(lean.physics.model.body_subtreemass[1], rel=1e-9)
-    relief = np.array(
-        [p.LINE_RELIEF[c] * p.CYLINDERS[c].head_area for c in machine.FRONT_CYLINDERS]
-    )
+    relief = np.array([p.LINE_RELIEF[c] * p.CYLINDERS[c].head_area for c in machine.FRONT_CYLINDERS])
     rng = np.random.default_rng(0)
     for _ in range(20):
         q = np.array([0.0, *(rng.uniform(*machine.joint_range(j)) for j in machine.JOINTS[1:])])
@@ -171,3 +170,14 @@ def test_payload_and_tip_force_change_the_loads():
         physics.set_payload(float("nan"))
     with pytest.raises(ValueError, match="tip force"):
         physics.apply_tip_force(np.array([1.0, np.nan, 0.0]))
+
+
+def test_setting_the_payload_mid_motion_keeps_the_state():
+    physics = ExcavatorPhysics(load_model(lean=True))
+    physics.set_joint_state(np.array([0.4, 0.2, 0.6, 0.3]), np.array([0.1, -0.05, 0.2, 0.0]))
+    physics.data.time = 3.0
+    q, qd = physics.joint_positions(), physics.joint_velocities()
+    physics.set_payload(1500.0)
+    np.testing.assert_array_equal(physics.joint_positions(), q)
+    np.testing.assert_array_equal(physics.joint_velocities(), qd)
+    assert physics.data.time == 3.0 and physics.model.body("payload").mass[0] == 1500.0

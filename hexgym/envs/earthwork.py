@@ -1,0 +1,359 @@
+"""Earthwork of the loading task: the pile, digging, the bucket's contents, spills and the truck.
+
+Pure numpy: the environment hands in the bucket's pose and velocity (world frame, SI) and gets
+back the digging resistance and where material went. Material lives in exactly four stores,
+the pile (a heightmap), the bucket, the truck and the ground (spilled), and only moves between
+them, so their sum is constant (:meth:`Earthwork.total_kg`).
+
+- **Pile**: heights on a vertex grid (the MuJoCo hfield's layout), a flat-topped heap whose flanks
+  stand at the angle of repose. Digging lowers the surface under the cutting edge; a local
+  avalanche step then lets slopes steeper than the angle of repose slide.
+- **Digging**: the edge takes material at ``width x depth x (edge speed along the teeth)``: the
+  fill rate grows with the cutting depth and falls with the attack angle between the teeth and
+  the motion (zero when the bucket moves backwards). Resistance is the fundamental earthmoving
+  equation (Reece 1964, with McKyes' factors for a flat blade; no cohesion):
+  ``F = w (gamma d^2 N_gamma + q d N_q)``, the surcharge ``q`` being the weight of the material
+  already in the bucket over its mouth; the failure plane minimises the force. It acts against
+  the edge's motion.
+- **Contents**: buried in the pile, the bucket fills to its heaped capacity whatever its tilt.
+  Out of it, the bucket holds its heaped capacity with the mouth facing up, its struck
+  capacity once tilted to the angle of repose, nothing once the mouth faces down past it. What it
+  cannot hold leaves with a short time constant, into the truck when the caller says it falls
+  in the bed, otherwise onto the ground.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from hexgym import parameters as p
+
+_GAMMA = p.MATERIAL_DENSITY * p.GRAVITY  # unit weight, N/m^3
+_EDGE_SAMPLES = 5  # points along the cutting edge where the depth is measured
+_RELAX_ITERATIONS = 3  # avalanche passes after each cut
+_RAKE_LIMITS = np.radians((5.0, 90.0))  # rake angles outside this are treated as at the limit
+_EDGE_OFFSETS = tuple(np.linspace(-p.BUCKET_WIDTH / 2.0, p.BUCKET_WIDTH / 2.0, _EDGE_SAMPLES).tolist())
+
+
+def earthmoving_factors(
+    rake: np.ndarray | float,
+    friction: float = p.MATERIAL_FRICTION_ANGLE,
+    tool_friction: float = p.MATERIAL_TOOL_FRICTION_ANGLE,
+) -> tuple[np.ndarray, np.ndarray]:
+    """N_gamma and N_q of the fundamental earthmoving equation for a flat blade at ``rake`` (rad).
+
+    McKyes (1985): ``N_gamma = (cot b + cot r) / (2 [cos(b + d) + sin(b + d) cot(r + f)])`` and
+    ``N_q`` twice that, minimised over the failure-plane angle ``r`` (the soil fails where it
+    resists least).
+    """
+    rake = np.atleast_1d(np.asarray(rake, dtype=float))[:, None]
+    failure = np.radians(np.linspace(1.0, 89.0, 177))[None, :]
+    denominator = np.cos(rake + tool_friction) + np.sin(rake + tool_friction) / np.tan(failure + friction)
+    wedge = 1.0 / np.tan(rake) + 1.0 / np.tan(failure)
+    n_q = np.where(denominator > 1e-3, wedge / np.maximum(denominator, 1e-3), np.inf).min(axis=1)
+    return n_q / 2.0, n_q
+
+
+_RAKE_GRID = np.linspace(*_RAKE_LIMITS, 171)
+_N_GAMMA_GRID, _N_Q_GRID = earthmoving_factors(_RAKE_GRID)
+
+
+def digging_resistance(depth: float, rake: float, surcharge_pa: float, width: float = p.BUCKET_WIDTH) -> float:
+    """Magnitude (N) of the earthmoving force on an edge ``width`` wide cutting ``depth`` m deep."""
+    if depth <= 0.0:
+        return 0.0
+    rake = min(max(float(rake), _RAKE_LIMITS[0]), _RAKE_LIMITS[1])
+    n_gamma = np.interp(rake, _RAKE_GRID, _N_GAMMA_GRID)
+    n_q = np.interp(rake, _RAKE_GRID, _N_Q_GRID)
+    return float(width * (_GAMMA * depth**2 * n_gamma + surcharge_pa * depth * n_q))
+
+
+def retained_volume(tilt: float) -> float:
+    """Material (m^3) the bucket holds with its mouth tilted ``tilt`` rad from facing straight up."""
+    return float(
+        np.interp(
+            tilt,
+            (0.0, p.MATERIAL_REPOSE_ANGLE, np.pi / 2.0 + p.MATERIAL_REPOSE_ANGLE),
+            (p.BUCKET_HEAPED_CAPACITY, p.BUCKET_STRUCK_CAPACITY, 0.0),
+        )
+    )
+
+
+def frustum_heights(
+    x: np.ndarray, y: np.ndarray, height: float, top_radius: float, repose: float = p.MATERIAL_REPOSE_ANGLE
+) -> np.ndarray:
+    """Heights of a flat-topped conical heap centred on (0, 0) at grid points ``x``, ``y`` (m)."""
+    r = np.hypot(x, y)
+    return np.clip(height - (r - top_radius) * np.tan(repose), 0.0, height)
+
+
+class Pile:
+    """A heightmap of material on a square vertex grid, axis-aligned with the world.
+
+    Args:
+        heights: (n, n) heights above the ground, m; row ``i`` is at ``y = centre_y + (i - (n-1)/2) spacing``,
+            column ``j`` at ``x = centre_x + (j - (n-1)/2) spacing`` (MuJoCo's hfield layout).
+        centre: (x, y) of the grid's centre in the world, m.
+        spacing: distance between grid points, m; each point stands for a ``spacing^2`` cell.
+    """
+
+    def __init__(self, heights: np.ndarray, centre: tuple[float, float], spacing: float) -> None:
+        heights = np.array(heights, dtype=float)
+        if heights.ndim != 2 or heights.shape[0] != heights.shape[1] or not np.all(np.isfinite(heights)):
+            raise ValueError(f"pile heights must be a finite square grid, got shape {heights.shape}")
+        if np.any(heights < 0):
+            raise ValueError("pile heights must be >= 0")
+        self.heights = heights
+        self.centre = np.array(centre, dtype=float)
+        self.spacing = float(spacing)
+        n = heights.shape[0]
+        self.half_size = (n - 1) * spacing / 2.0
+        self._origin = self.centre - self.half_size  # (x, y) of grid point [0, 0]
+        self.top = float(heights.max())  # an upper bound of the surface: digging only lowers it
+
+    @classmethod
+    def heap(cls, centre: tuple[float, float], height: float, top_radius: float, n: int, spacing: float) -> Pile:
+        """A flat-topped heap at the angle of repose on an ``n x n`` grid."""
+        offsets = (np.arange(n) - (n - 1) / 2.0) * spacing
+        x, y = np.meshgrid(offsets, offsets)
+        return cls(frustum_heights(x, y, height, top_radius), centre, spacing)
+
+    @property
+    def cell_area(self) -> float:
+        """Area each grid point stands for, m^2."""
+        return self.spacing**2
+
+    def volume(self) -> float:
+        """Material in the pile, m^3."""
+        return float(self.heights.sum()) * self.cell_area
+
+    def height_at(self, xy: np.ndarray) -> np.ndarray:
+        """Surface height (m) at world points ``xy`` (..., 2), bilinear; 0 off the grid."""
+        xy = np.asarray(xy, dtype=float)
+        u = (xy[..., 0] - self._origin[0]) / self.spacing
+        v = (xy[..., 1] - self._origin[1]) / self.spacing
+        last = self.heights.shape[0] - 1
+        inside = (u >= 0) & (v >= 0) & (u <= last) & (v <= last)
+        # (np.minimum/maximum: np.clip costs several times more on these few points)
+        j = np.minimum(np.maximum(np.floor(u), 0), last - 1).astype(int)
+        i = np.minimum(np.maximum(np.floor(v), 0), last - 1).astype(int)
+        fu = np.minimum(np.maximum(u - j, 0.0), 1.0)
+        fv = np.minimum(np.maximum(v - i, 0.0), 1.0)
+        h = self.heights
+        top = h[i, j] * (1 - fu) + h[i, j + 1] * fu
+        bottom = h[i + 1, j] * (1 - fu) + h[i + 1, j + 1] * fu
+        return np.where(inside, top * (1 - fv) + bottom * fv, 0.0)
+
+    def height_at_point(self, x: float, y: float) -> float:
+        """:meth:`height_at` for one point, in plain Python (several times faster than numpy for one)."""
+        u, v = (x - self._origin[0]) / self.spacing, (y - self._origin[1]) / self.spacing
+        last = self.heights.shape[0] - 1
+        if not (0.0 <= u <= last and 0.0 <= v <= last):
+            return 0.0
+        j, i = min(int(u), last - 1), min(int(v), last - 1)
+        fu, fv = u - j, v - i
+        h = self.heights
+        top = h[i, j] * (1.0 - fu) + h[i, j + 1] * fu
+        bottom = h[i + 1, j] * (1.0 - fu) + h[i + 1, j + 1] * fu
+        return float(top * (1.0 - fv) + bottom * fv)
+
+    def may_reach(self, point: np.ndarray, margin: float) -> bool:
+        """Whether material may lie within a bucket's width of ``point`` (world) above ``point``'s height - margin.
+
+        A cheap bound: the highest grid point within ``BUCKET_WIDTH`` (a square window).
+        """
+        if point[2] - margin >= self.top:
+            return False
+        window = self._window(np.asarray(point[:2], dtype=float), p.BUCKET_WIDTH)
+        return window is not None and float(self.heights[window].max()) > point[2] - margin
+
+    def _window(self, xy: np.ndarray, radius: float) -> tuple[slice, slice] | None:
+        """Row and column slices of the grid points within ``radius`` of ``xy`` (a square), or None."""
+        n, inv = self.heights.shape[0], 1.0 / self.spacing
+        x, y = float(xy[0]) - self._origin[0], float(xy[1]) - self._origin[1]
+        c0, c1 = max(math.floor((x - radius) * inv), 0), min(math.ceil((x + radius) * inv) + 1, n)
+        r0, r1 = max(math.floor((y - radius) * inv), 0), min(math.ceil((y + radius) * inv) + 1, n)
+        if c1 <= c0 or r1 <= r0:
+            return None
+        return slice(r0, r1), slice(c0, c1)
+
+    def take(self, xy: np.ndarray, lateral: np.ndarray, width: float, floor: float, volume: float) -> float:
+        """Remove up to ``volume`` m^3 lying above height ``floor`` in the edge's footprint; return it.
+
+        The footprint is the strip ``width`` wide along the unit vector ``lateral`` and one grid
+        spacing deep each side, centred on ``xy``. Each point gives up the same fraction of its
+        material above the floor, so the surface lowers evenly towards the edge.
+        """
+        if volume <= 0.0:
+            return 0.0
+        window = self._window(xy, width / 2.0 + self.spacing)
+        if window is None:
+            return 0.0
+        rows, cols = window
+        gy, gx = np.mgrid[rows, cols]
+        dx = self._origin[0] + gx * self.spacing - xy[0]
+        dy = self._origin[1] + gy * self.spacing - xy[1]
+        along = dx * lateral[0] + dy * lateral[1]
+        across = np.abs(dx * lateral[1] - dy * lateral[0])
+        in_strip = (np.abs(along) <= width / 2.0) & (across <= self.spacing)
+        patch = self.heights[rows, cols]
+        available = np.where(in_strip, np.maximum(patch - floor, 0.0), 0.0)
+        total = float(available.sum()) * self.cell_area
+        if total <= 0.0:
+            return 0.0
+        before = float(patch.sum())
+        patch -= available * min(1.0, volume / total)
+        self.relax((rows, cols))
+        # the relaxation moves material inside the window only, so the window's loss is the take
+        return (before - float(self.heights[rows, cols].sum())) * self.cell_area
+
+    def relax(self, window: tuple[slice, slice] | None = None, iterations: int = _RELAX_ITERATIONS) -> None:
+        """Let slopes steeper than the angle of repose slide (mass-conserving), inside ``window``."""
+        rows, cols = window if window is not None else (slice(None), slice(None))
+        h = self.heights[rows, cols]  # a view: updates land in the pile
+        limit = np.tan(p.MATERIAL_REPOSE_ANGLE) * self.spacing
+        for _ in range(iterations):
+            for axis in (0, 1):
+                dh = np.diff(h, axis=axis)
+                flow = 0.25 * np.sign(dh) * np.maximum(np.abs(dh) - limit, 0.0)  # from higher to lower
+                if axis == 0:
+                    h[1:, :] -= flow
+                    h[:-1, :] += flow
+                else:
+                    h[:, 1:] -= flow
+                    h[:, :-1] += flow
+
+
+@dataclass
+class DigResult:
+    """What one digging interval did: the resistance on the edge (N, world) and the material taken (kg)."""
+
+    force: np.ndarray
+    taken_kg: float
+    depth: float
+
+
+@dataclass
+class SpillResult:
+    """Material that left the bucket in one interval (kg), by where it landed."""
+
+    to_truck_kg: float
+    to_ground_kg: float
+
+
+class Earthwork:
+    """The four material stores of the loading task and the moves between them.
+
+    Args:
+        pile: the material heap.
+        density: bulk density of the material, kg/m^3.
+    """
+
+    def __init__(self, pile: Pile, density: float = p.MATERIAL_DENSITY) -> None:
+        self.pile = pile
+        self.density = float(density)
+        self.bucket_kg = 0.0
+        self.truck_kg = 0.0
+        self.spilled_kg = 0.0
+        self.initial_kg = self.total_kg()
+
+    @property
+    def pile_kg(self) -> float:
+        """Material in the pile, kg."""
+        return self.pile.volume() * self.density
+
+    @property
+    def bucket_volume(self) -> float:
+        """Material in the bucket, m^3."""
+        return self.bucket_kg / self.density
+
+    def total_kg(self) -> float:
+        """Pile + bucket + truck + spilled, kg: constant."""
+        return self.pile_kg + self.bucket_kg + self.truck_kg + self.spilled_kg
+
+    def stores(self) -> dict[str, float]:
+        """Each store's material, kg."""
+        return {"pile": self.pile_kg, "bucket": self.bucket_kg, "truck": self.truck_kg, "spilled": self.spilled_kg}
+
+    def dig(
+        self,
+        edge: np.ndarray,
+        lateral: np.ndarray,
+        teeth: np.ndarray,
+        velocity: np.ndarray,
+        dt: float,
+        force_velocity: np.ndarray | None = None,
+    ) -> DigResult:
+        """Cut with the bucket's edge for ``dt`` s.
+
+        Args:
+            edge: centre of the cutting edge (the teeth), world m.
+            lateral: unit vector along the edge (the bucket's width), world.
+            teeth: unit vector the teeth point along (out of the bucket along its floor), world.
+            velocity: the edge's velocity, m/s, world (sets the fill).
+            force_velocity: the velocity the resistance opposes (default ``velocity``); the
+                environment passes a low-passed one so that the force does not chatter.
+            dt: interval, s.
+        """
+        floor = max(float(edge[2]), 0.0)  # the pile stands on the ground: no material below it
+        if not self.pile.may_reach(edge, 0.0):
+            return DigResult(np.zeros(3), 0.0, 0.0)  # clear of the pile: the common case, kept cheap
+        x, y, lx, ly = float(edge[0]), float(edge[1]), float(lateral[0]), float(lateral[1])
+        depths = (self.pile.height_at_point(x + o * lx, y + o * ly) - floor for o in _EDGE_OFFSETS)
+        depth = sum(max(d, 0.0) for d in depths) / _EDGE_SAMPLES
+        if depth <= 0.0:
+            return DigResult(np.zeros(3), 0.0, 0.0)
+        # fill: the edge slices a layer `depth` thick as it moves along the teeth
+        cut_speed = max(float(velocity @ teeth), 0.0)
+        # buried, the pile holds the contents in whatever the tilt: the bucket fills to its heap
+        room = max(p.BUCKET_HEAPED_CAPACITY - self.bucket_volume, 0.0)
+        wanted = min(p.BUCKET_WIDTH * depth * cut_speed * dt, room)
+        taken_kg = self.pile.take(edge[:2], lateral, p.BUCKET_WIDTH, floor, wanted) * self.density
+        self.bucket_kg += taken_kg
+        # resistance: the fundamental earthmoving equation against the motion
+        if force_velocity is not None:
+            velocity = force_velocity
+        speed = float(np.linalg.norm(velocity))
+        travel = velocity / speed if speed > 1e-9 else teeth
+        horizontal = np.hypot(*travel[:2])
+        forward = (teeth[:2] @ travel[:2]) / horizontal if horizontal > 1e-9 else 0.0
+        rake = float(np.arctan2(-teeth[2], forward))
+        surcharge = _GAMMA * self.bucket_volume / (p.BUCKET_WIDTH * _MOUTH_LENGTH)
+        magnitude = digging_resistance(depth, rake, surcharge)
+        force = -magnitude * velocity / max(speed, p.DIG_REFERENCE_SPEED)
+        force -= (force @ lateral) * lateral  # in the arm's plane: the edge cuts, its side plates do not
+        return DigResult(force, taken_kg, depth)
+
+    def spill(self, tilt: float, into_truck: bool, dt: float) -> SpillResult:
+        """Let what the bucket cannot hold at ``tilt`` run out for ``dt`` s, into the truck or onto the ground.
+
+        Call it only while the edge is out of the pile (inside, the pile holds the contents).
+        """
+        excess_kg = self.bucket_kg - retained_volume(tilt) * self.density
+        if excess_kg <= 0.0:
+            return SpillResult(0.0, 0.0)
+        out = excess_kg * (1.0 - np.exp(-dt / p.BUCKET_SPILL_TIME_CONSTANT))
+        if self.bucket_kg - out < 1.0:  # the last kilogram goes too, not asymptotically
+            out = self.bucket_kg
+        out = float(min(out, self.bucket_kg))
+        self.bucket_kg -= out
+        if into_truck:
+            self.truck_kg += out
+            return SpillResult(out, 0.0)
+        self.spilled_kg += out
+        return SpillResult(0.0, out)
+
+
+_MOUTH_LENGTH = float(np.hypot(*np.subtract(p.BUCKET_EDGE, p.BUCKET_LIP)))  # strike line, m
+
+
+def mouth_normal() -> np.ndarray:
+    """Unit normal (bucket frame x, z) of the bucket's mouth, pointing out of the bucket."""
+    lip, edge = np.array(p.BUCKET_LIP), np.array(p.BUCKET_EDGE)
+    d = edge - lip
+    n = np.array([-d[1], d[0]]) / np.hypot(*d)
+    mid = (lip + edge) / 2.0
+    return -n if n @ (np.zeros(2) - mid) > 0 else n  # the pin is on the inside

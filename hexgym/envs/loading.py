@@ -1,0 +1,561 @@
+"""``HexLoading-v0``: load a dump truck from a pile with the Cat 325-class excavator."""
+
+from __future__ import annotations
+
+import functools
+import math
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+from gymnasium import spaces
+
+from hexgym import machine
+from hexgym import parameters as p
+from hexgym.envs import fuel
+from hexgym.envs.earthwork import Earthwork, Pile, mouth_normal
+from hexgym.envs.world import PILE_GRID_POINTS, PILE_GRID_SPACING, Layout, World, build_world_model, sample_layout
+from hexgym.learned import LearnedModel
+from hexgym.resources import asset_path
+
+if TYPE_CHECKING:
+    from hexgym.native import NativeLearnedModel
+
+CONTROL_PERIOD = 0.01  # s: the Python machine model's table period (on a model with a shorter step)
+STEP_PERIOD = 0.1  # s: one environment step, 10 Hz, an operator's reaction time scale
+PAYLOAD_UPDATE_KG = 20.0  # re-mass the bucket only on changes this large (1 % of a heaped bucket): mj_setConst is slow
+_PILE_MARGIN = 0.6  # m: teeth higher above the pile nearby cannot reach it within a step (~3 m/s at most)
+START_NOISE = 0.1  # rad, uniform noise on the start pose's boom, stick and bucket angles
+_HOME = np.array([0.0, 0.35, 0.85, 0.75])  # the machine's keyframe `home`: bucket curled near the ground
+_TEETH = np.array([p.BUCKET_TEETH_DIRECTION[0], 0.0, p.BUCKET_TEETH_DIRECTION[1]])
+_MOUTH_NORMAL = np.array([mouth_normal()[0], 0.0, mouth_normal()[1]])
+_MOUTH_CENTRE = np.array([(p.BUCKET_LIP[0] + p.BUCKET_EDGE[0]) / 2, 0.0, (p.BUCKET_LIP[1] + p.BUCKET_EDGE[1]) / 2])
+REWARD_TERMS = ("delivery", "fill", "time", "fuel", "spill", "contact")
+OBSERVATION_NAMES = (
+    "boom_angle", "stick_angle", "bucket_angle", "swing_to_pile", "swing_to_truck",
+    "swing_rate", "boom_rate", "stick_rate", "bucket_rate",
+    "boom_load", "stick_load", "bucket_load", "payload",
+    "tip_pile_radial", "tip_pile_lateral", "tip_above_pile",
+    "tip_truck_along", "tip_truck_across", "tip_above_rim",
+    "bucket_tilt", "truck_fill", "time_left",
+)  # fmt: skip
+# Bounds (observations are clipped to them): angles, rates (rad/s) well beyond the servos' ranges,
+# loads (MN) beyond the reliefs' forces, a bucket's load (t), the site's extent (m)
+_OBS_HIGH = np.array([np.pi] * 5 + [10.0] * 4 + [10.0] * 3 + [5.0] + [30.0] * 6 + [np.pi, 2.0, 1.0], np.float32)
+_OBS_LOW = np.array([-np.pi] * 5 + [-10.0] * 4 + [-10.0] * 3 + [0.0] + [-30.0] * 6 + [0.0, 0.0, 0.0], np.float32)
+
+
+BACKENDS = ("auto", "python", "native")
+PYTHON_SCENE = "scene_lean.xml"  # the learned model's default machine (hexgym.learned)
+
+
+def make_machine(backend: str = "auto", scene_path: str | Path | None = None) -> LearnedModel | NativeLearnedModel:
+    """The machine model that drives the environment, on the loading site (the one place to change backends).
+
+    ``"python"``: :class:`hexgym.learned.LearnedModel` on the lean machine (``scene_lean.xml``:
+    no cylinder bodies, 25 ms step); ``"native"``: the ``hexgym.mbl`` MuJoCo plugin on
+    ``cat325_mbl.xml`` (:mod:`hexgym.native`, needs the built plugin). ``scene_path`` overrides
+    the scene (e.g. the full ``scene.xml``). ``"auto"``: native when the plugin is built, else
+    Python (saying why once).
+    """
+    if backend == "auto":
+        from hexgym.native import resolve_backend
+
+        backend = resolve_backend()
+    if backend == "python":
+        model = build_world_model(scene_path if scene_path is not None else asset_path(PYTHON_SCENE))
+        step = model.opt.timestep  # the tables are asked every CONTROL_PERIOD, or every step if longer
+        return LearnedModel(model=model, control_period=step * max(1, round(CONTROL_PERIOD / step)))
+    if backend == "native":
+        from hexgym.native import NativeLearnedModel, require_plugin
+
+        require_plugin()
+        return NativeLearnedModel(model=build_world_model(scene_path, machine_file="cat325_mbl.xml"))
+    raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+
+
+@functools.cache
+def _moment_arm_tables() -> tuple[tuple[np.ndarray, np.ndarray], ...]:
+    """Each front cylinder's moment arm (m/rad) sampled over its joint range every ~1 mrad.
+
+    The arm depends on its own joint angle only; interpolating this is ~50x faster than the
+    four-bar solution of :func:`hexgym.machine.moment_arm` and within 5e-6 m of it (a test).
+    """
+    tables = []
+    for name in machine.FRONT_CYLINDERS:
+        angles = np.linspace(*machine.joint_range(name), 2001)
+        tables.append((angles, np.array([machine.moment_arm(name, a) for a in angles])))
+    return tuple(tables)
+
+
+def moment_arms(q: np.ndarray) -> np.ndarray:
+    """[boom, stick, bucket] moment arms (m/rad) at main joint angles ``q``, from the sampled tables."""
+    return np.array([np.interp(q[i + 1], *table) for i, table in enumerate(_moment_arm_tables())])
+
+
+def _display_available() -> bool:
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def _servo_bands(model: mujoco.MjModel) -> tuple[np.ndarray, ...]:
+    """Per integrated-velocity servo: act, qpos and dof addresses, kv/kp, and forcerange/kp.
+
+    Its force ``kp (act - q) - kv qd`` is within ``forcerange`` while ``act`` is within
+    ``q + kv/kp qd +- forcerange/kp``.
+    """
+    servos = [
+        i
+        for i in range(model.nu)
+        if model.actuator_plugin[i] < 0
+        and model.actuator_dyntype[i] == mujoco.mjtDyn.mjDYN_INTEGRATOR
+        and model.actuator_biastype[i] == mujoco.mjtBias.mjBIAS_AFFINE
+    ]  # integrated-velocity servos (a plugin actuator keeps its own state)
+    joints = model.actuator_trnid[servos, 0]
+    kp = model.actuator_gainprm[servos, 0]
+    kv = -model.actuator_biasprm[servos, 2]
+    return (
+        model.actuator_actadr[servos],
+        model.jnt_qposadr[joints],
+        model.jnt_dofadr[joints],
+        kv / kp,
+        model.actuator_forcerange[servos, 1] / kp,
+    )
+
+
+def _wrap(angle: float) -> float:
+    return float((angle + np.pi) % (2.0 * np.pi) - np.pi)
+
+
+class HexLoadingEnv(gym.Env):
+    r"""Load a dump truck from a pile of sand and gravel with a 25 t hydraulic excavator.
+
+    ## Description
+    The paper's motivating task: fill the bucket from a pile, lift and swing to a truck, dump,
+    return, quickly and with little fuel. The machine is the learned model of
+    :mod:`hexgym.learned` (MuJoCo linkage + MBL tables of the open-centre hydraulics), so the
+    functions on one pump share its flow and the engine's power limit shows. The pile is a
+    heightmap: the bucket's edge cuts into it, fills at a rate set by depth and attack angle, and
+    feels the fundamental earthmoving equation's resistance, which loads the cylinders
+    (:mod:`hexgym.envs.earthwork`). The bucket's contents load the linkage and the swing;
+    tilting past the angle of repose spills them. The truck's bed and the ground are solid.
+
+    ## Action Space
+    ``Box(-1, 1, (4,), float32)``: the four spools as fractions of their ±11 mm stroke; values
+    outside [-1, 1] are clipped. A positive spool extends the cylinder.
+
+    | Num | Action | Min | Max | Unit |
+    |-----|--------|-----|-----|------|
+    | 0 | swing spool (+ turns counter-clockwise seen from above) | -1 | 1 | × 11 mm |
+    | 1 | boom spool (+ raises the boom) | -1 | 1 | × 11 mm |
+    | 2 | stick spool (+ crowds the stick in) | -1 | 1 | × 11 mm |
+    | 3 | bucket spool (+ curls the bucket closed) | -1 | 1 | × 11 mm |
+
+    ## Observation Space
+    ``Box(low, high, (22,), float32)``, clipped to generous bounds (±pi rad, ±10 rad/s, ±10 MN,
+    0-5 t, ±30 m):
+
+    | Num | Observation | Unit |
+    |-----|-------------|------|
+    | 0-2 | boom, stick, bucket joint angles | rad |
+    | 3 | swing angle minus the pile's direction, wrapped to [-pi, pi] | rad |
+    | 4 | swing angle minus the truck's direction, wrapped | rad |
+    | 5-8 | swing, boom, stick, bucket joint rates | rad/s |
+    | 9-11 | boom, stick, bucket cylinder force loads (+ = the cylinder pushes) | MN |
+    | 12 | material in the bucket | t |
+    | 13-14 | bucket teeth relative to the pile's centre: radial (away from the machine), lateral | m |
+    | 15 | teeth height above the pile's surface below them (negative: in the pile) | m |
+    | 16-17 | teeth relative to the bed's centre: along the truck, across it | m |
+    | 18 | teeth height above the bed's rim | m |
+    | 19 | bucket mouth's tilt from facing up (> repose angle 0.59 rad: it spills) | rad |
+    | 20 | truck fill: delivered / truck capacity | 1 |
+    | 21 | time left: fraction of the time budget | 1 |
+
+    ## Rewards
+    Per step, the sum of the terms below, each in ``info`` as ``reward_<term>``:
+
+    | term | value |
+    |------|-------|
+    | delivery | ``delivery_weight`` × tonnes that landed in the truck's bed |
+    | fill | ``fill_weight`` × tonnes dug into the bucket (shaping; 0 by default) |
+    | time | −``time_weight`` × 0.1 s |
+    | fuel | −``fuel_weight`` × litres of diesel (actuator power → valves → pumps → engine BSFC) |
+    | spill | −``spill_weight`` × tonnes spilled outside the bed |
+    | contact | −``contact_weight`` × kN·s of bucket/stick contact force on ground or truck above 50 kN (to 265 kN) |
+
+    ## Starting State
+    A random site (seeded ``np_random``): the pile 7.0-7.8 m ahead within ±10°, 1.3-1.6 m high;
+    the truck 6.6-7.4 m away at 70-110° to either side, parked broadside. The machine starts at
+    rest with an empty bucket near the `home` pose (boom, stick, bucket ±0.1 rad) with its swing
+    anywhere between the pile and the truck.
+
+    ## Episode End
+    Terminates when the truck holds ``truck_capacity_kg``; truncates after ``time_limit`` s
+    (the environment truncates itself; ``gymnasium.make`` adds no TimeLimit).
+
+    ## Arguments
+    | argument | default | meaning |
+    |----------|---------|---------|
+    | render_mode | None | ``"rgb_array"``, ``"depth_array"`` (metric depth, m) or ``"human"`` (needs a display) |
+    | camera | ``"chase"`` | ``"chase"`` (the scene's) or ``"cab"`` (operator's view) |
+    | width, height | 640, 384 | frame size in pixels |
+    | time_limit | 180.0 | episode length, s |
+    | truck_capacity_kg | 13000.0 | payload that ends the episode |
+    | delivery_weight | 1.0 | per tonne delivered |
+    | fill_weight | 0.0 | per tonne dug |
+    | time_weight | 0.02 | per second |
+    | fuel_weight | 0.5 | per litre |
+    | spill_weight | 2.0 | per tonne spilled |
+    | contact_weight | 0.01 | per kN·s of hard contact |
+    | scene_path | None | MJCF scene to build the site on (default: the lean machine's ``scene_lean.xml``) |
+    | backend | ``"auto"`` | ``"native"`` (the MuJoCo plugin), ``"python"`` (LearnedModel), ``"auto"`` (native if built) |
+
+    Metadata: ``render_fps`` = 10, the control rate.
+    """
+
+    metadata = {
+        # "human" (a window) only where a display exists; offscreen modes everywhere (MUJOCO_GL=egl)
+        "render_modes": ["rgb_array", "depth_array"] + (["human"] if _display_available() else []),
+        "render_fps": round(1.0 / STEP_PERIOD),
+    }
+
+    def __init__(
+        self,
+        render_mode: str | None = None,
+        camera: str = "chase",
+        width: int = 640,
+        height: int = 384,
+        time_limit: float = 180.0,
+        truck_capacity_kg: float = p.TRUCK_CAPACITY,
+        delivery_weight: float = 1.0,
+        fill_weight: float = 0.0,
+        time_weight: float = 0.02,
+        fuel_weight: float = 0.5,
+        spill_weight: float = 2.0,
+        contact_weight: float = 0.01,
+        scene_path: str | Path | None = None,
+        backend: str = "auto",
+    ) -> None:
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            why = " ('human' needs a display: DISPLAY is unset)" if render_mode == "human" else ""
+            raise ValueError(
+                f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}{why}"
+            )
+        if camera not in ("chase", "cab"):
+            raise ValueError(f"camera must be 'chase' or 'cab', got {camera!r}")
+        if not (time_limit > 0 and truck_capacity_kg > 0):
+            raise ValueError(f"time_limit and truck_capacity_kg must be > 0, got {time_limit}, {truck_capacity_kg}")
+        self.render_mode, self.camera, self.width, self.height = render_mode, camera, int(width), int(height)
+        self.time_limit, self.truck_capacity_kg = float(time_limit), float(truck_capacity_kg)
+        self.weights = {
+            "delivery": delivery_weight, "fill": fill_weight, "time": time_weight,
+            "fuel": fuel_weight, "spill": spill_weight, "contact": contact_weight,
+        }  # fmt: skip
+        self._scene_path, self._backend = scene_path, backend
+        self.action_space = spaces.Box(-1.0, 1.0, (4,), np.float32)
+        self.observation_space = spaces.Box(_OBS_LOW, _OBS_HIGH, dtype=np.float32)
+        self._build()
+        self.layout: Layout | None = None
+        self.earth: Earthwork | None = None
+
+    # -- simulation ----------------------------------------------------------------------------
+    def _build(self) -> None:
+        self.machine = make_machine(self._backend, self._scene_path)
+        self.physics = self.machine.physics
+        model = self.physics.model
+        self._period = self.machine.timestep  # s, one control period of the machine model
+        self._periods = int(round(STEP_PERIOD / self._period))
+        if abs(self._periods * self._period - STEP_PERIOD) > 1e-9:
+            raise ValueError(f"the machine's control period {self._period} s does not divide the step {STEP_PERIOD} s")
+        self._velocity_blend = 1.0 - np.exp(-self._period / p.DIG_VELOCITY_FILTER)
+        self.world = World(model)
+        self._bucket_body = model.body("bucket").id
+        self._tip_site = model.site("tip").id
+        self._servo_bands = _servo_bands(model)
+        self._renderer: Any = None
+        self._pile_shown = False  # the renderer's copy of the hfield is stale
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
+        """Start an episode on a new random site (see the class docstring)."""
+        super().reset(seed=seed)
+        rng = self.np_random
+        self.layout = sample_layout(rng)
+        pile = Pile.heap(
+            self.layout.pile_centre, self.layout.pile_height, self.layout.pile_top_radius,
+            PILE_GRID_POINTS, PILE_GRID_SPACING,
+        )  # fmt: skip
+        self.earth = Earthwork(pile)
+        between = _wrap(self.layout.truck_direction - self.layout.pile_direction)
+        q = _HOME.copy()
+        q[0] = self.layout.pile_direction + rng.uniform(0.0, 1.0) * between
+        q[1:] += rng.uniform(-START_NOISE, START_NOISE, 3)
+        for i, name in enumerate(machine.JOINTS[1:], start=1):
+            q[i] = np.clip(q[i], *machine.joint_range(name))
+        mujoco.mj_resetData(self.physics.model, self.physics.data)  # warm starts too: same seed, same episode
+        self.machine.reset(q, payload_kg=0.0)
+        self.world.place(self.physics.data, self.layout)
+        self.world.show_pile(pile.heights)
+        self.physics.data.qfrc_applied[:] = 0.0
+        mujoco.mj_forward(self.physics.model, self.physics.data)
+        self._pile_shown = False
+        self._tip_before = self.physics.tip_position()
+        self._tip_velocity = np.zeros(3)  # low-passed, for the digging resistance
+        self._tip_force_on = False
+        self.fuel_l = 0.0
+        self.steps = 0
+        self.elapsed = 0.0
+        return self._observation(), self._info({})
+
+    def _bucket_pose(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
+        """Teeth position, lateral and teeth directions, mouth centre (world) and the mouth's tilt."""
+        d = self.physics.data
+        rot = d.xmat[self._bucket_body].reshape(3, 3)
+        mouth_up = float(rot[2] @ _MOUTH_NORMAL)
+        tilt = math.acos(min(max(mouth_up, -1.0), 1.0))
+        mouth = d.xpos[self._bucket_body] + rot @ _MOUTH_CENTRE
+        return self.physics.tip_position(), rot[:, 1].copy(), rot @ _TEETH, mouth, tilt
+
+    def mouth_position(self) -> np.ndarray:
+        """Centre of the bucket's mouth (where its contents pour from), world m."""
+        return self._bucket_pose()[3]
+
+    def _earthwork_period(self, flows: dict[str, float]) -> None:
+        """Dig and spill over one control period; apply the digging force; re-mass the bucket."""
+        tip, lateral, teeth, mouth, tilt = self._bucket_pose()
+        velocity = (tip - self._tip_before) / self._period
+        self._tip_before = tip
+        self._tip_velocity += (velocity - self._tip_velocity) * self._velocity_blend
+        dug = self.earth.dig(tip, lateral, teeth, velocity, self._period, self._tip_velocity)
+        if dug.depth <= 0.0:
+            spilled = self.earth.spill(tilt, self.world.in_bed(mouth[:2], self.layout), self._period)
+            flows["delivered"] += spilled.to_truck_kg
+            flows["spilled"] += spilled.to_ground_kg
+        if dug.taken_kg > 0:
+            self._pile_shown = False
+        if dug.depth > 0 or self._tip_force_on:
+            self.physics.apply_tip_force(dug.force)
+            self._tip_force_on = dug.depth > 0
+        flows["dug"] += dug.taken_kg
+        self._update_payload()
+
+    def _update_payload(self) -> None:
+        if abs(self.earth.bucket_kg - self.physics.payload_kg) > PAYLOAD_UPDATE_KG or (
+            self.earth.bucket_kg < 1.0 < self.physics.payload_kg
+        ):
+            self.physics.set_payload(self.earth.bucket_kg)
+
+    def _limit_servo_windup(self) -> None:
+        """Keep each servo's integrated target where the servo is at most saturated (anti-windup).
+
+        The machine's integrated-velocity servos integrate the tables' rate targets even while a
+        joint is stalled (bucket against the truck, dig force above the swing's torque); released,
+        the servo would then drive the joint to the stale target whatever the spools say. A stalled
+        hydraulic actuator stores no such displacement (its reliefs open), so the target is held
+        within the band where the servo force is at its limit.
+        """
+        d = self.physics.data
+        act_adr, qpos_adr, dof_adr, ratio, slack = self._servo_bands
+        if not len(act_adr):
+            return  # a plugin backend: no integrated servo targets
+        centre = d.qpos[qpos_adr] + ratio * d.qvel[dof_adr]
+        d.act[act_adr] = np.clip(d.act[act_adr], centre - slack, centre + slack)
+
+    def _hard_contact_force(self) -> float:
+        """Bucket and stick contact force on the ground and the truck beyond HARD_CONTACT_FORCE (capped), N."""
+        m, d = self.physics.model, self.physics.data
+        if d.ncon == 0:
+            return 0.0
+        g1, g2 = d.contact.geom1, d.contact.geom2
+        tool, obstacle = self.world.tool_geoms, self.world.obstacle_geoms
+        relevant = (tool[g1] & obstacle[g2]) | (tool[g2] & obstacle[g1])
+        if not relevant.any():
+            return 0.0
+        # after mj_step1 the contacts are new but their forces are not solved yet: solve them now with
+        # the actuator forces in place (no actuation stage: a plugin actuator must not run twice).
+        # The solve leaves qacc_warmstart alone, so mj_step2 repeats it exactly: the trajectory is unchanged.
+        mujoco.mj_fwdAcceleration(m, d)
+        mujoco.mj_fwdConstraint(m, d)
+        wrench = np.zeros(6)
+        total = 0.0
+        for i in np.flatnonzero(relevant):
+            mujoco.mj_contactForce(m, d, int(i), wrench)
+            total += wrench[0]
+        # a stiff servo can press a contact far harder than the machine's weight: count what a real one could
+        return min(max(total - p.HARD_CONTACT_FORCE, 0.0), p.HARD_CONTACT_FORCE_CAP - p.HARD_CONTACT_FORCE)
+
+    def _actuator_power(self) -> float:
+        ph = self.physics
+        loads = self.machine.joint_loads()
+        rates = ph.joint_velocities()
+        swing_torque = ph.swing_inertia() * self.machine.swing_acceleration
+        return fuel.actuator_power(loads[1:], rates[1:], swing_torque, rates[0])
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
+        """Hold the spools for 0.1 s (several control periods of the machine model)."""
+        if self.earth is None:
+            raise RuntimeError("call reset() before step()")
+        spools = np.clip(self._check_action(action), -1.0, 1.0) * p.SPOOL_STROKE
+        flows = {"dug": 0.0, "delivered": 0.0, "spilled": 0.0}
+        if self._near_pile():
+            fuel_l, contact_impulse = self._advance_finely(spools, flows)
+        else:
+            fuel_l, contact_impulse = self._advance_coarsely(spools, flows)
+        self.fuel_l += fuel_l
+        self.steps += 1
+        self.elapsed = self.steps * STEP_PERIOD
+        w = self.weights
+        terms = {
+            "delivery": w["delivery"] * flows["delivered"] / 1000.0,
+            "fill": w["fill"] * flows["dug"] / 1000.0,
+            "time": -w["time"] * STEP_PERIOD,
+            "fuel": -w["fuel"] * fuel_l,
+            "spill": -w["spill"] * flows["spilled"] / 1000.0,
+            "contact": -w["contact"] * contact_impulse / 1000.0,
+        }
+        reward = float(sum(terms.values()))
+        obs = self._observation()
+        terminated = self.earth.truck_kg >= self.truck_capacity_kg
+        truncated = self.elapsed >= self.time_limit - 1e-9
+        info = self._info(terms) | {"fuel_l_step": fuel_l, "contact_impulse_ns": contact_impulse}
+        if self.render_mode == "human":
+            self.render()
+        return obs, reward, terminated, truncated, info
+
+    def _near_pile(self) -> bool:
+        """Whether the teeth may reach into the pile within this step (then it is simulated finely)."""
+        return self.earth.pile.may_reach(self.physics.data.site_xpos[self._tip_site], _PILE_MARGIN)
+
+    def _advance_finely(self, spools: np.ndarray, flows: dict[str, float]) -> tuple[float, float]:
+        """Ten control periods, each with its digging force, spill, fuel and contact check."""
+        fuel_l = contact_impulse = 0.0
+        for _ in range(self._periods):
+            self._earthwork_period(flows)
+            self.machine.step(spools)
+            self._limit_servo_windup()
+            fuel_l += fuel.fuel_litres(self._actuator_power(), self._period)
+            contact_impulse += self._hard_contact_force() * self._period
+        return fuel_l, contact_impulse
+
+    def _advance_coarsely(self, spools: np.ndarray, flows: dict[str, float]) -> tuple[float, float]:
+        """The step in one call of the machine model: clear of the pile nothing needs the periods.
+
+        No digging force acts; the spill over the step is its exact exponential at the step's end
+        tilt; fuel and contacts are sampled at the step's end (the fast path of the native backend).
+        """
+        if self._tip_force_on:
+            self.physics.apply_tip_force(np.zeros(3))
+            self._tip_force_on = False
+        tip_start = self.physics.tip_position()
+        self.machine.step(spools, n=self._periods)
+        self._limit_servo_windup()
+        tip, _, _, mouth, tilt = self._bucket_pose()
+        self._tip_velocity = (tip - tip_start) / STEP_PERIOD
+        self._tip_before = tip
+        spilled = self.earth.spill(tilt, self.world.in_bed(mouth[:2], self.layout), STEP_PERIOD)
+        flows["delivered"] += spilled.to_truck_kg
+        flows["spilled"] += spilled.to_ground_kg
+        self._update_payload()
+        fuel_l = fuel.fuel_litres(self._actuator_power(), STEP_PERIOD)
+        return fuel_l, self._hard_contact_force() * STEP_PERIOD
+
+    def _check_action(self, action: np.ndarray) -> np.ndarray:
+        a = np.asarray(action, dtype=np.float64)
+        if a.shape != (4,):
+            raise ValueError(f"action must have shape (4,) (swing, boom, stick, bucket spools), got shape {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(
+                f"action must be finite, got {a} (a NaN or inf in {list(np.flatnonzero(~np.isfinite(a)))})"
+            )
+        return a
+
+    # -- observation and info ----------------------------------------------------------------
+    def _observation(self) -> np.ndarray:
+        ph, lay, earth = self.physics, self.layout, self.earth
+        q, qd = ph.joint_positions(), ph.joint_velocities()
+        loads = self.machine.joint_loads()[1:] / moment_arms(q) / 1e6  # cylinder force loads, MN
+        tip, _, _, _, tilt = self._bucket_pose()
+        pile_dir = lay.pile_direction
+        c, s = np.cos(pile_dir), np.sin(pile_dir)
+        rel = tip[:2] - np.asarray(lay.pile_centre)
+        above_pile = tip[2] - earth.pile.height_at_point(tip[0], tip[1])
+        in_truck = World.truck_frame(tip, lay)
+        obs = np.concatenate(
+            [
+                q[1:],
+                [_wrap(q[0] - pile_dir), _wrap(q[0] - lay.truck_direction)],
+                qd,
+                loads,
+                [earth.bucket_kg / 1000.0, c * rel[0] + s * rel[1], -s * rel[0] + c * rel[1], above_pile],
+                in_truck,
+                [tilt, earth.truck_kg / self.truck_capacity_kg, max(1.0 - self.elapsed / self.time_limit, 0.0)],
+            ]
+        )
+        if not np.all(np.isfinite(obs)):
+            raise RuntimeError(f"the simulation diverged (non-finite observation {obs}) at t = {self.elapsed:.1f} s")
+        return np.clip(obs, _OBS_LOW, _OBS_HIGH).astype(np.float32)
+
+    def _info(self, terms: dict[str, float]) -> dict[str, Any]:
+        earth = self.earth
+        info: dict[str, Any] = {f"reward_{k}": terms.get(k, 0.0) for k in REWARD_TERMS}
+        info |= {
+            "pile_kg": earth.pile_kg, "bucket_kg": earth.bucket_kg, "truck_kg": earth.truck_kg,
+            "spilled_kg": earth.spilled_kg, "fuel_l": self.fuel_l, "time_s": self.elapsed,
+        }  # fmt: skip
+        return info
+
+    # -- rendering ----------------------------------------------------------------------------
+    def render(self) -> np.ndarray | None:
+        """A frame from ``camera`` (rgb_array: uint8 H x W x 3; depth_array: float32 H x W, m) or a window."""
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; pass render_mode to gymnasium.make")
+            return None
+        if self.earth is None:
+            raise RuntimeError("call reset() before render()")
+        self.world.show_loads(self.earth.truck_kg, self.earth.bucket_kg)
+        if self.render_mode == "human":
+            return self._render_window()
+        if self._renderer is None:
+            self._renderer = mujoco.Renderer(self.physics.model, height=self.height, width=self.width)
+            if self.render_mode == "depth_array":
+                self._renderer.enable_depth_rendering()
+            self._pile_shown = False
+        if not self._pile_shown:
+            self.world.show_pile(self.earth.pile.heights)
+            # the renderer keeps its own copy of the hfield on the GPU side (private context attribute)
+            mujoco.mjr_uploadHField(self.physics.model, self._renderer._mjr_context, self.world.pile_hfield)
+            self._pile_shown = True
+        self._renderer.update_scene(self.physics.data, camera=self.camera)
+        return self._renderer.render().copy()
+
+    def _render_window(self) -> None:
+        if self._renderer is None:
+            from gymnasium.envs.mujoco.mujoco_rendering import MujocoRenderer
+
+            self._renderer = MujocoRenderer(
+                self.physics.model, self.physics.data, width=self.width, height=self.height, camera_name=self.camera
+            )
+        viewer = self._renderer._get_viewer("human")
+        if not self._pile_shown:
+            self.world.show_pile(self.earth.pile.heights)
+            mujoco.mjr_uploadHField(self.physics.model, viewer.con, self.world.pile_hfield)
+            self._pile_shown = True
+        self._renderer.render("human")
+        return None
+
+    def close(self) -> None:
+        """Release the renderer's OpenGL context."""
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    # -- pickling: everything but the renderer ----------------------------------------------
+    def __getstate__(self) -> dict:
+        state = self.__dict__.copy()
+        state["_renderer"] = None
+        state["_pile_shown"] = False
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)

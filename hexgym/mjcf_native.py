@@ -1,0 +1,151 @@
+"""Generate ``assets/cat325_mbl.xml``: the lean machine driven by the native ``hexgym.mbl`` plugin.
+
+The file is ``assets/cat325_lean.xml`` (:func:`hexgym.mjcf.model_xml` with ``lean=True``) with its
+four joint-rate servos replaced by plugin actuators of one ``hexgym.mbl`` instance: ctrl is the
+spool position in mm (±11), and the plugin turns spools into joint-rate targets through the MBL
+tables every step (see ``native/mbl_plugin.cc``). Each plugin actuator keeps its lean servo's
+gain, bias and force range (a default class per joint), so MuJoCo integrates it implicitly as a
+stiff velocity servo, exactly as the Python path's servos. The plugin's geometry and limits come
+from :mod:`hexgym.parameters` and :mod:`hexgym.machine` (config keys, floats written with
+``repr`` so they round-trip exactly).
+
+Regenerate with ``hexgym build-assets`` (or :func:`write_mbl_model`); a test checks the committed
+file is current.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from hexgym import learned, machine, mjcf
+from hexgym import parameters as p
+from hexgym.files import atomic_path
+from hexgym.resources import assets_dir
+
+MBL_MODEL_FILE = "cat325_mbl.xml"
+PLUGIN_NAME = "hexgym.mbl"
+INSTANCE = "mbl"
+SPOOL_RANGE_MM = p.SPOOL_STROKE * 1e3
+
+
+def _numbers(*values: float) -> str:
+    return " ".join(repr(float(v)) for v in values)
+
+
+def plugin_config() -> dict[str, str]:
+    """The plugin's config keys (see ``kAttributes`` in native/mbl_plugin.cc) from the machine's numbers."""
+    triangles = {}
+    for name in ("boom", "stick"):
+        base, rod, offset = machine._triangle(name)
+        triangles[f"{name}_triangle"] = _numbers(*base, *rod, offset, machine._SIGN[name])
+    four_bar = (*machine._G, *machine._P_BUCKET, *machine._K_BUCKET, *machine._C_BUCKET)
+    servos = _lean_servos()
+    return {
+        **triangles,
+        "bucket_four_bar": _numbers(*four_bar, p.GUIDE_LINK_LENGTH, p.POWER_LINK_LENGTH, machine._J_SIDE),
+        "retracted_length": _numbers(*(p.CYLINDERS[n].retracted_length for n in machine.FRONT_CYLINDERS)),
+        "stroke": _numbers(*learned._STROKES),
+        "end_margin": _numbers(learned.END_MARGIN),
+        "push_limit": _numbers(*learned._PUSH_LIMIT),
+        "pull_limit": _numbers(*learned._PULL_LIMIT),
+        "swing_torque_limit": _numbers(learned._SWING_TORQUE_LIMIT),
+        "dead_band": _numbers(p.SPOOL_DEAD_BAND),
+        "swing_rest_rate": _numbers(learned.SWING_REST_RATE),
+        "rate_range": _numbers(*np.concatenate([s["ctrlrange"] for s in servos.values()])),
+    }
+
+
+def _lean_text() -> str:
+    meshes = str(assets_dir() / "meshes")
+    return mjcf.model_xml(mjcf.home_keyframe(mjcf.model_xml(lean=True), meshes), lean=True)
+
+
+def _lean_servos() -> dict[str, dict[str, np.ndarray | bool]]:
+    """Per joint, the lean model's servo: gain, bias, ctrl (rate) range, force limit."""
+    spec = mujoco.MjSpec.from_string(mjcf.model_xml(lean=True))
+    spec.meshdir = str(assets_dir() / "meshes")
+    model = spec.compile()
+    servos = {}
+    for name in machine.JOINTS:
+        i = model.actuator(name).id
+        servos[name] = {
+            "gainprm": model.actuator_gainprm[i, :1].copy(),
+            "biasprm": model.actuator_biasprm[i, :3].copy(),
+            "ctrlrange": model.actuator_ctrlrange[i].copy(),
+            "forcelimited": bool(model.actuator_forcelimited[i]),
+            "forcerange": model.actuator_forcerange[i].copy(),
+        }
+    return servos
+
+
+def _defaults(servos: dict[str, dict[str, np.ndarray | bool]]) -> str:
+    lines = []
+    for name, s in servos.items():
+        force = f' forcerange="{_numbers(*s["forcerange"])}"' if s["forcelimited"] else ""
+        lines.append(
+            f'    <default class="mbl_{name}">\n'
+            f'      <general gaintype="fixed" gainprm="{_numbers(*s["gainprm"])}" biastype="affine"'
+            f' biasprm="{_numbers(*s["biasprm"])}"{force}/>\n'
+            f"    </default>"
+        )
+    return "\n".join(lines)
+
+
+def _actuators() -> str:
+    lines = [
+        "  <actuator>",
+        "    <!-- ctrl: spool position, mm (+ extends the cylinder / swings counter-clockwise) -->",
+    ]
+    for name in machine.JOINTS:
+        actdim = 1 if name == "swing" else 0  # the swing's rate target is its activation
+        lines.append(
+            f'    <plugin name="{name}" joint="{name}" instance="{INSTANCE}" class="mbl_{name}" actdim="{actdim}"'
+            f' ctrlrange="{_numbers(-SPOOL_RANGE_MM, SPOOL_RANGE_MM)}"/>'
+        )
+    return "\n".join([*lines, "  </actuator>"])
+
+
+def _extension(tables_dir: str | Path | None, control_period: float | None) -> str:
+    config = plugin_config()
+    if tables_dir is not None:
+        config = {"tables": str(Path(tables_dir).resolve()), **config}
+    if control_period is not None:
+        config["control_period"] = _numbers(control_period)
+    keys = "\n".join(f'        <config key="{k}" value="{v}"/>' for k, v in config.items())
+    return (
+        f'  <extension>\n    <plugin plugin="{PLUGIN_NAME}">\n      <instance name="{INSTANCE}">\n{keys}\n'
+        "      </instance>\n    </plugin>\n  </extension>\n\n"
+    )
+
+
+def mbl_model_xml(tables_dir: str | Path | None = None, control_period: float | None = None) -> str:
+    """The text of ``cat325_mbl.xml``.
+
+    ``tables_dir``: other tables than the packaged ones; ``control_period``: seconds between
+    table queries, a multiple of the step (default: every step).
+    """
+    text = _lean_text().replace('<mujoco model="cat325_lean">', '<mujoco model="cat325_mbl">', 1)
+    text = text.replace(
+        "edit those, then run `hexgym build-assets`. -->",
+        "edit those, then run `hexgym build-assets`.\n"
+        "       The lean machine driven by the native hexgym.mbl plugin (hexgym/mjcf_native.py). -->",
+        1,
+    )
+    text = text.replace("  <default>\n", _extension(tables_dir, control_period) + "  <default>\n", 1)
+    text = re.sub(r"^  </default>$", lambda _: _defaults(_lean_servos()) + "\n  </default>", text, count=1, flags=re.M)
+    text, count = re.subn(r"  <actuator>.*?</actuator>", lambda _: _actuators(), text, count=1, flags=re.S)
+    if count != 1:
+        raise RuntimeError("the lean model text has no <actuator> block to replace")
+    return text
+
+
+def write_mbl_model(path: str | Path) -> Path:
+    """Generate ``cat325_mbl.xml`` and write it atomically to ``path``."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        tmp.write_text(mbl_model_xml())
+    return path

@@ -1,0 +1,313 @@
+"""The native learned model: the ``hexgym.mbl`` MuJoCo plugin (``native/``) and its Python face.
+
+``import hexgym`` loads the plugin library the package build compiled (``hexgym/_mbl_plugin*.so``,
+see ``setup.py``) with ``mujoco.mj_loadPluginLibrary``; models that name the plugin
+(``assets/cat325_mbl.xml``, :func:`hexgym.mjcf_native.mbl_model_xml`) then compile in this
+process. The plugin does in C++, inside ``mj_step``, what :class:`hexgym.learned.LearnedModel`
+does in Python each control period (loads, stall, tables, swing integration, servo targets), from
+the same table files, so the two give the same trajectories (``tests/test_native.py``).
+
+:class:`NativeLearnedModel` has LearnedModel's interface (``reset``, ``step``, ``observe``,
+``physics``, ``cylinder_loads``, ``spools_m``, ``timestep``); :func:`make_learned_model` picks a
+backend. Without the library (no compiler at install time, or a MuJoCo other than the one it was
+built against) ``backend="auto"`` uses the Python model and says why once.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import functools
+import time
+import warnings
+from collections.abc import Callable
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from hexgym import machine
+from hexgym.hydraulics import validate_spools
+from hexgym.learned import LEARNED_DTYPE, LearnedModel
+from hexgym.physics import ExcavatorPhysics
+from hexgym.resources import AssetError, asset_path
+
+PLUGIN_NAME = "hexgym.mbl"
+BACKENDS = ("auto", "python", "native")
+_PACKAGE_DIR = Path(__file__).resolve().parent
+_STATE_SIZE = 10  # native/mbl_plugin.cc kStateSize
+# The plugin's config keys in its declared order (native/mbl_plugin.cc kAttributes)
+CONFIG_KEYS = (
+    "tables",
+    "boom_triangle",
+    "stick_triangle",
+    "bucket_four_bar",
+    "retracted_length",
+    "stroke",
+    "end_margin",
+    "push_limit",
+    "pull_limit",
+    "swing_torque_limit",
+    "dead_band",
+    "swing_rest_rate",
+    "rate_range",
+    "control_period",
+)
+_ACCELERATION, _PHASE = 4, 5  # plugin state slots
+
+
+class NativePluginError(RuntimeError):
+    """The native plugin library is missing or cannot be used in this process."""
+
+
+def plugin_library() -> Path | None:
+    """The built plugin library inside the package, or None."""
+    found = sorted(_PACKAGE_DIR.glob("_mbl_plugin*.so"))
+    return found[0] if found else None
+
+
+@functools.cache
+def load_plugin() -> str:
+    """Load the plugin library once; returns "" when it is registered, else why it is not."""
+    library = plugin_library()
+    if library is None:
+        return f"the native plugin was not built (no {_PACKAGE_DIR}/_mbl_plugin*.so; see the build output of pip)"
+    try:
+        mujoco.mj_loadPluginLibrary(str(library))
+        return _library_error(library)
+    except (OSError, AttributeError, mujoco.FatalError) as exc:
+        return f"the native plugin {library} cannot be loaded: {exc}"
+
+
+def _library_error(library: Path) -> str:
+    """The library's own verdict (e.g. a MuJoCo version mismatch); dlopen returns the loaded copy."""
+    lib = ctypes.CDLL(str(library))
+    lib.hexgym_mbl_load_error.restype = ctypes.c_char_p
+    return (lib.hexgym_mbl_load_error() or b"").decode()
+
+
+def native_available() -> bool:
+    """Whether models using the ``hexgym.mbl`` plugin can be compiled in this process."""
+    return load_plugin() == ""
+
+
+def require_plugin() -> None:
+    """Raise :class:`NativePluginError` with the reason if the plugin cannot be used."""
+    reason = load_plugin()
+    if reason:
+        raise NativePluginError(f"{reason}; use backend='python'")
+
+
+def load_mbl_model(tables_dir: str | Path | None = None, control_period: float | None = None) -> mujoco.MjModel:
+    """The lean machine driven by the plugin (the packaged ``cat325_mbl.xml``, or one generated for
+    other tables or another control period).
+
+    Table files the plugin cannot use fail the compile with a message naming the file and the
+    problem: ValueError (AssetError for the packaged model).
+    """
+    require_plugin()
+    if tables_dir is None and control_period is None:
+        path = asset_path("cat325_mbl.xml")
+        try:
+            return mujoco.MjModel.from_xml_path(str(path))
+        except ValueError as exc:
+            raise AssetError(f"cannot load model {path}: {exc}") from exc
+    from hexgym.mjcf_native import mbl_model_xml
+
+    if tables_dir is not None and not Path(tables_dir).is_dir():
+        raise FileNotFoundError(f"MBL table directory {tables_dir} does not exist")
+    spec = mujoco.MjSpec.from_string(mbl_model_xml(tables_dir, control_period))
+    spec.meshdir = str(asset_path("cat325_lean.xml").parent / "meshes")
+    return spec.compile()
+
+
+def plugin_config_values(model: mujoco.MjModel, instance: int = 0) -> dict[str, str]:
+    """The config of a ``hexgym.mbl`` instance as compiled (unset keys are "")."""
+    start = int(model.plugin_attradr[instance])
+    raw = np.asarray(model.plugin_attr[start:]).tobytes()
+    values = raw.split(b"\0")[: len(CONFIG_KEYS)]
+    return {k: v.decode() for k, v in zip(CONFIG_KEYS, values, strict=True)}
+
+
+class NativeLearnedModel:
+    """The learned machine model run by the native plugin (same interface as LearnedModel).
+
+    Args:
+        tables_dir: directory of the four ``.npz`` tables (default: the packaged ones).
+        model: a compiled model whose four actuators are ``hexgym.mbl`` plugin actuators
+            (default: :func:`load_mbl_model`).
+        control_period: seconds between table queries, a multiple of the step (default: one
+            step); with ``model`` it must be the model's configured period.
+    """
+
+    def __init__(
+        self,
+        tables_dir: str | Path | None = None,
+        model: mujoco.MjModel | None = None,
+        control_period: float | None = None,
+    ) -> None:
+        require_plugin()
+        if model is None:
+            model = load_mbl_model(tables_dir, control_period)
+        self.physics = ExcavatorPhysics(model)
+        m = self.physics.model
+        self._ctrl = np.array([m.actuator(n).id for n in machine.JOINTS])
+        if m.nplugin != 1 or not all(m.actuator_plugin[i] == 0 for i in self._ctrl):
+            raise ValueError("model must drive swing, boom, stick and bucket with one hexgym.mbl plugin instance")
+        self._swing_act = int(m.actuator_actadr[self._ctrl[0]])
+        self._state = slice(int(m.plugin_stateadr[0]), int(m.plugin_stateadr[0]) + _STATE_SIZE)
+        configured = plugin_config_values(m)["control_period"]
+        period = float(configured) if configured else self.physics.timestep
+        if control_period is not None and abs(period - control_period) > 1e-9:
+            raise ValueError(f"control_period {control_period} s differs from the model's {period} s")
+        self._substeps = int(round(period / self.physics.timestep))
+        self._dofs = np.array([m.joint(n).dofadr[0] for n in machine.JOINTS])
+        self.spools_m = np.zeros(4)
+
+    @property
+    def timestep(self) -> float:
+        """One control period, s."""
+        return self._substeps * self.physics.timestep
+
+    @property
+    def swing_acceleration(self) -> float:
+        """The swing table's last acceleration, rad/s^2."""
+        return float(self.physics.data.plugin_state[self._state][_ACCELERATION])
+
+    def reset(self, start: str | np.ndarray = "home", payload_kg: float = 0.0) -> None:
+        """Start at a keyframe name or joint angles (rad), at rest, spools neutral."""
+        d = self.physics.data
+        self.physics.start_at(start, payload_kg)
+        d.act[:] = 0.0  # the swing's rate target (start_at writes pose targets for integrating servos)
+        d.plugin_state[self._state] = 0.0
+        self.spools_m = np.zeros(4)
+        d.ctrl[self._ctrl] = 0.0
+        self.physics.step()  # as LearnedModel.reset: one step so the constraint forces exist
+        # the next step starts a control period; as LearnedModel, no table has been asked yet
+        d.plugin_state[self._state.start + _PHASE] = 0.0
+        d.plugin_state[self._state.start + _ACCELERATION] = 0.0
+        d.time = 0.0
+
+    def step(self, spools_m: np.ndarray, n: int = 1) -> None:
+        """Advance ``n`` control periods with the spools (m; swing, boom, stick, bucket) held."""
+        self.spools_m = validate_spools(spools_m).copy()
+        self.physics.data.ctrl[self._ctrl] = self.spools_m * 1e3  # the plugin's ctrl is in mm
+        self.physics.step(n * self._substeps)
+
+    def joint_loads(self) -> np.ndarray:
+        """Torque each main joint's actuator must supply to hold the present motion (N m).
+
+        As LearnedModel.joint_loads: the last step's constraint forces without the joint limits'.
+        """
+        d = self.physics.data
+        tau = d.qfrc_bias - d.qfrc_passive - d.qfrc_applied
+        return tau[self._dofs] - d.plugin_state[self._state][:4]
+
+    def cylinder_loads(self, arms: np.ndarray | None = None) -> np.ndarray:
+        """[boom, stick, bucket] cylinder force loads, N (+ = the cylinder must push)."""
+        return self.joint_loads()[1:] / (self.physics.moment_arms() if arms is None else arms)
+
+    def observe(self) -> np.ndarray:
+        """One trajectory row (``LEARNED_DTYPE``), as LearnedModel.observe."""
+        ph = self.physics
+        values = (
+            [ph.time, *ph.joint_positions(), *ph.joint_velocities(), *ph.tip_position()]
+            + [*(self.spools_m * 1e3), *ph.cylinder_extensions(), *ph.cylinder_velocities()]
+            + [*self.cylinder_loads(), ph.swing_inertia(), self.swing_acceleration]
+        )
+        return np.array(tuple(values), dtype=LEARNED_DTYPE)
+
+
+_fallback_said = False
+
+
+def resolve_backend() -> str:
+    """ "native" when the plugin is loaded, else "python" (saying why, once per process)."""
+    global _fallback_said
+    reason = load_plugin()
+    if reason and not _fallback_said:
+        _fallback_said = True
+        warnings.warn(f"hexgym: {reason}; the learned model runs in Python", RuntimeWarning, stacklevel=2)
+    return "python" if reason else "native"
+
+
+def make_learned_model(
+    backend: str = "auto",
+    tables_dir: str | Path | None = None,
+    control_period: float | None = None,
+) -> LearnedModel | NativeLearnedModel:
+    """The learned model on ``backend``: "native" (the plugin), "python", or "auto" (native when built).
+
+    ``tables_dir``: other tables than the packaged ones (both backends read the same files).
+    """
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    if backend == "auto":
+        backend = resolve_backend()
+    if backend == "native":
+        return NativeLearnedModel(tables_dir=tables_dir, control_period=control_period)
+    from hexgym.fit import load_tables
+
+    tables = load_tables(tables_dir) if tables_dir is not None else None
+    return LearnedModel(tables=tables, control_period=control_period)
+
+
+def native_benchmark(seconds: float = 3.0) -> dict[str, float]:
+    """Real-time factors of the learned model on one thread: simulated time / wall time.
+
+    All replay the 50 s loading-cycle command log of ``hexgym validate`` (test3) from its start
+    pose, repeated for at least ``seconds`` of wall time each:
+
+    - ``learned_realtime_factor_python``: :class:`LearnedModel`, one ``step`` per control period;
+    - ``learned_realtime_factor_native``: the plugin model stepped by ``mujoco.rollout`` (the
+      per-step spools as its open-loop controls, one thread): the native model's own speed;
+    - ``learned_realtime_factor_native_python_loop``: :class:`NativeLearnedModel`, one ``step``
+      per control period from Python (what an environment stepping every period gets).
+    """
+    from mujoco import rollout
+
+    from hexgym.validate import scenarios
+
+    log, pose = scenarios()["test3"]
+    out: dict[str, float] = {}
+
+    def timed(run: Callable[[], float]) -> float:
+        simulated, wall = 0.0, 0.0
+        while wall < seconds:
+            t0 = time.perf_counter()
+            simulated += run()
+            wall += time.perf_counter() - t0
+        return simulated / wall
+
+    def per_period(model: LearnedModel | NativeLearnedModel) -> Callable[[], float]:
+        n = int(round(log.duration / model.timestep))
+        spools = np.array([log.spools_at((k + 1e-9) * model.timestep) * 1e-3 for k in range(n)])
+
+        def run() -> float:
+            model.reset(pose)
+            for u in spools:
+                model.step(u)
+            return n * model.timestep
+
+        return run
+
+    out["learned_realtime_factor_python"] = timed(per_period(LearnedModel()))
+    if not native_available():
+        return out
+    native = NativeLearnedModel()
+    m, d = native.physics.model, native.physics.data
+    n = int(round(log.duration / native.timestep))
+    control = np.array([log.spools_at((k + 1e-9) * native.timestep) for k in range(n)])[None]  # mm
+    state_kind = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    native.reset(pose)
+    x0 = np.empty(mujoco.mj_stateSize(m, state_kind))
+    mujoco.mj_getState(m, d, x0, state_kind)
+    states = np.empty((1, n, x0.size))
+    rollout_data = mujoco.MjData(m)
+
+    def run_rollout() -> float:
+        rollout.rollout(m, rollout_data, x0[None], control, initial_warmstart=None, state=states)
+        return n * native.timestep
+
+    out["learned_realtime_factor_native"] = timed(run_rollout)
+    out["learned_realtime_factor_native_python_loop"] = timed(per_period(native))
+    return out

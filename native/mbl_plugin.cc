@@ -1,0 +1,402 @@
+// hexgym.mbl: the learned actuator model (paper Sec III) as a MuJoCo actuator plugin.
+//
+// Four plugin actuators on the joints swing, boom, stick, bucket share one plugin instance;
+// their ctrl is the spool position in mm (+-11). Every step, inside mj_fwdActuation, the
+// instance does what hexgym.learned.LearnedModel._control_period does in Python:
+//   loads   tau = qfrc_bias - qfrc_passive - qfrc_applied - qfrc_constraint (main dofs),
+//           cylinder forces f = tau / (dC/dq)                               (Eqns 4-5)
+//   spools  stalled functions (stroke end, relief) closed, dead band -> no flow
+//   tables  boom, bucket, stick velocities; swing acceleration integrated to a rate target
+//   servo   force = gain * target + bias(length, velocity): a stiff velocity servo whose
+//           -kv (the actuators' affine biasprm[2]) MuJoCo's implicit integrators treat implicitly.
+// State: the swing rate target is the swing actuator's activation (actdim 1); the previous
+// step's constraint forces at the four dofs (without the joint limits' share: at a stroke end
+// the stop carries the load, not the oil) and the last swing acceleration are the plugin
+// state (mjSTATE_PLUGIN). So mj_getState/mj_setState (mjSTATE_FULLPHYSICS) restore a step exactly.
+#include <dlfcn.h>
+#include <limits.h>
+#include <sys/stat.h>
+
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <mujoco/mujoco.h>
+
+#include "linkage.h"
+#include "mbl_table.h"
+
+namespace hexgym {
+namespace {
+
+constexpr char kPluginName[] = "hexgym.mbl";
+constexpr const char* kJoints[4] = {"swing", "boom", "stick", "bucket"};
+// Plugin state: constraint load at the 4 dofs (previous step), swing acceleration, steps since
+// the last table query, the 4 joint-rate targets held until the next query.
+constexpr int kLoad = 0, kAcceleration = 4, kPhase = 5, kTargets = 6, kStateSize = 10;
+
+// Config keys; hexgym/mjcf_native.py writes them from hexgym/parameters.py.
+constexpr const char* kAttributes[] = {
+    "tables",             // directory of boom/bucket/stick/swing.npz (default: mbl_tables next to this library)
+    "boom_triangle",      // base x z, rod x z, frame offset, sign
+    "stick_triangle",     // same
+    "bucket_four_bar",    // guide pivot x z, bucket pin x z, link pin x z, cylinder base x z, guide, power, side
+    "retracted_length",   // boom stick bucket, m
+    "stroke",             // boom stick bucket, m
+    "end_margin",         // m from a stroke end: at the stop
+    "push_limit",         // boom stick bucket, N (line relief x head area)
+    "pull_limit",         // boom stick bucket, N (line relief x rod area)
+    "swing_torque_limit", // N m (crossover relief)
+    "dead_band",          // m of spool
+    "swing_rest_rate",    // rad/s
+    "rate_range",         // lo hi per joint, rad/s (the Python path's servo ctrlrange)
+    "control_period",     // s between table queries, a multiple of the step (default: one step)
+};
+constexpr int kNumAttributes = sizeof(kAttributes) / sizeof(kAttributes[0]);
+
+// The tables and the inputs each takes, in order (hexgym.fit.TABLES).
+struct TableSpec {
+  const char* name;
+  std::vector<std::string> inputs;
+};
+const TableSpec kTables[4] = {
+    {"boom", {"boom_spool_m", "bucket_spool_m", "boom_force_n", "bucket_force_n"}},
+    {"bucket", {"boom_spool_m", "bucket_spool_m", "boom_force_n", "bucket_force_n"}},
+    {"stick", {"swing_spool_m", "stick_spool_m", "swing_inertia_kgm2", "stick_force_n"}},
+    {"swing", {"swing_spool_m", "stick_spool_m", "stick_force_n", "swing_inertia_kgm2", "swing_rate_radps"}},
+};
+
+struct TableSet {
+  std::vector<MblTable> tables;  // boom, bucket, stick, swing
+};
+
+// Failure to set up an instance; the message goes to mju_warning (MuJoCo's load error).
+class SetupError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+std::string LibraryDirectory() {
+  Dl_info info;
+  if (dladdr(reinterpret_cast<void*>(&LibraryDirectory), &info) && info.dli_fname) {
+    // the real file: a link to it (e.g. in mujoco/plugin/, for MuJoCo's own viewer) has no tables beside it
+    char* real = realpath(info.dli_fname, nullptr);
+    std::string path = real ? real : info.dli_fname;
+    std::free(real);
+    size_t slash = path.rfind('/');
+    if (slash != std::string::npos) return path.substr(0, slash);
+  }
+  return ".";
+}
+
+// Tables are immutable once read: one copy per (directory, file times) for all models and datas.
+std::shared_ptr<const TableSet> LoadTables(const std::string& directory) {
+  static std::mutex mutex;
+  static std::map<std::string, std::shared_ptr<const TableSet>> cache;
+  std::string key = directory;
+  for (const TableSpec& spec : kTables) {
+    struct stat st;
+    std::string path = directory + "/" + spec.name + ".npz";
+    if (stat(path.c_str(), &st) != 0) throw SetupError("MBL table file " + path + " does not exist");
+    key += "|" + std::to_string(st.st_mtim.tv_sec) + "." + std::to_string(st.st_mtim.tv_nsec) + ":" +
+           std::to_string(st.st_size);
+  }
+  std::lock_guard<std::mutex> lock(mutex);
+  auto it = cache.find(key);
+  if (it != cache.end()) return it->second;
+  auto set = std::make_shared<TableSet>();
+  for (const TableSpec& spec : kTables) {
+    try {
+      set->tables.emplace_back(directory + "/" + spec.name + ".npz", spec.name, spec.inputs);
+    } catch (const TableError& e) {
+      throw SetupError(e.what());
+    }
+  }
+  cache[key] = set;
+  return set;
+}
+
+std::vector<double> Numbers(const mjModel* m, int instance, const char* key, size_t count) {
+  const char* text = mj_getPluginConfig(m, instance, key);
+  if (!text || !text[0]) throw SetupError(std::string("config key '") + key + "' is missing");
+  std::vector<double> out;
+  std::istringstream in(text);
+  in.imbue(std::locale::classic());
+  std::string word;
+  while (in >> word) {
+    char* end;
+    double v = std::strtod(word.c_str(), &end);
+    if (*end || !std::isfinite(v)) throw SetupError(std::string("config key '") + key + "': '" + word + "' is not a number");
+    out.push_back(v);
+  }
+  if (out.size() != count) {
+    throw SetupError(std::string("config key '") + key + "' needs " + std::to_string(count) + " numbers, got " +
+                     std::to_string(out.size()));
+  }
+  return out;
+}
+
+double Number(const mjModel* m, int instance, const char* key) { return Numbers(m, instance, key, 1)[0]; }
+
+Triangle ReadTriangle(const mjModel* m, int instance, const char* key) {
+  std::vector<double> v = Numbers(m, instance, key, 6);
+  return {{v[0], v[1]}, {v[2], v[3]}, v[4], v[5]};
+}
+
+// Everything one instance needs: model indices, geometry, limits (per mjData, read-only in steps).
+struct Instance {
+  std::shared_ptr<const TableSet> tables;
+  Linkage linkage;
+  double retracted[3], stroke[3], push_limit[3], pull_limit[3], rate_lo[4], rate_hi[4];
+  double end_margin, swing_torque_limit, dead_band, swing_rest_rate;
+  int actuator[4], qadr[4], dadr[4];
+  int swing_actadr, swing_diag, stateadr;
+  double slowest_swing, fastest_swing;  // the swing table's rate axis
+  int substeps;                          // MuJoCo steps per control period
+  double period;                         // the control period, s
+  // set by compute, committed by advance (the same mj_step)
+  bool queried = false;
+  double next_rate = 0.0, swing_acceleration = 0.0, target[4] = {0, 0, 0, 0};
+  std::vector<mjtNum> limit_force, limit_qfrc;  // scratch: efc forces of joint-limit rows, J^T of them
+
+  Instance(const mjModel* m, int instance) {
+    const char* dir = mj_getPluginConfig(m, instance, "tables");
+    tables = LoadTables(dir && dir[0] ? std::string(dir) : LibraryDirectory() + "/mbl_tables");
+    linkage.boom = ReadTriangle(m, instance, "boom_triangle");
+    linkage.stick = ReadTriangle(m, instance, "stick_triangle");
+    std::vector<double> f = Numbers(m, instance, "bucket_four_bar", 11);
+    linkage.bucket = {{f[0], f[1]}, {f[2], f[3]}, {f[4], f[5]}, {f[6], f[7]}, f[8], f[9], f[10]};
+    auto copy3 = [&](const char* key, double* out) {
+      std::vector<double> v = Numbers(m, instance, key, 3);
+      for (int i = 0; i < 3; ++i) out[i] = v[i];
+    };
+    copy3("retracted_length", retracted);
+    copy3("stroke", stroke);
+    copy3("push_limit", push_limit);
+    copy3("pull_limit", pull_limit);
+    std::vector<double> r = Numbers(m, instance, "rate_range", 8);
+    for (int i = 0; i < 4; ++i) rate_lo[i] = r[2 * i], rate_hi[i] = r[2 * i + 1];
+    end_margin = Number(m, instance, "end_margin");
+    swing_torque_limit = Number(m, instance, "swing_torque_limit");
+    dead_band = Number(m, instance, "dead_band");
+    swing_rest_rate = Number(m, instance, "swing_rest_rate");
+    const MblTable& swing = tables->tables[3];
+    slowest_swing = swing.axis_lo(swing.dims() - 1);
+    fastest_swing = swing.axis_hi(swing.dims() - 1);
+    const char* period_text = mj_getPluginConfig(m, instance, "control_period");
+    double wanted = period_text && period_text[0] ? Number(m, instance, "control_period") : m->opt.timestep;
+    substeps = static_cast<int>(std::lround(wanted / m->opt.timestep));
+    if (substeps < 1 || std::fabs(substeps * m->opt.timestep - wanted) > 1e-9) {
+      throw SetupError("control_period " + std::to_string(wanted) + " s is not a multiple of the step " +
+                       std::to_string(m->opt.timestep) + " s");
+    }
+    period = substeps * m->opt.timestep;
+    FindActuators(m, instance);
+    stateadr = m->plugin_stateadr[instance];
+  }
+
+  void FindActuators(const mjModel* m, int instance) {
+    for (int k = 0; k < 4; ++k) actuator[k] = -1;
+    for (int i = 0; i < m->nu; ++i) {
+      if (m->actuator_plugin[i] != instance) continue;
+      const char* joint = m->actuator_trntype[i] == mjTRN_JOINT ? mj_id2name(m, mjOBJ_JOINT, m->actuator_trnid[2 * i])
+                                                                : nullptr;
+      int k = 0;
+      while (k < 4 && !(joint && std::strcmp(joint, kJoints[k]) == 0)) ++k;
+      if (k == 4) throw SetupError("actuator " + std::to_string(i) + " must act on joint swing, boom, stick or bucket");
+      if (actuator[k] >= 0) throw SetupError(std::string("two actuators on joint ") + kJoints[k]);
+      if (m->actuator_gaintype[i] != mjGAIN_FIXED || m->actuator_biastype[i] != mjBIAS_AFFINE ||
+          m->actuator_biasprm[mjNBIAS * i + 2] >= 0) {
+        throw SetupError(std::string("actuator on ") + kJoints[k] +
+                         " must be a velocity servo: gaintype fixed (kv), biastype affine with biasprm 0 0 -kv");
+      }
+      if (m->actuator_actnum[i] != (k == 0 ? 1 : 0)) {
+        throw SetupError(std::string("actuator on ") + kJoints[k] + " needs actdim=" + (k == 0 ? "1" : "0") +
+                         " (the swing keeps its rate target as activation)");
+      }
+      actuator[k] = i;
+      int joint_id = m->actuator_trnid[2 * i];
+      qadr[k] = m->jnt_qposadr[joint_id];
+      dadr[k] = m->jnt_dofadr[joint_id];
+    }
+    for (int k = 0; k < 4; ++k) {
+      if (actuator[k] < 0) throw SetupError(std::string("no plugin actuator on joint ") + kJoints[k]);
+    }
+    swing_actadr = m->actuator_actadr[actuator[0]];
+    swing_diag = m->M_rowadr[dadr[0]] + m->M_rownnz[dadr[0]] - 1;  // a CSR row's diagonal is its last entry
+  }
+
+  // LearnedModel._control_period, from the MuJoCo state, ending in the servo forces.
+  void Compute(const mjModel* m, mjData* d) {
+    const mjtNum* state = d->plugin_state + stateadr;
+    queried = state[kPhase] == 0.0;
+    if (queried) {
+      Query(m, d, state + kLoad);
+    } else {  // between queries the servos hold the last targets (the Python path holds its ctrl)
+      next_rate = d->act[swing_actadr];
+      d->act_dot[swing_actadr] = 0.0;
+      for (int k = 0; k < 4; ++k) target[k] = state[kTargets + k];
+    }
+    for (int k = 0; k < 4; ++k) {
+      int i = actuator[k];
+      const mjtNum* bias = m->actuator_biasprm + mjNBIAS * i;
+      int out = m->actuator_outadr[i];
+      double b = bias[0] + bias[1] * d->actuator_length[out] + bias[2] * d->actuator_velocity[out];
+      d->actuator_force[out] = m->actuator_gainprm[mjNGAIN * i] * target[k] + b;
+    }
+  }
+
+  // The tables' joint-rate targets (clipped to the servo ranges) and the swing's next rate.
+  void Query(const mjModel* m, mjData* d, const mjtNum* constraint) {
+    double tau[4], u[4], arms[3], f[3];
+    for (int k = 0; k < 4; ++k) {
+      int v = dadr[k];
+      tau[k] = d->qfrc_bias[v] - d->qfrc_passive[v] - d->qfrc_applied[v] - constraint[k];
+      double mm = d->ctrl[m->actuator_ctrladr[actuator[k]]];
+      u[k] = std::isfinite(mm) ? mm / 1000.0 : 0.0;
+    }
+    for (int c = 0; c < 3; ++c) {
+      double length;
+      linkage.Cylinder(c, d->qpos[qadr[c + 1]], &length, &arms[c]);
+      f[c] = tau[c + 1] / arms[c];
+      // a stalled function passes no flow: driven into a stroke end or beyond its relief
+      double ext = length - retracted[c];
+      bool extending = u[c + 1] > 0, retracting = u[c + 1] < 0;
+      bool stalled = (ext <= end_margin && retracting) || (ext >= stroke[c] - end_margin && extending) ||
+                     (extending && f[c] > push_limit[c]) || (retracting && f[c] < -pull_limit[c]);
+      if (stalled) u[c + 1] = 0.0;
+    }
+    if (std::fabs(tau[0]) > swing_torque_limit && tau[0] * u[0] > 0) u[0] = 0.0;
+    double inertia = d->M[swing_diag];
+    bool closed[4];
+    for (int k = 0; k < 4; ++k) closed[k] = std::fabs(u[k]) < dead_band;
+    const std::vector<MblTable>& t = tables->tables;
+    double boom_in[4] = {u[1], u[3], f[0], f[2]};
+    double stick_in[4] = {u[0], u[2], inertia, f[1]};
+    double v_boom = closed[1] ? 0.0 : t[0](boom_in);
+    double v_bucket = closed[3] ? 0.0 : t[1](boom_in);
+    double v_stick = closed[2] ? 0.0 : t[2](stick_in);
+    double rate = d->act[swing_actadr];
+    double swing_in[5] = {u[0], u[2], f[1], inertia, rate};
+    swing_acceleration = t[3](swing_in);
+    if (!(slowest_swing < rate && rate < fastest_swing) && swing_acceleration * rate > 0.0) {
+      // the table clamps the rate to its grid (the fastest swing in its data): beyond it, it
+      // would keep accelerating at that edge's value; it must not go faster
+      swing_acceleration = 0.0;
+    }
+    double dt = period;
+    double new_rate = rate + swing_acceleration * dt;
+    if (closed[0] && (new_rate * rate <= 0.0 || std::fabs(new_rate) < swing_rest_rate)) {
+      new_rate = 0.0;  // braked by the crossover reliefs: it stops, it does not turn back
+    }
+    next_rate = new_rate;
+    d->act_dot[swing_actadr] = (new_rate - rate) / m->opt.timestep;
+    double wanted[4] = {new_rate, v_boom / arms[0], v_stick / arms[1], v_bucket / arms[2]};
+    for (int k = 0; k < 4; ++k) target[k] = std::fmin(std::fmax(wanted[k], rate_lo[k]), rate_hi[k]);
+  }
+
+  // After integration: the rate target exactly (not act + dt * act_dot), and this step's
+  // constraint forces, which the next step's loads need.
+  void Advance(const mjModel* m, mjData* d) {
+    d->act[swing_actadr] = next_rate;
+    mjtNum* state = d->plugin_state + stateadr;
+    for (int k = 0; k < 4; ++k) state[kLoad + k] = d->qfrc_constraint[dadr[k]];
+    SubtractJointLimits(m, d, state + kLoad);
+    if (queried) {
+      state[kAcceleration] = swing_acceleration;
+      for (int k = 0; k < 4; ++k) state[kTargets + k] = target[k];
+    }
+    state[kPhase] = (state[kPhase] + 1.0 >= substeps) ? 0.0 : state[kPhase] + 1.0;
+  }
+
+  // load[k] -= the joint-limit rows' share of qfrc_constraint at dof k (J^T f over those rows).
+  void SubtractJointLimits(const mjModel* m, mjData* d, mjtNum* load) {
+    bool any = false;
+    for (int i = 0; i < d->nefc && !any; ++i) any = d->efc_type[i] == mjCNSTR_LIMIT_JOINT;
+    if (!any) return;
+    limit_force.assign(d->nefc, 0.0);
+    limit_qfrc.assign(m->nv, 0.0);
+    for (int i = 0; i < d->nefc; ++i) {
+      if (d->efc_type[i] == mjCNSTR_LIMIT_JOINT) limit_force[i] = d->efc_force[i];
+    }
+    mj_mulJacTVec(m, d, limit_qfrc.data(), limit_force.data());
+    for (int k = 0; k < 4; ++k) load[k] -= limit_qfrc[dadr[k]];
+  }
+};
+
+Instance* Get(const mjData* d, int instance) { return reinterpret_cast<Instance*>(d->plugin_data[instance]); }
+
+std::string& LoadError() {
+  static std::string error;
+  return error;
+}
+
+void Register() {
+  if (mj_version() != mjVERSION_HEADER) {
+    char message[256];
+    std::snprintf(message, sizeof(message),
+                  "hexgym.mbl was built against MuJoCo %d but is loaded into MuJoCo %d: rebuild hexgym "
+                  "(pip install -e . or pip install .) for this MuJoCo",
+                  mjVERSION_HEADER, mj_version());
+    LoadError() = message;
+    std::fprintf(stderr, "%s\n", message);  // also for processes that do not ask (MuJoCo's viewer)
+    return;  // not registered: a model that uses it fails to load, naming the plugin
+  }
+  mjpPlugin plugin;
+  mjp_defaultPlugin(&plugin);
+  plugin.name = kPluginName;
+  plugin.capabilityflags |= mjPLUGIN_ACTUATOR;
+  plugin.nattribute = kNumAttributes;
+  plugin.attributes = kAttributes;
+  plugin.nstate = +[](const mjModel*, int) { return kStateSize; };
+  plugin.init = +[](const mjModel* m, mjData* d, int instance) {
+    try {
+      d->plugin_data[instance] = reinterpret_cast<uintptr_t>(new Instance(m, instance));
+      return 0;
+    } catch (const std::exception& e) {
+      mju_warning("hexgym.mbl: %s", e.what());
+      return -1;
+    }
+  };
+  plugin.destroy = +[](mjData* d, int instance) {
+    delete Get(d, instance);
+    d->plugin_data[instance] = 0;
+  };
+  plugin.copy = +[](mjData* dest, const mjModel*, const mjData* src, int instance) {
+    dest->plugin_data[instance] = reinterpret_cast<uintptr_t>(new Instance(*Get(src, instance)));
+  };
+  plugin.reset = +[](const mjModel*, mjtNum* state, void* data, int) {
+    for (int i = 0; i < kStateSize; ++i) state[i] = 0.0;
+    if (data) {
+      auto* in = static_cast<Instance*>(data);
+      in->next_rate = in->swing_acceleration = 0.0;
+    }
+  };
+  plugin.compute = +[](const mjModel* m, mjData* d, int instance, int) { Get(d, instance)->Compute(m, d); };
+  plugin.advance = +[](const mjModel* m, mjData* d, int instance) { Get(d, instance)->Advance(m, d); };
+  mjp_registerPlugin(&plugin);
+}
+
+}  // namespace
+}  // namespace hexgym
+
+extern "C" {
+
+// Empty when the plugin registered; else why not (e.g. a MuJoCo version mismatch).
+__attribute__((visibility("default"))) const char* hexgym_mbl_load_error(void) {
+  return hexgym::LoadError().c_str();
+}
+
+// The MuJoCo version (mjVERSION_HEADER) this library was built against.
+__attribute__((visibility("default"))) int hexgym_mbl_built_mujoco_version(void) { return mjVERSION_HEADER; }
+
+}
+
+mjPLUGIN_LIB_INIT(hexgym_mbl) { hexgym::Register(); }

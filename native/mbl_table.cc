@@ -1,0 +1,142 @@
+// MBL table file checks and lookup.
+#include "mbl_table.h"
+
+#include <algorithm>
+#include <cmath>
+#include <map>
+
+#include "json.h"
+#include "npz.h"
+
+namespace hexgym {
+namespace {
+
+constexpr double kUniformRtol = 1e-9;  // hexgym.tables._UNIFORM_RTOL
+constexpr int kMaxDims = 8;            // the lookup's corner buffer holds 2^8 values
+
+std::string Join(const std::vector<std::string>& names) {
+  std::string s = "[";
+  for (size_t i = 0; i < names.size(); ++i) s += (i ? ", " : "") + names[i];
+  return s + "]";
+}
+
+}  // namespace
+
+MblTable::MblTable(const std::string& path, const std::string& name, const std::vector<std::string>& inputs) {
+  const std::string where = "MBL table file " + path;
+  std::map<std::string, NpyArray> arrays;
+  try {
+    arrays = ReadNpz(path);
+  } catch (const NpzError& e) {
+    throw TableError(where + " is corrupt or not a table file: " + e.what());
+  }
+  auto array = [&](const std::string& key) -> const NpyArray& {
+    auto it = arrays.find(key);
+    if (it == arrays.end()) throw TableError(where + ": array '" + key + "' is missing");
+    return it->second;
+  };
+  const NpyArray& meta_array = array("meta");
+  if (meta_array.strings.size() != 1) throw TableError(where + ": 'meta' is not one JSON string");
+  Json meta;
+  try {
+    meta = ParseJson(meta_array.strings[0]);
+  } catch (const JsonError& e) {
+    throw TableError(where + ": metadata is not valid JSON: " + e.what());
+  }
+  const Json* version = meta.Member("format_version");
+  if (!version || version->type != Json::kNumber || version->number != kTableFormatVersion) {
+    throw TableError(where + " has format version " + (version ? version->Text() : std::string("(none)")) +
+                     "; this plugin reads version " + std::to_string(kTableFormatVersion) + " (rebuild the table)");
+  }
+  const Json* file_name = meta.Member("name");
+  if (!file_name || file_name->type != Json::kString || file_name->text != name) {
+    throw TableError(where + " holds table " + (file_name ? file_name->Text() : std::string("(none)")) +
+                     ", expected '" + name + "'");
+  }
+  const Json* file_inputs = meta.Member("inputs");
+  std::vector<std::string> got;
+  if (file_inputs && file_inputs->type == Json::kArray) {
+    for (const Json& s : file_inputs->items) got.push_back(s.type == Json::kString ? s.text : s.Text());
+  }
+  if (got != inputs) {
+    throw TableError(where + " has inputs " + Join(got) + "; the plugin expects " + Join(inputs));
+  }
+  d_ = static_cast<int>(inputs.size());
+  if (d_ < 1 || d_ > kMaxDims) throw TableError(where + ": tables of 1 to 8 inputs are supported");
+  const NpyArray& values = array("values");
+  std::vector<long> shape;
+  for (int j = 0; j < d_; ++j) shape.push_back(static_cast<long>(array("axis_" + std::to_string(j)).f8.size()));
+  if (values.shape != shape || values.descr != "<f8") {
+    throw TableError(where + ": 'values' does not have the axes' shape as float64");
+  }
+  for (double v : values.f8) {
+    if (!std::isfinite(v)) throw TableError(where + ": 'values' holds a non-finite number");
+  }
+  values_ = values.f8;
+  long stride = 1;
+  axes_.resize(d_);
+  for (int j = d_ - 1; j >= 0; --j) {
+    const std::vector<double>& a = array("axis_" + std::to_string(j)).f8;
+    if (a.size() < 2) throw TableError(where + ": axis " + std::to_string(j) + " has fewer than 2 nodes");
+    for (size_t i = 0; i < a.size(); ++i) {
+      if (!std::isfinite(a[i]) || (i && !(a[i] > a[i - 1]))) {
+        throw TableError(where + ": axis " + std::to_string(j) + " is not finite and strictly increasing");
+      }
+    }
+    Axis& ax = axes_[j];
+    ax.nodes = a;
+    ax.lo = a.front();
+    ax.hi = a.back();
+    ax.inv_step = static_cast<double>(a.size() - 1) / (a.back() - a.front());
+    ax.imax = static_cast<long>(a.size()) - 2;
+    ax.stride = stride;
+    stride *= static_cast<long>(a.size());
+    double step0 = a[1] - a[0];
+    ax.uniform = true;
+    for (size_t i = 1; i < a.size(); ++i) {
+      if (std::fabs((a[i] - a[i - 1]) - step0) > kUniformRtol * std::fabs(step0)) ax.uniform = false;
+    }
+  }
+  corner_offsets_.resize(size_t{1} << d_);
+  for (size_t c = 0; c < corner_offsets_.size(); ++c) {
+    long offset = 0;
+    for (int j = 0; j < d_; ++j) {
+      if ((c >> (d_ - 1 - j)) & 1) offset += axes_[j].stride;
+    }
+    corner_offsets_[c] = offset;
+  }
+}
+
+double MblTable::operator()(const double* x) const {
+  long base = 0;
+  double frac[kMaxDims];
+  for (int j = 0; j < d_; ++j) {
+    const Axis& ax = axes_[j];
+    double v = x[j];
+    v = v < ax.lo ? ax.lo : v > ax.hi ? ax.hi : v;
+    long i;
+    double t;
+    if (ax.uniform) {
+      double pos = (v - ax.lo) * ax.inv_step;
+      i = static_cast<long>(pos);
+      i = i > ax.imax ? ax.imax : i;
+      t = pos - static_cast<double>(i);
+    } else {
+      i = static_cast<long>(std::upper_bound(ax.nodes.begin(), ax.nodes.end(), v) - ax.nodes.begin()) - 1;
+      i = std::min(ax.imax, i);
+      t = (v - ax.nodes[i]) / (ax.nodes[i + 1] - ax.nodes[i]);
+    }
+    base += i * ax.stride;
+    frac[j] = t;
+  }
+  double vals[1 << kMaxDims];
+  size_t n = corner_offsets_.size();
+  for (size_t c = 0; c < n; ++c) vals[c] = values_[base + corner_offsets_[c]];
+  for (int j = d_ - 1; j >= 0; --j) {  // the last axis is the lowest bit: neighbours pair up
+    n /= 2;
+    for (size_t k = 0; k < n; ++k) vals[k] = vals[2 * k] + frac[j] * (vals[2 * k + 1] - vals[2 * k]);
+  }
+  return vals[0];
+}
+
+}  // namespace hexgym

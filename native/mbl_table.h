@@ -1,0 +1,49 @@
+// An MBL table read from the .npz file hexgym.tables.MBLTable.save writes, and its lookup:
+// multilinear interpolation on the grid with inputs clamped to it, the same arithmetic in the
+// same order as MBLTable._lookup_one (so Python and native give the same numbers).
+#ifndef HEXGYM_NATIVE_MBL_TABLE_H_
+#define HEXGYM_NATIVE_MBL_TABLE_H_
+
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace hexgym {
+
+// The table file format this library reads (hexgym.tables.FORMAT_VERSION).
+constexpr int kTableFormatVersion = 1;
+
+// A table file that cannot be used; what() names the file and the problem.
+class TableError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+class MblTable {
+ public:
+  // Read `path`, checking format version, table name, input names (in order) and shapes.
+  MblTable(const std::string& path, const std::string& name, const std::vector<std::string>& inputs);
+
+  // The interpolated output at the query x (length d); x must be finite.
+  double operator()(const double* x) const;
+
+  int dims() const { return d_; }
+  double axis_lo(int j) const { return axes_[j].lo; }
+  double axis_hi(int j) const { return axes_[j].hi; }
+
+ private:
+  struct Axis {
+    double lo, hi, inv_step;
+    long imax, stride;
+    bool uniform;
+    std::vector<double> nodes;
+  };
+  int d_ = 0;
+  std::vector<Axis> axes_;
+  std::vector<long> corner_offsets_;  // 2^d, last axis = lowest bit
+  std::vector<double> values_;        // C order
+};
+
+}  // namespace hexgym
+
+#endif  // HEXGYM_NATIVE_MBL_TABLE_H_

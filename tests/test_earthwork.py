@@ -1,0 +1,161 @@
+"""The loading task's earthwork (pure numpy): the pile, digging, the bucket's contents, conservation."""
+
+import numpy as np
+import pytest
+
+from hexgym import parameters as p
+from hexgym.envs.earthwork import (
+    Earthwork,
+    Pile,
+    digging_resistance,
+    earthmoving_factors,
+    mouth_normal,
+    retained_volume,
+)
+
+SPACING = 0.1
+N = 81
+
+
+def heap(height=1.5, top=1.2):
+    return Pile.heap((7.0, 0.5), height, top, N, SPACING)
+
+
+def test_bucket_constants_match_the_bucket_mesh():
+    from hexgym import meshes
+
+    profile = meshes._bucket_profile()
+    assert p.BUCKET_STRUCK_CAPACITY == pytest.approx(meshes.bucket_struck_volume(), abs=1e-3)
+    assert np.allclose(p.BUCKET_LIP, profile.lip, atol=1e-3)
+    assert np.allclose(p.BUCKET_EDGE, profile.edge, atol=1e-3)
+    assert np.allclose(p.BUCKET_TEETH_DIRECTION, -profile.floor, atol=1e-3)
+    # the mouth faces away from the bucket pin (the inside is on the pin's side)
+    mid = (np.array(p.BUCKET_LIP) + np.array(p.BUCKET_EDGE)) / 2
+    assert mouth_normal() @ (np.zeros(2) - mid) < 0
+
+
+def test_earthmoving_factors_behave_as_mckyes():
+    rakes = np.radians([20.0, 45.0, 60.0, 90.0])
+    n_gamma, n_q = earthmoving_factors(rakes)
+    assert np.all(n_gamma > 0) and np.allclose(n_q, 2 * n_gamma)
+    assert n_gamma[1] < n_gamma[3]  # a vertical blade resists more than a 45 deg one
+    # no friction at all: the Rankine passive wedge of a vertical wall, N_gamma = Kp / 2 = 0.5
+    assert earthmoving_factors(np.pi / 2, friction=0.0, tool_friction=0.0)[0][0] == pytest.approx(0.5, rel=1e-3)
+    # Coulomb passive pressure of a smooth vertical wall: Kp = tan^2(45 + phi/2)
+    phi = np.radians(30.0)
+    kp = np.tan(np.pi / 4 + phi / 2) ** 2
+    assert earthmoving_factors(np.pi / 2, friction=phi, tool_friction=0.0)[0][0] == pytest.approx(kp / 2, rel=5e-3)
+
+
+def test_resistance_grows_with_depth_and_surcharge():
+    rake = np.radians(45.0)
+    shallow, deep = digging_resistance(0.2, rake, 0.0), digging_resistance(0.4, rake, 0.0)
+    assert deep == pytest.approx(4 * shallow)  # gamma d^2 term
+    assert digging_resistance(0.4, rake, 10e3) > deep
+    assert digging_resistance(0.0, rake, 10e3) == 0.0
+
+
+def test_heap_volume_and_surface():
+    pile = heap(height=1.5, top=1.2)
+    r_top, h = 1.2, 1.5
+    r_base = r_top + h / np.tan(p.MATERIAL_REPOSE_ANGLE)
+    frustum = np.pi * h / 3 * (r_base**2 + r_base * r_top + r_top**2)
+    assert pile.volume() == pytest.approx(frustum, rel=0.02)
+    assert pile.height_at(np.array([7.0, 0.5])) == pytest.approx(1.5)
+    assert pile.height_at(np.array([30.0, 0.0])) == 0.0  # off the grid
+    # bilinear between grid points: the mean of the corners in the middle of a cell
+    i, j = 20, 30
+    x, y = pile._origin[0] + (j + 0.5) * SPACING, pile._origin[1] + (i + 0.5) * SPACING
+    corners = pile.heights[i : i + 2, j : j + 2].mean()
+    assert pile.height_at(np.array([x, y])) == pytest.approx(corners)
+
+
+def test_bad_heightmaps_are_refused():
+    with pytest.raises(ValueError, match="square"):
+        Pile(np.zeros((3, 4)), (0, 0), 0.1)
+    with pytest.raises(ValueError, match=">= 0"):
+        Pile(-np.ones((3, 3)), (0, 0), 0.1)
+
+
+def test_take_removes_what_it_returns_and_no_more_than_asked():
+    pile = heap()
+    before = pile.volume()
+    taken = pile.take(np.array([7.0, 0.5]), np.array([0.0, 1.0]), 1.5, 1.0, 0.05)
+    assert taken == pytest.approx(0.05, rel=1e-9)
+    assert pile.volume() == pytest.approx(before - taken, abs=1e-9)
+    # asking for more than lies above the floor takes only that
+    pile2 = heap()
+    above = pile2.take(np.array([7.0, 0.5]), np.array([0.0, 1.0]), 1.5, 1.4, 100.0)
+    assert 0 < above < 1.0
+    assert pile2.take(np.array([7.0, 0.5]), np.array([0.0, 1.0]), 1.5, 2.0, 1.0) == 0.0  # floor above the top
+
+
+def test_relax_conserves_and_limits_slopes():
+    h = np.zeros((21, 21))
+    h[10, 10] = 3.0  # a spike
+    pile = Pile(h, (0.0, 0.0), SPACING)
+    before = pile.volume()
+    pile.relax(iterations=400)
+    assert pile.volume() == pytest.approx(before, abs=1e-12)
+    assert np.all(pile.heights >= 0)
+    slope = np.abs(np.diff(pile.heights, axis=0)).max() / SPACING
+    assert slope < np.tan(p.MATERIAL_REPOSE_ANGLE) * 1.05
+
+
+def test_dig_fills_along_the_teeth_and_resists_the_motion():
+    earth = Earthwork(heap())
+    edge, lateral, teeth = np.array([7.0, 0.5, 1.2]), np.array([0.0, 1.0, 0.0]), np.array([-1.0, 0.0, 0.0])
+    forward = earth.dig(edge, lateral, teeth, np.array([-0.5, 0.0, 0.0]), 0.01)
+    assert forward.depth == pytest.approx(0.3)
+    assert forward.taken_kg == pytest.approx(p.BUCKET_WIDTH * 0.3 * 0.5 * 0.01 * p.MATERIAL_DENSITY, rel=1e-6)
+    assert forward.force[0] > 0 and forward.force[1] == 0  # against the motion, in the arm's plane
+    backwards = earth.dig(edge, lateral, teeth, np.array([0.5, 0.0, 0.0]), 0.01)
+    assert backwards.taken_kg == 0.0 and backwards.force[0] < 0
+    above = earth.dig(np.array([7.0, 0.5, 2.0]), lateral, teeth, np.array([-0.5, 0.0, 0.0]), 0.01)
+    assert above.depth == 0.0 and above.taken_kg == 0.0 and not above.force.any()
+
+
+def test_bucket_fills_to_its_heap_and_spills_when_tilted():
+    earth = Earthwork(heap())
+    edge, lateral, teeth = np.array([7.0, 0.5, 0.8]), np.array([0.0, 1.0, 0.0]), np.array([-1.0, 0.0, 0.0])
+    for _ in range(2000):
+        earth.dig(edge, lateral, teeth, np.array([-1.0, 0.0, 0.0]), 0.01)
+    heaped_kg = p.BUCKET_HEAPED_CAPACITY * p.MATERIAL_DENSITY
+    assert earth.bucket_kg == pytest.approx(heaped_kg, rel=1e-9)
+    assert earth.spill(0.0, into_truck=False, dt=1.0).to_ground_kg < 1e-9  # mouth up: it holds its heap
+    for _ in range(100):
+        earth.spill(p.MATERIAL_REPOSE_ANGLE, into_truck=False, dt=0.1)
+    assert earth.bucket_kg == pytest.approx(p.BUCKET_STRUCK_CAPACITY * p.MATERIAL_DENSITY, rel=1e-3)
+    for _ in range(100):
+        earth.spill(np.radians(150.0), into_truck=True, dt=0.1)
+    assert earth.bucket_kg == 0.0
+    assert earth.truck_kg == pytest.approx(p.BUCKET_STRUCK_CAPACITY * p.MATERIAL_DENSITY, rel=1e-3)
+
+
+def test_retained_volume_falls_with_tilt():
+    tilts = np.radians(np.linspace(0, 180, 37))
+    kept = np.array([retained_volume(t) for t in tilts])
+    assert kept[0] == p.BUCKET_HEAPED_CAPACITY and kept[-1] == 0.0
+    assert np.all(np.diff(kept) <= 0)
+
+
+def test_material_is_conserved_through_random_digging_and_spilling():
+    rng = np.random.default_rng(0)
+    earth = Earthwork(heap())
+    total = earth.total_kg()
+    lateral = np.array([0.0, 1.0, 0.0])
+    for _ in range(3000):
+        edge = np.array([rng.uniform(5, 9), rng.uniform(-1, 2), rng.uniform(0, 1.6)])
+        teeth = rng.normal(size=3)
+        earth.dig(edge, lateral, teeth / np.linalg.norm(teeth), rng.normal(size=3), 0.01)
+        earth.spill(rng.uniform(0, np.pi), bool(rng.integers(2)), 0.01)
+        assert abs(earth.total_kg() - total) < 1e-6
+    assert earth.truck_kg > 0 and earth.spilled_kg > 0 and earth.pile_kg < total
+
+
+def test_point_height_matches_the_vectorised_one():
+    pile = heap()
+    rng = np.random.default_rng(3)
+    points = rng.uniform([2.0, -4.0], [12.0, 5.0], (200, 2))
+    expected = pile.height_at(points)
+    assert np.allclose([pile.height_at_point(x, y) for x, y in points], expected, atol=1e-12)

@@ -1,0 +1,265 @@
+"""HexLoading-v0: the Gymnasium contract, rewards, conservation, rendering, vectorisation."""
+
+import pickle
+import warnings
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+import pytest
+
+import hexgym  # noqa: F401 - registers HexLoading-v0
+from hexgym import parameters as p
+from hexgym.envs.loading import OBSERVATION_NAMES, REWARD_TERMS, HexLoadingEnv
+from hexgym.envs.scripted import ScriptedLoader
+
+
+@pytest.fixture(scope="module")
+def env():
+    e = gym.make("HexLoading-v0")
+    yield e
+    e.close()
+
+
+def _rollout(env, actions, seed):
+    obs, _ = env.reset(seed=seed)
+    out = [obs]
+    for a in actions:
+        obs, reward, *_ = env.step(a)
+        out.append(np.append(obs, reward))
+    return out
+
+
+def test_passes_gymnasium_and_sb3_checkers_without_warnings():
+    from gymnasium.utils.env_checker import check_env
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        env = gym.make("HexLoading-v0", width=96, height=64)
+        check_env(env.unwrapped)
+        sb3_check_env(env.unwrapped, warn=True)
+        env.close()
+
+
+def test_spaces_and_metadata(env):
+    assert env.action_space == gym.spaces.Box(-1.0, 1.0, (4,), np.float32)
+    assert env.observation_space.shape == (len(OBSERVATION_NAMES),) == (22,)
+    assert env.metadata["render_fps"] == 10
+    assert {"rgb_array", "depth_array"} <= set(env.metadata["render_modes"])
+
+
+def test_reward_terms_sum_exactly_and_are_named(env):
+    env.reset(seed=3)
+    rng = np.random.default_rng(0)
+    for _ in range(30):
+        _, reward, _, _, info = env.step(rng.uniform(-1, 1, 4).astype(np.float32))
+        assert reward == sum(info[f"reward_{k}"] for k in REWARD_TERMS)
+        assert info["reward_time"] == pytest.approx(-0.02 * 0.1)
+        assert info["reward_fuel"] < 0  # the engine idles at least
+
+
+def test_reward_weights_are_constructor_arguments():
+    env = HexLoadingEnv(time_weight=1.0, fuel_weight=0.0)
+    env.reset(seed=0)
+    _, reward, _, _, info = env.step(np.zeros(4, np.float32))
+    assert info["reward_time"] == pytest.approx(-0.1) and info["reward_fuel"] == 0.0
+    assert reward == pytest.approx(-0.1)
+
+
+def test_deterministic_under_a_seed_and_resets_are_randomised():
+    actions = np.random.default_rng(1).uniform(-1, 1, (40, 4)).astype(np.float32)
+    a, b = gym.make("HexLoading-v0"), gym.make("HexLoading-v0")
+    for x, y in zip(_rollout(a, actions, 7), _rollout(b, actions, 7), strict=True):
+        assert np.array_equal(x, y)
+    layouts = set()
+    for seed in range(4):
+        a.reset(seed=seed)
+        layouts.add(round(a.unwrapped.layout.truck_direction, 6))
+    assert len(layouts) == 4
+
+
+def test_pickled_env_continues_identically():
+    env = HexLoadingEnv()
+    env.reset(seed=5)
+    rng = np.random.default_rng(2)
+    for _ in range(10):
+        env.step(rng.uniform(-1, 1, 4).astype(np.float32))
+    clone = pickle.loads(pickle.dumps(env))
+    actions = rng.uniform(-1, 1, (10, 4)).astype(np.float32)
+    for act in actions:
+        o1, r1, *_ = env.step(act)
+        o2, r2, *_ = clone.step(act)
+        assert np.array_equal(o1, o2) and r1 == r2
+
+
+def test_bad_actions_raise_clear_errors_and_large_ones_are_clipped(env):
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="finite"):
+        env.step(np.array([0.0, np.nan, 0.0, 0.0], np.float32))
+    with pytest.raises(ValueError, match="shape"):
+        env.step(np.zeros(3, np.float32))
+    a, b = HexLoadingEnv(), HexLoadingEnv()
+    a.reset(seed=1)
+    b.reset(seed=1)
+    oa, *_ = a.step(np.array([5.0, -3.0, 1.0, 0.0]))
+    ob, *_ = b.step(np.array([1.0, -1.0, 1.0, 0.0]))
+    assert np.array_equal(oa, ob)
+
+
+def test_step_before_reset_is_refused():
+    with pytest.raises(RuntimeError, match="reset"):
+        HexLoadingEnv().step(np.zeros(4))
+
+
+def test_observations_do_not_alias_the_simulation():
+    env = HexLoadingEnv()
+    obs, _ = env.reset(seed=0)
+    kept = obs.copy()
+    env.step(np.ones(4, np.float32))
+    assert np.array_equal(obs, kept)
+
+
+def test_material_is_conserved_every_step_while_loading():
+    env = HexLoadingEnv()
+    env.reset(seed=0)
+    controller = ScriptedLoader()
+    total = env.unwrapped.earth.total_kg()
+    for _ in range(400):  # 40 s: digs, carries, dumps
+        _, _, _, _, info = env.step(controller.act(env))
+        stores = info["pile_kg"] + info["bucket_kg"] + info["truck_kg"] + info["spilled_kg"]
+        assert abs(stores - total) < 1e-6
+    assert info["truck_kg"] > 0
+    # the payload rides in the bucket body: its mass is the bucket's contents
+    assert env.physics.payload_kg == pytest.approx(info["bucket_kg"], abs=25.0)
+
+
+def test_digging_lowers_the_rendered_pile():
+    env = HexLoadingEnv()
+    env.reset(seed=0)
+    controller = ScriptedLoader()
+    before = env.earth.pile.heights.copy()
+    while controller.phase != "curl":
+        env.step(controller.act(env))
+    assert env.earth.pile.heights.min() >= 0 and (before - env.earth.pile.heights).max() > 0.2
+    hfield = env.world.model.hfield_data.reshape(env.earth.pile.heights.shape)
+    env.world.show_pile(env.earth.pile.heights)
+    # the hfield (what is drawn) is the heightmap: a ray down onto it hits the surface
+    m, d = env.physics.model, env.physics.data
+    i, j = np.unravel_index(np.argmax(before - env.earth.pile.heights), before.shape)
+    x = env.earth.pile._origin[0] + j * env.earth.pile.spacing
+    y = env.earth.pile._origin[1] + i * env.earth.pile.spacing
+    geomid = np.zeros(1, np.int32)
+    group = np.array([0, 1, 0, 0, 0, 0], np.uint8)
+    distance = mujoco.mj_ray(m, d, np.array([x, y, 10.0]), np.array([0, 0, -1.0]), group, 1, -1, geomid)
+    assert geomid[0] == env.world.pile_geom
+    assert 10.0 - distance == pytest.approx(env.earth.pile.heights[i, j], abs=0.01)
+    assert hfield.max() <= 1.0
+
+
+def test_hard_contacts_with_the_ground_are_penalised():
+    env = HexLoadingEnv()
+    env.reset(seed=2)
+    contact = 0.0
+    for _ in range(40):  # boom down, stick in: the bucket is driven into the ground
+        _, _, _, _, info = env.step(np.array([0.0, -1.0, 1.0, 0.0], np.float32))
+        contact += info["reward_contact"]
+    assert contact < 0
+
+
+def test_truncation_and_termination():
+    env = HexLoadingEnv(time_limit=1.0)
+    env.reset(seed=0)
+    flags = [env.step(np.zeros(4, np.float32))[3] for _ in range(10)]
+    assert flags == [False] * 9 + [True]
+    env = HexLoadingEnv(truck_capacity_kg=500.0)
+    env.reset(seed=0)
+    controller = ScriptedLoader()
+    for _ in range(600):
+        _, _, terminated, truncated, info = env.step(controller.act(env))
+        if terminated:
+            break
+    assert terminated and not truncated and info["truck_kg"] >= 500.0
+
+
+@pytest.mark.parametrize("mode", ["rgb_array", "depth_array"])
+@pytest.mark.parametrize("camera", ["chase", "cab"])
+def test_renders_offscreen(mode, camera):
+    env = gym.make("HexLoading-v0", render_mode=mode, camera=camera, width=160, height=96)
+    env.reset(seed=0)
+    frame = env.render()
+    env.close()
+    if mode == "rgb_array":
+        assert frame.shape == (96, 160, 3) and frame.dtype == np.uint8 and frame.std() > 5
+    else:
+        assert frame.shape == (96, 160) and frame.dtype == np.float32 and np.all(frame > 0)
+        assert 1.0 < frame[-1].mean() < 50.0  # metres to the ground in the bottom row (the sky is at the far plane)
+    with pytest.raises(ValueError, match="render_mode"):
+        HexLoadingEnv(render_mode="bogus")
+
+
+def test_pickle_after_rendering_drops_the_renderer():
+    env = HexLoadingEnv(render_mode="rgb_array", width=64, height=48)
+    env.reset(seed=0)
+    first = env.render()
+    clone = pickle.loads(pickle.dumps(env))
+    assert np.array_equal(clone.render(), first)
+    env.close()
+    clone.close()
+
+
+def test_make_vec_and_subproc_vec_env():
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import SubprocVecEnv
+
+    vec = gym.make_vec("HexLoading-v0", num_envs=2, vectorization_mode="sync")
+    obs, _ = vec.reset(seed=0)
+    obs, reward, *_ = vec.step(np.zeros((2, 4), np.float32))
+    assert obs.shape == (2, 22) and reward.shape == (2,)
+    vec.close()
+    # the workers are fresh processes: "hexgym:" makes gymnasium import hexgym (which registers the id)
+    sub = make_vec_env("hexgym:HexLoading-v0", n_envs=2, seed=0, vec_env_cls=SubprocVecEnv)
+    sub.reset()
+    obs, reward, done, _ = sub.step(np.zeros((2, 4), np.float32))
+    assert obs.shape == (2, 22) and not done.any()
+    sub.close()
+
+
+@pytest.mark.slow
+def test_random_steps_produce_no_nan_and_no_mujoco_warning():
+    env = HexLoadingEnv()
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    for _ in range(100_000):
+        obs, _, terminated, truncated, _ = env.step(rng.uniform(-1.2, 1.2, 4))
+        assert np.all(np.isfinite(obs))
+        if terminated or truncated:
+            assert _mujoco_warnings(env) == 0, "MuJoCo raised a warning"
+            env.reset()
+    assert _mujoco_warnings(env) == 0
+
+
+def _mujoco_warnings(env):
+    return sum(w.number for w in env.physics.data.warning)
+
+
+def test_spool_scaling():
+    assert p.SPOOL_STROKE == pytest.approx(0.011)
+
+
+def test_fuel_estimate_tracks_the_reference_circuit():
+    from hexgym.envs.fuel import compare_with_reference
+
+    result = compare_with_reference()
+    assert 0.8 < result["ratio"] < 1.25  # measured 1.10 on the loading-like sequence
+
+
+def test_sampled_moment_arms_match_the_linkage():
+    from hexgym import machine
+    from hexgym.envs.loading import moment_arms
+
+    rng = np.random.default_rng(4)
+    for _ in range(50):
+        q = np.array([0.0] + [rng.uniform(*machine.joint_range(n)) for n in machine.FRONT_CYLINDERS])
+        exact = [machine.moment_arm(n, q[i + 1]) for i, n in enumerate(machine.FRONT_CYLINDERS)]
+        assert np.allclose(moment_arms(q), exact, atol=5e-6)
