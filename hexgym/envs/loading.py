@@ -19,7 +19,8 @@ from hexgym.envs import fuel
 from hexgym.envs.earthwork import Earthwork, Pile, mouth_normal
 from hexgym.envs.world import PILE_GRID_POINTS, PILE_GRID_SPACING, Layout, World, build_world_model, sample_layout
 from hexgym.learned import LearnedModel
-from hexgym.resources import asset_path
+from hexgym.render import ModelMirror
+from hexgym.resources import SCENE_FILE, asset_path
 
 if TYPE_CHECKING:
     from hexgym.native import NativeLearnedModel
@@ -210,7 +211,7 @@ class HexLoadingEnv(gym.Env):
     | spill_weight | 2.0 | per tonne spilled |
     | contact_weight | 0.01 | per kN·s of hard contact |
     | scene_path | None | MJCF scene to build the site on (default: the lean machine's ``scene_lean.xml``) |
-    | backend | ``"auto"`` | ``"native"`` (the MuJoCo plugin), ``"python"`` (LearnedModel), ``"auto"`` (native if built) |
+    | backend | ``"auto"`` | ``"native"`` (MuJoCo plugin), ``"python"`` (LearnedModel), ``"auto"`` (native if built) |
 
     Metadata: ``render_fps`` = 10, the control rate.
     """
@@ -275,6 +276,7 @@ class HexLoadingEnv(gym.Env):
         self._tip_site = model.site("tip").id
         self._servo_bands = _servo_bands(model)
         self._renderer: Any = None
+        self._view: tuple[mujoco.MjModel, mujoco.MjData, ModelMirror] | None = None  # see _render_view
         self._pile_shown = False  # the renderer's copy of the hfield is stale
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
@@ -514,33 +516,42 @@ class HexLoadingEnv(gym.Env):
         if self.earth is None:
             raise RuntimeError("call reset() before render()")
         self.world.show_loads(self.earth.truck_kg, self.earth.bucket_kg)
-        if self.render_mode == "human":
-            return self._render_window()
-        if self._renderer is None:
-            self._renderer = mujoco.Renderer(self.physics.model, height=self.height, width=self.width)
-            if self.render_mode == "depth_array":
-                self._renderer.enable_depth_rendering()
-            self._pile_shown = False
         if not self._pile_shown:
             self.world.show_pile(self.earth.pile.heights)
-            # the renderer keeps its own copy of the hfield on the GPU side (private context attribute)
-            mujoco.mjr_uploadHField(self.physics.model, self._renderer._mjr_context, self.world.pile_hfield)
             self._pile_shown = True
-        self._renderer.update_scene(self.physics.data, camera=self.camera)
+        model, data, mirror = self._render_view()
+        changed = mirror.sync(self.physics.data, data)
+        if self.render_mode == "human":
+            return self._render_window(model, data, changed)
+        if self._renderer is None:  # a new context uploads the present heightfield itself
+            self._renderer = mujoco.Renderer(model, height=self.height, width=self.width)
+            if self.render_mode == "depth_array":
+                self._renderer.enable_depth_rendering()
+        else:  # the renderer keeps its own copy of the hfield on the GPU side (private context attribute)
+            for hfield in changed:
+                mujoco.mjr_uploadHField(model, self._renderer._mjr_context, hfield)
+        self._renderer.update_scene(data, camera=self.camera)
         return self._renderer.render().copy()
 
-    def _render_window(self) -> None:
+    def _render_view(self) -> tuple[mujoco.MjModel, mujoco.MjData, ModelMirror]:
+        """The site around the full machine, posed like the simulation: pictures show cylinders and links.
+
+        The simulation runs on the lean machine (no cylinder or four-bar bodies); frames are drawn
+        from the full one (``scene.xml``) mirrored to it (:class:`hexgym.render.ModelMirror`).
+        """
+        if self._view is None:
+            model = build_world_model(asset_path(SCENE_FILE))
+            self._view = (model, mujoco.MjData(model), ModelMirror(self.physics.model, model))
+        return self._view
+
+    def _render_window(self, model: mujoco.MjModel, data: mujoco.MjData, changed: list[int]) -> None:
         if self._renderer is None:
             from gymnasium.envs.mujoco.mujoco_rendering import MujocoRenderer
 
-            self._renderer = MujocoRenderer(
-                self.physics.model, self.physics.data, width=self.width, height=self.height, camera_name=self.camera
-            )
+            self._renderer = MujocoRenderer(model, data, width=self.width, height=self.height, camera_name=self.camera)
         viewer = self._renderer._get_viewer("human")
-        if not self._pile_shown:
-            self.world.show_pile(self.earth.pile.heights)
-            mujoco.mjr_uploadHField(self.physics.model, viewer.con, self.world.pile_hfield)
-            self._pile_shown = True
+        for hfield in changed:
+            mujoco.mjr_uploadHField(model, viewer.con, hfield)
         self._renderer.render("human")
         return None
 
@@ -554,6 +565,7 @@ class HexLoadingEnv(gym.Env):
     def __getstate__(self) -> dict:
         state = self.__dict__.copy()
         state["_renderer"] = None
+        state["_view"] = None
         state["_pile_shown"] = False
         return state
 
