@@ -206,10 +206,16 @@ class LearnedModel:
 
     def observe(self) -> np.ndarray:
         """One trajectory row (``LEARNED_DTYPE``): the common columns, spools, cylinders, loads."""
-        ph = self.physics
-        values = (
-            [ph.time, *ph.joint_positions(), *ph.joint_velocities(), *ph.tip_position()]
-            + [*(self.spools_m * 1e3), *ph.cylinder_extensions(), *ph.cylinder_velocities()]
-            + [*self.cylinder_loads(), ph.swing_inertia(), self.swing_acceleration]
-        )
-        return np.array(tuple(values), dtype=LEARNED_DTYPE)
+        return trajectory_row(self)
+
+
+def trajectory_row(model: LearnedModel) -> np.ndarray:
+    """One ``LEARNED_DTYPE`` row of a learned model on either backend (it has ``physics``,
+    ``spools_m``, ``cylinder_loads()`` and ``swing_acceleration``)."""
+    ph = model.physics
+    values = (
+        [ph.time, *ph.joint_positions(), *ph.joint_velocities(), *ph.tip_position()]
+        + [*(model.spools_m * 1e3), *ph.cylinder_extensions(), *ph.cylinder_velocities()]
+        + [*model.cylinder_loads(), ph.swing_inertia(), model.swing_acceleration]
+    )
+    return np.array(tuple(values), dtype=LEARNED_DTYPE)

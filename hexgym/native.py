@@ -27,7 +27,7 @@ import numpy as np
 
 from hexgym import machine
 from hexgym.hydraulics import validate_spools
-from hexgym.learned import LEARNED_DTYPE, LearnedModel
+from hexgym.learned import LearnedModel, trajectory_row
 from hexgym.physics import ExcavatorPhysics
 from hexgym.resources import AssetError, asset_path
 
@@ -208,13 +208,7 @@ class NativeLearnedModel:
 
     def observe(self) -> np.ndarray:
         """One trajectory row (``LEARNED_DTYPE``), as LearnedModel.observe."""
-        ph = self.physics
-        values = (
-            [ph.time, *ph.joint_positions(), *ph.joint_velocities(), *ph.tip_position()]
-            + [*(self.spools_m * 1e3), *ph.cylinder_extensions(), *ph.cylinder_velocities()]
-            + [*self.cylinder_loads(), ph.swing_inertia(), self.swing_acceleration]
-        )
-        return np.array(tuple(values), dtype=LEARNED_DTYPE)
+        return trajectory_row(self)
 
 
 _fallback_said = False
