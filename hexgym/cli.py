@@ -155,7 +155,7 @@ def _cmd_clone(args: argparse.Namespace) -> int:
     from hexgym.training import clone_scripted
 
     path = clone_scripted(args.out, episodes=args.episodes, dagger_rounds=args.dagger_rounds,
-                          dagger_episodes=args.dagger_episodes, epochs=args.epochs, seed=args.seed,
+                          dagger_episodes=args.dagger_episodes, epochs=args.epochs, seed=args.seed, noise=args.noise,
                           hyperparams=args.hyperparams)  # fmt: skip
     print(f"model: {path}")
     return 0
@@ -295,6 +295,7 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
     clone.add_argument("--dagger-rounds", type=int, default=4, help="DAgger rounds (default: 4)")
     clone.add_argument("--dagger-episodes", type=int, default=8, help="episodes per DAgger round (default: 8)")
     clone.add_argument("--epochs", type=int, default=30, help="fitting epochs per round (default: 30)")
+    clone.add_argument("--noise", type=float, default=0.0, help="DART: spool noise std (default: 0)")
     clone.add_argument("--seed", type=int, default=1000, help="first episode seed (default: 1000)")
     clone.add_argument("--hyperparams", default=None, help="PPO YAML giving the network (default: ppo.yml)")
     clone.set_defaults(func=_cmd_clone)

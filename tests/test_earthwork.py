@@ -159,3 +159,26 @@ def test_point_height_matches_the_vectorised_one():
     points = rng.uniform([2.0, -4.0], [12.0, 5.0], (200, 2))
     expected = pile.height_at(points)
     assert np.allclose([pile.height_at_point(x, y) for x, y in points], expected, atol=1e-12)
+
+
+def test_uniform_table_interpolates_like_numpy():
+    from hexgym.envs.earthwork import UniformTable
+
+    x = np.linspace(-1.0, 2.0, 31)
+    values = np.sin(3 * x)
+    table = UniformTable(-1.0, 2.0, values)
+    for point in np.random.default_rng(5).uniform(-1.5, 2.5, 300):
+        assert table(point) == pytest.approx(np.interp(point, x, values), abs=1e-12)
+    with pytest.raises(ValueError, match="increasing"):
+        UniformTable(1.0, 1.0, values)
+
+
+def test_clearance_and_cached_volume_follow_the_digging():
+    pile = heap(height=1.5, top=1.2)
+    assert pile.clearance(np.array([7.0, 0.5, 2.0]), 0.5) == pytest.approx(0.5)
+    assert pile.clearance(np.array([7.0, 0.5, 1.0]), 0.5) == pytest.approx(-0.5)
+    assert pile.clearance(np.array([30.0, 0.0, 0.0]), 0.5) == np.inf  # off the grid: no material near
+    before = pile.volume()
+    taken = pile.take(np.array([7.0, 0.5]), np.array([0.0, 1.0]), 1.5, 1.0, 0.05)
+    assert pile.volume() == pytest.approx(before - taken, abs=1e-12)
+    assert pile.volume() == pytest.approx(float(pile.heights.sum()) * pile.cell_area, abs=1e-12)

@@ -263,3 +263,54 @@ def test_sampled_moment_arms_match_the_linkage():
         q = np.array([0.0] + [rng.uniform(*machine.joint_range(n)) for n in machine.FRONT_CYLINDERS])
         exact = [machine.moment_arm(n, q[i + 1]) for i, n in enumerate(machine.FRONT_CYLINDERS)]
         assert np.allclose(moment_arms(q), exact, atol=5e-6)
+
+
+def test_tabulated_fuel_rate_matches_the_bsfc_map():
+    from hexgym.envs.fuel import brake_power, fuel_litres
+    from hexgym.hydraulics import fuel_rate
+
+    for power in np.linspace(0.0, 1.5 * p.ENGINE_POWER, 997):
+        exact = fuel_rate(brake_power(power)) * 0.1 / 3600.0
+        assert fuel_litres(power, 0.1) == pytest.approx(exact, rel=1e-5)
+
+
+def test_clear_periods_follow_the_teeth_height_above_the_pile():
+    env = HexLoadingEnv()
+    env.reset(seed=0)
+    pile, periods = env.earth.pile, env._periods
+    site = env.physics.data.site_xpos[env._tip_site]
+    x, y = env.layout.pile_centre
+    surface = pile.height_at_point(x, y)
+    site[:] = [x, y, surface - 0.2]  # (the tip site is only read; the next mj_step1 rewrites it)
+    assert env._clear_periods() == 0
+    site[:] = [x, y, pile.top + 0.61]
+    assert env._clear_periods() == periods
+    site[:] = [x, y, surface + 0.2]  # within two periods' travel (0.15 m each) of the top
+    assert 0 < env._clear_periods() < periods
+
+
+@pytest.mark.parametrize("periods", [0, 1.5, True])
+def test_bad_earthwork_periods_are_refused(periods):
+    with pytest.raises(ValueError, match="earthwork_periods"):
+        HexLoadingEnv(earthwork_periods=periods)
+
+
+def test_digging_once_per_step_fills_and_curls_like_digging_every_period():
+    from hexgym.envs.scripted import FULL_FRACTION, ScriptedLoader
+
+    phases = {}
+    for periods in (1, 4):
+        env = HexLoadingEnv(earthwork_periods=periods)
+        env.reset(seed=2)
+        controller = ScriptedLoader()
+        while controller.phase != "to_truck" and env.elapsed < 30.0:
+            _, _, _, _, info = env.step(controller.act(env))
+            if controller.phase == "drag":
+                dragged_kg = info["bucket_kg"]
+        assert dragged_kg >= FULL_FRACTION * p.BUCKET_HEAPED_CAPACITY * p.MATERIAL_DENSITY  # dragged it full
+        phases[periods] = dict((phase, t) for t, phase in controller.log)
+    # the drag fills in about the same time (measured 8.8 s and 8.9 s to the curl), and the curl, which
+    # the pile's resistance stalls, lasts as long (4.0 s both; 2.0 s with the force held over whole steps)
+    assert phases[4]["curl"] == pytest.approx(phases[1]["curl"], abs=0.5)
+    curl = {k: v["to_truck"] - v["curl"] for k, v in phases.items()}
+    assert curl[4] == pytest.approx(curl[1], abs=0.3)

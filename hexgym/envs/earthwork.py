@@ -57,18 +57,42 @@ def earthmoving_factors(
     return n_q / 2.0, n_q
 
 
-_RAKE_GRID = np.linspace(*_RAKE_LIMITS, 171)
-_N_GAMMA_GRID, _N_Q_GRID = earthmoving_factors(_RAKE_GRID)
+class UniformTable:
+    """A function tabulated on an evenly spaced grid, linearly interpolated at one point (clamped at the ends).
+
+    For scalar lookups in the step loop: plain Python, several times faster than ``np.interp`` on one value.
+    """
+
+    def __init__(self, start: float, stop: float, values: np.ndarray) -> None:
+        values = np.asarray(values, dtype=float)
+        if values.ndim != 1 or len(values) < 2 or not stop > start:
+            raise ValueError(f"need >= 2 values on an increasing range, got {values.shape} on [{start}, {stop}]")
+        self.start, self.stop = float(start), float(stop)
+        self.step = (self.stop - self.start) / (len(values) - 1)
+        self.values = values.tolist()
+
+    def __call__(self, x: float) -> float:
+        """The interpolated value at ``x``."""
+        u = (x - self.start) / self.step
+        last = len(self.values) - 1
+        if u <= 0.0:
+            return self.values[0]
+        if u >= last:
+            return self.values[last]
+        i = int(u)
+        lo = self.values[i]
+        return lo + (self.values[i + 1] - lo) * (u - i)
+
+
+_N_GAMMA = UniformTable(*_RAKE_LIMITS, earthmoving_factors(np.linspace(*_RAKE_LIMITS, 171))[0])
 
 
 def digging_resistance(depth: float, rake: float, surcharge_pa: float, width: float = p.BUCKET_WIDTH) -> float:
     """Magnitude (N) of the earthmoving force on an edge ``width`` wide cutting ``depth`` m deep."""
     if depth <= 0.0:
         return 0.0
-    rake = min(max(float(rake), _RAKE_LIMITS[0]), _RAKE_LIMITS[1])
-    n_gamma = np.interp(rake, _RAKE_GRID, _N_GAMMA_GRID)
-    n_q = np.interp(rake, _RAKE_GRID, _N_Q_GRID)
-    return float(width * (_GAMMA * depth**2 * n_gamma + surcharge_pa * depth * n_q))
+    n_gamma = _N_GAMMA(float(rake))  # rakes outside the table's limits count as at them
+    return float(width * (_GAMMA * depth**2 * n_gamma + surcharge_pa * depth * 2.0 * n_gamma))  # N_q = 2 N_gamma
 
 
 def retained_volume(tilt: float) -> float:
@@ -112,7 +136,9 @@ class Pile:
         n = heights.shape[0]
         self.half_size = (n - 1) * spacing / 2.0
         self._origin = self.centre - self.half_size  # (x, y) of grid point [0, 0]
+        self._origin_x, self._origin_y = self._origin.tolist()  # the same as floats, for scalar arithmetic
         self.top = float(heights.max())  # an upper bound of the surface: digging only lowers it
+        self._volume: float | None = None  # cached sum of the heights x cell area; None once they change
 
     @classmethod
     def heap(cls, centre: tuple[float, float], height: float, top_radius: float, n: int, spacing: float) -> Pile:
@@ -127,8 +153,10 @@ class Pile:
         return self.spacing**2
 
     def volume(self) -> float:
-        """Material in the pile, m^3."""
-        return float(self.heights.sum()) * self.cell_area
+        """Material in the pile, m^3 (cached: change ``heights`` only through :meth:`take` and :meth:`relax`)."""
+        if self._volume is None:
+            self._volume = float(self.heights.sum()) * self.cell_area
+        return self._volume
 
     def height_at(self, xy: np.ndarray) -> np.ndarray:
         """Surface height (m) at world points ``xy`` (..., 2), bilinear; 0 off the grid."""
@@ -149,7 +177,7 @@ class Pile:
 
     def height_at_point(self, x: float, y: float) -> float:
         """:meth:`height_at` for one point, in plain Python (several times faster than numpy for one)."""
-        u, v = (x - self._origin[0]) / self.spacing, (y - self._origin[1]) / self.spacing
+        u, v = (x - self._origin_x) / self.spacing, (y - self._origin_y) / self.spacing
         last = self.heights.shape[0] - 1
         if not (0.0 <= u <= last and 0.0 <= v <= last):
             return 0.0
@@ -165,15 +193,24 @@ class Pile:
 
         A cheap bound: the highest grid point within ``BUCKET_WIDTH`` (a square window).
         """
-        if point[2] - margin >= self.top:
-            return False
-        window = self._window(np.asarray(point[:2], dtype=float), p.BUCKET_WIDTH)
-        return window is not None and float(self.heights[window].max()) > point[2] - margin
+        return self.clearance(point, p.BUCKET_WIDTH, margin) < margin
+
+    def clearance(self, point: np.ndarray, radius: float, enough: float = math.inf) -> float:
+        """Height (m) of world ``point`` above the highest grid point within ``radius`` of it (a square window).
+
+        Negative where material stands higher; ``inf`` where none lies within ``radius``. Once the
+        answer is sure to be at least ``enough``, it may be any value >= ``enough`` (cheap bound).
+        """
+        z = float(point[2])
+        if z - self.top >= enough:
+            return z - self.top  # above the whole pile's (upper bound of the) top
+        window = self._window(point, radius)
+        return z - float(self.heights[window].max()) if window is not None else math.inf
 
     def _window(self, xy: np.ndarray, radius: float) -> tuple[slice, slice] | None:
         """Row and column slices of the grid points within ``radius`` of ``xy`` (a square), or None."""
         n, inv = self.heights.shape[0], 1.0 / self.spacing
-        x, y = float(xy[0]) - self._origin[0], float(xy[1]) - self._origin[1]
+        x, y = float(xy[0]) - self._origin_x, float(xy[1]) - self._origin_y
         c0, c1 = max(math.floor((x - radius) * inv), 0), min(math.ceil((x + radius) * inv) + 1, n)
         r0, r1 = max(math.floor((y - radius) * inv), 0), min(math.ceil((y + radius) * inv) + 1, n)
         if c1 <= c0 or r1 <= r0:
@@ -193,11 +230,11 @@ class Pile:
         if window is None:
             return 0.0
         rows, cols = window
-        gy, gx = np.mgrid[rows, cols]
-        dx = self._origin[0] + gx * self.spacing - xy[0]
-        dy = self._origin[1] + gy * self.spacing - xy[1]
-        along = dx * lateral[0] + dy * lateral[1]
-        across = np.abs(dx * lateral[1] - dy * lateral[0])
+        lx, ly = float(lateral[0]), float(lateral[1])
+        dx = (self._origin_x + np.arange(cols.start, cols.stop) * self.spacing - float(xy[0]))[None, :]
+        dy = (self._origin_y + np.arange(rows.start, rows.stop) * self.spacing - float(xy[1]))[:, None]
+        along = dx * lx + dy * ly
+        across = np.abs(dx * ly - dy * lx)
         in_strip = (np.abs(along) <= width / 2.0) & (across <= self.spacing)
         patch = self.heights[rows, cols]
         available = np.where(in_strip, np.maximum(patch - floor, 0.0), 0.0)
@@ -206,6 +243,7 @@ class Pile:
             return 0.0
         before = float(patch.sum())
         patch -= available * min(1.0, volume / total)
+        self._volume = None
         self.relax((rows, cols))
         # the relaxation moves material inside the window only, so the window's loss is the take
         return (before - float(self.heights[rows, cols].sum())) * self.cell_area
@@ -214,17 +252,28 @@ class Pile:
         """Let slopes steeper than the angle of repose slide (mass-conserving), inside ``window``."""
         rows, cols = window if window is not None else (slice(None), slice(None))
         h = self.heights[rows, cols]  # a view: updates land in the pile
-        limit = np.tan(p.MATERIAL_REPOSE_ANGLE) * self.spacing
+        limit = math.tan(p.MATERIAL_REPOSE_ANGLE) * self.spacing
+        self._volume = None
         for _ in range(iterations):
+            moved = False
             for axis in (0, 1):
                 dh = np.diff(h, axis=axis)
-                flow = 0.25 * np.sign(dh) * np.maximum(np.abs(dh) - limit, 0.0)  # from higher to lower
+                excess = np.abs(dh)
+                excess -= limit
+                if excess.max() <= 0.0:
+                    continue  # no slope steeper than the repose angle along this axis: nothing slides
+                moved = True
+                np.maximum(excess, 0.0, out=excess)
+                flow = np.copysign(excess, dh)  # from higher to lower
+                flow *= 0.25
                 if axis == 0:
                     h[1:, :] -= flow
                     h[:-1, :] += flow
                 else:
                     h[:, 1:] -= flow
                     h[:, :-1] += flow
+            if not moved:
+                break  # settled: later passes would find the same slopes
 
 
 @dataclass
@@ -298,34 +347,44 @@ class Earthwork:
                 environment passes a low-passed one so that the force does not chatter.
             dt: interval, s.
         """
-        floor = max(float(edge[2]), 0.0)  # the pile stands on the ground: no material below it
-        if not self.pile.may_reach(edge, 0.0):
-            return DigResult(np.zeros(3), 0.0, 0.0)  # clear of the pile: the common case, kept cheap
-        x, y, lx, ly = float(edge[0]), float(edge[1]), float(lateral[0]), float(lateral[1])
+        # plain floats: a handful of 3-vectors, where numpy's per-call overhead would dominate
+        x, y, z = _floats(edge)
+        floor = max(z, 0.0)  # the pile stands on the ground: no material below it
+        if z >= self.pile.top:
+            return DigResult(np.zeros(3), 0.0, 0.0)  # above the whole pile: kept cheap
+        lx, ly, lz = _floats(lateral)
         depths = (self.pile.height_at_point(x + o * lx, y + o * ly) - floor for o in _EDGE_OFFSETS)
         depth = sum(max(d, 0.0) for d in depths) / _EDGE_SAMPLES
         if depth <= 0.0:
             return DigResult(np.zeros(3), 0.0, 0.0)
+        tx, ty, tz = _floats(teeth)
+        vx, vy, vz = _floats(velocity)
         # fill: the edge slices a layer `depth` thick as it moves along the teeth
-        cut_speed = max(float(velocity @ teeth), 0.0)
+        cut_speed = max(vx * tx + vy * ty + vz * tz, 0.0)
         # buried, the pile holds the contents in whatever the tilt: the bucket fills to its heap
         room = max(p.BUCKET_HEAPED_CAPACITY - self.bucket_volume, 0.0)
         wanted = min(p.BUCKET_WIDTH * depth * cut_speed * dt, room)
-        taken_kg = self.pile.take(edge[:2], lateral, p.BUCKET_WIDTH, floor, wanted) * self.density
+        taken_kg = self.pile.take((x, y), (lx, ly), p.BUCKET_WIDTH, floor, wanted) * self.density
         self.bucket_kg += taken_kg
-        # resistance: the fundamental earthmoving equation against the motion
-        if force_velocity is not None:
-            velocity = force_velocity
-        speed = float(np.linalg.norm(velocity))
-        travel = velocity / speed if speed > 1e-9 else teeth
-        horizontal = np.hypot(*travel[:2])
-        forward = (teeth[:2] @ travel[:2]) / horizontal if horizontal > 1e-9 else 0.0
-        rake = float(np.arctan2(-teeth[2], forward))
-        surcharge = _GAMMA * self.bucket_volume / (p.BUCKET_WIDTH * _MOUTH_LENGTH)
-        magnitude = digging_resistance(depth, rake, surcharge)
-        force = -magnitude * velocity / max(speed, p.DIG_REFERENCE_SPEED)
-        force -= (force @ lateral) * lateral  # in the arm's plane: the edge cuts, its side plates do not
+        force = self.resistance(depth, lateral, teeth, velocity if force_velocity is None else force_velocity)
         return DigResult(force, taken_kg, depth)
+
+    def resistance(self, depth: float, lateral: np.ndarray, teeth: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+        """The fundamental earthmoving equation's force (N, world) on the edge cutting ``depth`` m deep, against
+        ``velocity`` (full above ``DIG_REFERENCE_SPEED``, in proportion below it); arguments as :meth:`dig`'s."""
+        lx, ly, lz = _floats(lateral)
+        tx, ty, tz = _floats(teeth)
+        vx, vy, vz = _floats(velocity)
+        speed = math.sqrt(vx * vx + vy * vy + vz * vz)
+        ux, uy = (vx / speed, vy / speed) if speed > 1e-9 else (tx, ty)  # direction of travel
+        horizontal = math.hypot(ux, uy)
+        forward = (tx * ux + ty * uy) / horizontal if horizontal > 1e-9 else 0.0
+        rake = math.atan2(-tz, forward)
+        surcharge = _GAMMA * self.bucket_volume / (p.BUCKET_WIDTH * _MOUTH_LENGTH)
+        scale = -digging_resistance(depth, rake, surcharge) / max(speed, p.DIG_REFERENCE_SPEED)
+        fx, fy, fz = scale * vx, scale * vy, scale * vz
+        sideways = fx * lx + fy * ly + fz * lz  # in the arm's plane: the edge cuts, its side plates do not
+        return np.array([fx - sideways * lx, fy - sideways * ly, fz - sideways * lz])
 
     def spill(self, tilt: float, into_truck: bool, dt: float) -> SpillResult:
         """Let what the bucket cannot hold at ``tilt`` run out for ``dt`` s, into the truck or onto the ground.
@@ -348,6 +407,11 @@ class Earthwork:
 
 
 _MOUTH_LENGTH = float(np.hypot(*np.subtract(p.BUCKET_EDGE, p.BUCKET_LIP)))  # strike line, m
+
+
+def _floats(vector: np.ndarray | tuple[float, ...]) -> tuple[float, ...]:
+    """A short vector's components as Python floats (a tuple or list passes through)."""
+    return vector if isinstance(vector, tuple | list) else tuple(np.asarray(vector, dtype=float).tolist())
 
 
 def mouth_normal() -> np.ndarray:

@@ -17,6 +17,8 @@ where a :class:`Layout` says, :meth:`World.show_pile` copies the heightmap into 
 
 from __future__ import annotations
 
+import functools
+import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -50,12 +52,13 @@ class Layout:
     truck_centre: tuple[float, float]
     truck_yaw: float  # the truck's x axis (towards its cab) from the world x axis
 
-    @property
+    # cached (every observation asks): a frozen dataclass has no slots, so functools stores them in __dict__
+    @functools.cached_property
     def pile_direction(self) -> float:
         """Swing angle (rad) that points the arm at the pile's centre."""
         return float(np.arctan2(self.pile_centre[1], self.pile_centre[0]))
 
-    @property
+    @functools.cached_property
     def truck_direction(self) -> float:
         """Swing angle (rad) that points the arm at the bed's centre."""
         return float(np.arctan2(self.truck_centre[1], self.truck_centre[0]))
@@ -217,13 +220,21 @@ class World:
 
     def in_bed(self, xy: np.ndarray, layout: Layout) -> bool:
         """Whether world point ``xy`` is over the bed's floor (inside its walls)."""
-        local = self.truck_frame(np.array([*xy, 0.0]), layout)
-        return bool(abs(local[0]) <= p.TRUCK_BED_LENGTH / 2 and abs(local[1]) <= p.TRUCK_BED_WIDTH / 2)
+        along, across = bed_coordinates(float(xy[0]), float(xy[1]), layout)
+        return abs(along) <= p.TRUCK_BED_LENGTH / 2 and abs(across) <= p.TRUCK_BED_WIDTH / 2
 
     @staticmethod
     def truck_frame(point: np.ndarray, layout: Layout) -> np.ndarray:
         """World ``point`` in the bed's frame: along the truck, across it, height above the rim (m)."""
-        c, s = np.cos(layout.truck_yaw), np.sin(layout.truck_yaw)
-        dx, dy = point[0] - layout.truck_centre[0], point[1] - layout.truck_centre[1]
-        rim = p.TRUCK_BED_FLOOR_HEIGHT + p.TRUCK_BED_WALL_HEIGHT
-        return np.array([c * dx + s * dy, -s * dx + c * dy, point[2] - rim])
+        along, across = bed_coordinates(float(point[0]), float(point[1]), layout)
+        return np.array([along, across, float(point[2]) - BED_RIM_HEIGHT])
+
+
+BED_RIM_HEIGHT = p.TRUCK_BED_FLOOR_HEIGHT + p.TRUCK_BED_WALL_HEIGHT  # m above the ground
+
+
+def bed_coordinates(x: float, y: float, layout: Layout) -> tuple[float, float]:
+    """World point (x, y) along the truck and across it from the bed's centre, m (plain floats: called per step)."""
+    c, s = math.cos(layout.truck_yaw), math.sin(layout.truck_yaw)
+    dx, dy = x - layout.truck_centre[0], y - layout.truck_centre[1]
+    return c * dx + s * dy, -s * dx + c * dy

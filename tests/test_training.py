@@ -1,0 +1,100 @@
+"""hexgym train and clone: rl-zoo3 hyperparameters, short runs that save, reload and resume."""
+
+import numpy as np
+import pytest
+import yaml
+
+from hexgym.evaluate import load_trained, normalizer_path
+from hexgym.training import (
+    HYPERPARAMS_DIR,
+    algo_kwargs,
+    clone_scripted,
+    latest_checkpoint,
+    load_hyperparams,
+    train,
+)
+
+# a tiny PPO on 8 s episodes, so a run of a few hundred steps takes seconds
+TINY = {
+    "HexLoading-v0": {
+        "n_timesteps": 256,
+        "policy": "MlpPolicy",
+        "normalize": "dict(norm_obs=True, norm_reward=False)",
+        "n_steps": 64,
+        "batch_size": 64,
+        "n_epochs": 2,
+        "gamma": 0.995,
+        "policy_kwargs": "dict(log_std_init=-1.0, net_arch=dict(pi=[32, 32], vf=[32, 32]))",
+        "env_kwargs": {"time_limit": 8.0},
+    }
+}
+
+
+@pytest.fixture
+def tiny_yaml(tmp_path):
+    path = tmp_path / "tiny.yml"
+    path.write_text(yaml.safe_dump(TINY))
+    return path
+
+
+def test_shipped_hyperparameters_are_rl_zoo_format():
+    for algo in ("ppo", "sac"):
+        hp = load_hyperparams(algo)
+        assert hp["policy"] == "MlpPolicy" and hp["normalize"]["norm_obs"] is True
+        kwargs = algo_kwargs(hp)
+        assert "n_timesteps" not in kwargs and "normalize" not in kwargs and "policy_kwargs" in kwargs
+        assert (HYPERPARAMS_DIR / f"{algo}.yml").is_file()
+    assert load_hyperparams("ppo")["policy_kwargs"]["net_arch"]["pi"] == [256, 256]
+
+
+def test_hyperparameter_errors(tmp_path, tiny_yaml):
+    with pytest.raises(ValueError, match="algo"):
+        load_hyperparams("dqn")
+    with pytest.raises(FileNotFoundError, match="no hyperparameter file"):
+        load_hyperparams("ppo", path=tmp_path / "none.yml")
+    with pytest.raises(ValueError, match="no entry for 'Other-v0'"):
+        load_hyperparams("ppo", "Other-v0", path=tiny_yaml)
+
+
+def test_short_ppo_run_saves_reloads_and_resumes(tmp_path, tiny_yaml, capsys):
+    path = train("ppo", timesteps=256, seed=0, log_dir=tmp_path, hyperparams=tiny_yaml, n_envs=2,
+                 checkpoint_every=128, progress_bar=False)  # fmt: skip
+    assert path.is_file() and normalizer_path(path).is_file()
+    checkpoint = latest_checkpoint(path.parent)
+    assert checkpoint is not None and checkpoint.name == "rl_model_256_steps.zip"
+    assert normalizer_path(checkpoint).is_file()
+    policy = load_trained(path)
+    assert policy.normalizer is not None and policy.normalizer.obs_rms.count > 256  # it saw the rollouts
+    action = policy.act(np.zeros(22, np.float32), None)
+    assert action.shape == (4,) and np.all(np.abs(action) <= 1.0)
+    # the same command with a larger budget continues from the checkpoint
+    train("ppo", timesteps=384, seed=0, log_dir=tmp_path, hyperparams=tiny_yaml, n_envs=2,
+          checkpoint_every=128, progress_bar=False)  # fmt: skip
+    assert "resuming from" in capsys.readouterr().out
+    assert load_trained(path).model.num_timesteps >= 384
+
+
+@pytest.mark.slow  # ~40-75 s on 2 cores: two rounds of spawned recording workers
+def test_behaviour_cloning_fits_the_scripted_loader(tmp_path, tiny_yaml):
+    out = clone_scripted(tmp_path / "bc.zip", episodes=2, dagger_rounds=1, dagger_episodes=1, epochs=300,
+                         hyperparams=tiny_yaml, log=lambda _: None)  # fmt: skip
+    policy = load_trained(out)
+    from hexgym.training import record_episode
+
+    demos = record_episode(seed=1000, gamma=0.99, env_kwargs={"time_limit": 8.0})  # a training episode
+    predicted = np.array([policy.act(o, None) for o in demos.obs])
+    # the clone is closer to the loader than always answering the loader's average action
+    assert np.mean((predicted - demos.actions) ** 2) < 0.7 * np.mean((demos.actions - demos.actions.mean(0)) ** 2)
+
+
+def test_previous_action_wrapper_appends_the_executed_action():
+    from hexgym.training import make_env
+
+    env = make_env("HexLoading-v0", "hexgym.training.PreviousActionWrapper", time_limit=2.0)
+    obs, _ = env.reset(seed=0)
+    assert obs.shape == (26,) == env.observation_space.shape and np.all(obs[22:] == 0.0)
+    obs, *_ = env.step(np.array([2.0, 0.5, -0.5, 0.0], np.float32))
+    assert np.allclose(obs[22:], [1.0, 0.5, -0.5, 0.0])  # clipped, as the environment applies it
+    assert env.observation_space.contains(obs)
+    with pytest.raises(ValueError, match="env_wrapper"):
+        make_env("HexLoading-v0", "hexgym.nowhere.Wrapper")
