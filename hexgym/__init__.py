@@ -5,7 +5,14 @@ Modules: :mod:`hexgym.parameters` (every physical number), :mod:`hexgym.machine`
 (generate ``assets/``), :mod:`hexgym.render` (offscreen video), :mod:`hexgym.cli` (``hexgym``).
 """
 
-from hexgym.envs import register_envs as _register_envs
+import os as _os
+
+# Offscreen rendering needs its GL backend chosen before mujoco is first imported (below): without
+# a display, Mesa's EGL (works on CPU-only machines); with one, MuJoCo's default (GLFW windows).
+if "MUJOCO_GL" not in _os.environ and not _os.environ.get("DISPLAY"):
+    _os.environ["MUJOCO_GL"] = "egl"
+
+from hexgym.envs import register_envs as _register_envs  # noqa: E402
 
 __version__ = "0.1.0"
 
