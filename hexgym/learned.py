@@ -86,6 +86,10 @@ class LearnedModel:
         rate_axis = self.tables["swing"].axes[-1]  # the swing table's last input is the swing rate
         self._slowest_swing, self._fastest_swing = rate_axis[0], rate_axis[-1]
         self._constraint_load = np.zeros(self.physics.model.nv)  # see _step_physics
+        m = self.physics.model
+        upper = m.body("upper").id  # the swinging structure and all it carries
+        self._machine_body = np.array([upper in _ancestors(m, b) for b in range(m.nbody)])
+        self._jacp = np.zeros((3, m.nv))
 
     @property
     def timestep(self) -> float:
@@ -199,14 +203,49 @@ class LearnedModel:
         new_rate = rate + self.swing_acceleration * self.timestep
         if closed[0] and (new_rate * rate <= 0.0 or abs(new_rate) < SWING_REST_RATE):
             new_rate = 0.0  # braked by the crossover reliefs: it stops, it does not turn back
-        self._swing_rate_target = new_rate
         targets = np.array([new_rate, v_boom / arms[0], v_stick / arms[1], v_bucket / arms[2]])
+        targets[self.blocked_by_contact(targets)] = 0.0
+        self._swing_rate_target = targets[0]
         ph.set_actuator_targets(targets)
         self._step_physics(self._substeps)
+
+    def blocked_by_contact(self, rates: np.ndarray) -> np.ndarray:
+        """Which joints' ``rates`` would drive the machine further into a contact (ground, truck).
+
+        Hydraulics cannot push through the ground or a truck (the reaction exceeds any relief), so
+        a joint whose rate would move a contact point of the machine along the contact normal into
+        the other body stalls. The lean machine's contacts are detected but inactive (hexgym/mjcf.py:
+        solved against its stiff velocity servos they would kick the links), so this stall is what
+        keeps the machine out of the ground and the truck: it stops within one step of touching.
+        """
+        m, d = self.physics.model, self.physics.data
+        blocked = np.zeros(4, dtype=bool)
+        for i in range(d.ncon):
+            c = d.contact[i]
+            if c.dist >= 0.0:
+                continue  # not touching
+            b1, b2 = m.geom_bodyid[c.geom1], m.geom_bodyid[c.geom2]
+            mine1, mine2 = self._machine_body[b1], self._machine_body[b2]
+            if mine1 == mine2:
+                continue
+            body, sign = (b1, 1.0) if mine1 else (b2, -1.0)  # the normal points from geom1 to geom2
+            mujoco.mj_jac(m, d, self._jacp, None, c.pos, body)
+            approach = sign * (c.frame[:3] @ self._jacp[:, self._dofs])  # normal speed per unit joint rate
+            blocked |= approach * rates > 0.0
+        return blocked
 
     def observe(self) -> np.ndarray:
         """One trajectory row (``LEARNED_DTYPE``): the common columns, spools, cylinders, loads."""
         return trajectory_row(self)
+
+
+def _ancestors(model: mujoco.MjModel, body: int) -> set[int]:
+    """``body`` and the bodies it hangs from, up to the world."""
+    out = {body}
+    while body:
+        body = int(model.body_parentid[body])
+        out.add(body)
+    return out
 
 
 def trajectory_row(model: LearnedModel) -> np.ndarray:

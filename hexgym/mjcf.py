@@ -41,6 +41,10 @@ HOME = np.array([0.0, 0.35, 0.85, 0.75])  # main joints of keyframe "home": buck
 TIMESTEP = 0.002  # s, the full model (the reference hydraulics need it: oil-spring modes of ~2 Hz and stiffer)
 LEAN_TIMESTEP = 0.025  # s, the lean model: quasi-steady velocities from the tables, no stiff dynamics
 LEAN_SERVO_DAMPING = 1e12  # N m s/rad, see _lean_actuators
+# m: a lean machine's contacts are reported while penetrating up to this deep, and never active
+# (MuJoCo: detected within margin + gap, active below margin; margin = -this, gap = this). The stall
+# stops a joint within one 25 ms step of touching (< 0.1 m at the teeth at full rate).
+LEAN_CONTACT_DEPTH = 0.5
 
 
 def _fmt(*values: float) -> str:
@@ -207,6 +211,10 @@ def model_xml(home_key: str | None = None, lean: bool = False) -> str:
     """
     a0 = machine.passive_joints(np.zeros(4))
     lumped = _lumped_masses() if lean else {}
+    # lean: the machine's contacts are detected but inactive (any depth lies within the gap): the
+    # learned model stalls a joint that drives into one (hexgym/learned.py, blocked_by_contact);
+    # solved against its stiff velocity servos they would kick the links (README, contact kicks)
+    collision_extra = f' margin="{_fmt(-LEAN_CONTACT_DEPTH)}" gap="{_fmt(LEAN_CONTACT_DEPTH)}"' if lean else ""
 
     def chain(cylinder: str) -> str:
         """The cylinder's bodies (full model; the lean model has its mass in the links)."""
@@ -263,7 +271,7 @@ def model_xml(home_key: str | None = None, lean: bool = False) -> str:
         </default>
       </default>
       <default class="collision">
-        <geom group="3" contype="2" conaffinity="1" density="0" condim="3" friction="0.8 0.02 0.001"/>
+        <geom group="3" contype="2" conaffinity="1" density="0" condim="3" friction="0.8 0.02 0.001"{collision_extra}/>
       </default>
       <default class="pin">
         <site type="sphere" size="0.05" group="4" rgba="0.9 0.2 0.2 1"/>

@@ -252,5 +252,9 @@ TRUCK_SWING_RANGE = np.radians((70.0, 110.0))  # |angle| of the truck from the m
 HYDRAULIC_VALVE_EFFICIENCY = 0.7  # actuator power / pump power: metering and line losses [est 0.6-0.8]
 STANDBY_HYDRAULIC_POWER = 2.0 * PUMP_IDLE_FLOW_FRACTION * PUMP_MAX_FLOW * NFC_PRESSURE_IDLE  # W [derived]
 HARD_CONTACT_FORCE = 50e3  # N: bucket/stick contact force above this counts as a hard contact [est]
+# The lean machine's contacts are inactive (the learned model stalls at them); their force is
+# estimated from the depth the bucket or stick reached: compacted ground / a steel bed under a
+# loaded bucket edge, ~50 kN per cm [est]
+CONTACT_STIFFNESS = 5e6  # N/m
 HARD_CONTACT_FORCE_CAP = 265e3  # N: counted at most this: the operating weight, beyond which the real
 # machine would lift itself off its tracks rather than press harder [derived: ~27 t x g]

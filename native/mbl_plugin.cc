@@ -165,6 +165,8 @@ struct Instance {
   bool queried = false;
   double next_rate = 0.0, swing_acceleration = 0.0, target[4] = {0, 0, 0, 0};
   std::vector<mjtNum> limit_force, limit_qfrc;  // scratch: efc forces of joint-limit rows, J^T of them
+  std::vector<bool> machine_body;                // per body: carried by the swinging upper structure
+  std::vector<mjtNum> jacp;                       // scratch: a contact point's translation Jacobian
 
   Instance(const mjModel* m, int instance) {
     const char* dir = mj_getPluginConfig(m, instance, "tables");
@@ -230,6 +232,12 @@ struct Instance {
       if (actuator[k] < 0) throw SetupError(std::string("no plugin actuator on joint ") + kJoints[k]);
     }
     swing_actadr = m->actuator_actadr[actuator[0]];
+    int upper = mj_name2id(m, mjOBJ_BODY, "upper");
+    if (upper < 0) throw SetupError("the model has no body 'upper' (the swinging structure)");
+    machine_body.assign(m->nbody, false);
+    for (int b = 0; b < m->nbody; ++b) {
+      for (int a = b; a > 0 && !machine_body[b]; a = m->body_parentid[a]) machine_body[b] = (a == upper);
+    }
     swing_diag = m->M_rowadr[dadr[0]] + m->M_rownnz[dadr[0]] - 1;  // a CSR row's diagonal is its last entry
   }
 
@@ -296,10 +304,36 @@ struct Instance {
     if (closed[0] && (new_rate * rate <= 0.0 || std::fabs(new_rate) < swing_rest_rate)) {
       new_rate = 0.0;  // braked by the crossover reliefs: it stops, it does not turn back
     }
-    next_rate = new_rate;
-    d->act_dot[swing_actadr] = (new_rate - rate) / m->opt.timestep;
     double wanted[4] = {new_rate, v_boom / arms[0], v_stick / arms[1], v_bucket / arms[2]};
+    StallAtContacts(m, d, wanted);
+    next_rate = wanted[0];
+    d->act_dot[swing_actadr] = (next_rate - rate) / m->opt.timestep;
     for (int k = 0; k < 4; ++k) target[k] = std::fmin(std::fmax(wanted[k], rate_lo[k]), rate_hi[k]);
+  }
+
+  // LearnedModel.blocked_by_contact: a joint whose rate would move a contact point of the machine
+  // along the contact normal into the other body (ground, truck) stalls (its rate becomes 0).
+  void StallAtContacts(const mjModel* m, mjData* d, double* rates) {
+    bool blocked[4] = {false, false, false, false};
+    for (int i = 0; i < d->ncon; ++i) {
+      const mjContact& c = d->contact[i];
+      if (c.dist >= 0.0) continue;  // not touching
+      int b1 = m->geom_bodyid[c.geom1], b2 = m->geom_bodyid[c.geom2];
+      bool mine1 = machine_body[b1], mine2 = machine_body[b2];
+      if (mine1 == mine2) continue;
+      int body = mine1 ? b1 : b2;
+      double sign = mine1 ? 1.0 : -1.0;  // the normal points from geom1 to geom2
+      jacp.assign(3 * m->nv, 0.0);
+      mj_jac(m, d, jacp.data(), nullptr, c.pos, body);
+      for (int k = 0; k < 4; ++k) {
+        int v = dadr[k];
+        double approach = sign * (c.frame[0] * jacp[v] + c.frame[1] * jacp[m->nv + v] + c.frame[2] * jacp[2 * m->nv + v]);
+        if (approach * rates[k] > 0.0) blocked[k] = true;
+      }
+    }
+    for (int k = 0; k < 4; ++k) {
+      if (blocked[k]) rates[k] = 0.0;
+    }
   }
 
   // After integration: the rate target exactly (not act + dt * act_dot), and this step's

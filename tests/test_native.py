@@ -193,3 +193,27 @@ def test_make_learned_model_backends():
     auto = native.make_learned_model("auto")
     expected = native.NativeLearnedModel if native.native_available() else LearnedModel
     assert isinstance(auto, expected)
+
+
+@needs_plugin
+def test_both_backends_stall_at_the_ground_alike_without_kicks():
+    """Driving the bucket into the ground: it stops within a step, no joint is flung, both backends agree."""
+    from hexgym.envs.world import build_world_model
+
+    models = {
+        "python": LearnedModel(model=build_world_model(asset_path("scene_lean.xml"))),
+        "native": native.NativeLearnedModel(model=build_world_model(None, machine_file=MBL_MODEL_FILE)),
+    }
+    rows = {}
+    for name, model in models.items():
+        model.reset(np.array([0.0, 0.2, 0.9, 0.3]))
+        tips = []
+        for k in range(160):  # 4 s: boom and stick down into the ground, then swinging along it
+            model.step(np.array([0.006 if k > 80 else 0.0, -0.011, 0.011, 0.0]))
+            d = model.physics.data
+            depth = -min((c.dist for c in d.contact[: d.ncon]), default=0.0)
+            assert depth < 0.12 and np.all(np.abs(model.physics.joint_velocities()) <= 2.0 + 1e-9)
+            tips.append(model.physics.tip_position())
+        rows[name] = np.array(tips)
+    assert rows["python"][:, 2].min() > -0.3  # the teeth stay near the surface, not through it
+    np.testing.assert_allclose(rows["python"], rows["native"], atol=1e-6)
