@@ -1,19 +1,20 @@
 """The learned machine model: MuJoCo's linkage dynamics + the four MBL tables (paper Sec III).
 
-Every control period (default 10 ms), the paper's three steps:
+Every control period (default: one 25 ms step of the lean machine), the paper's three steps:
 
 1. **Loads.** The cylinder force loads of the present state from the linkage model: the joint
    torque that holds the links against gravity, velocity terms, the cylinders' and links' own
-   loads (the closed chains' constraint forces), contacts and any tip force,
-   ``tau = qfrc_bias - qfrc_passive - qfrc_applied - qfrc_constraint`` at the main joints, mapped
-   to cylinder forces by the moment arms (Eqn 5: ``f = tau / (dC/dq)``). The tables are
-   steady-state models, so the links' own acceleration is not part of the load.
+   loads (the full model's closed chains' constraint forces) and any tip force,
+   ``tau = qfrc_bias - qfrc_passive - qfrc_applied - qfrc_constraint`` at the main joints (less the
+   joint limits' share), mapped to cylinder forces by the moment arms (Eqn 5:
+   ``f = tau / (dC/dq)``). The tables are steady-state models, so the links' own acceleration is
+   not part of the load.
 2. **Tables.** Boom, bucket and stick tables turn spools + loads into cylinder velocities; the
    swing table gives the swing acceleration from the spools, the stick load, the swing inertia
    (MuJoCo's mass matrix) and the swing rate.
 3. **Integration.** The cylinder velocities become joint-rate targets through the moment arms;
-   the swing's target rate is integrated from the acceleration. The MJCF's integrated-velocity
-   servos track the targets (a zero target holds the joint: no sag) and MuJoCo integrates.
+   the swing's target rate is integrated from the acceleration. The MJCF's stiff velocity servos
+   reach the targets within the step (a zero target holds the joint: no sag) and MuJoCo integrates.
 
 All Python happens in this step loop (see DESIGN.md on ``mjcb_control``).
 """
@@ -36,10 +37,6 @@ _STROKES = np.array([p.CYLINDERS[n].stroke for n in machine.FRONT_CYLINDERS])
 # The most a cylinder can push (head side) or pull (rod side) at its line relief, N
 _PUSH_LIMIT = np.array([p.LINE_RELIEF[n] * p.CYLINDERS[n].head_area for n in machine.FRONT_CYLINDERS])
 _PULL_LIMIT = np.array([p.LINE_RELIEF[n] * p.CYLINDERS[n].rod_area for n in machine.FRONT_CYLINDERS])
-# The most the swing motor can turn the upper structure with at its crossover relief, N m
-_SWING_TORQUE_LIMIT = (
-    p.SWING_MOTOR_DISPLACEMENT * p.SWING_REDUCTION / (2 * np.pi) * p.SWING_RELIEF * p.SWING_MECHANICAL_EFFICIENCY
-)
 SWING_REST_RATE = 0.01  # rad/s: below this a swing with its spool closed is at rest
 LEARNED_COLUMNS = (
     ("t",)
@@ -175,7 +172,7 @@ class LearnedModel:
         stalled = (at_start & retracting) | (at_end & extending)
         stalled |= (extending & (loads[1:] > _PUSH_LIMIT)) | (retracting & (loads[1:] < -_PULL_LIMIT))
         spools[1:][stalled] = 0.0
-        if abs(loads[0]) > _SWING_TORQUE_LIMIT and loads[0] * spools[0] > 0:
+        if abs(loads[0]) > p.SWING_TORQUE_AT_RELIEF and loads[0] * spools[0] > 0:
             spools[0] = 0.0
         return spools
 

@@ -367,8 +367,7 @@ def model_xml(home_key: str | None = None, lean: bool = False) -> str:
 def _max_torque(name: str) -> float:
     """Largest torque the line relief allows over the joint's range (servo force limit), N m."""
     if name == "swing":  # the motor at its crossover relief, through the reduction
-        swept = p.SWING_MOTOR_DISPLACEMENT * p.SWING_REDUCTION / (2 * np.pi)
-        return swept * p.SWING_RELIEF * p.SWING_MECHANICAL_EFFICIENCY
+        return p.SWING_TORQUE_AT_RELIEF
     cyl = p.CYLINDERS[name]
     lo, hi = machine.joint_range(name)
     arm = max(machine.moment_arm(name, a) for a in np.linspace(lo, hi, 201))

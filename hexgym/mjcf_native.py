@@ -52,7 +52,7 @@ def plugin_config() -> dict[str, str]:
         "end_margin": _numbers(learned.END_MARGIN),
         "push_limit": _numbers(*learned._PUSH_LIMIT),
         "pull_limit": _numbers(*learned._PULL_LIMIT),
-        "swing_torque_limit": _numbers(learned._SWING_TORQUE_LIMIT),
+        "swing_torque_limit": _numbers(p.SWING_TORQUE_AT_RELIEF),
         "dead_band": _numbers(p.SPOOL_DEAD_BAND),
         "swing_rest_rate": _numbers(learned.SWING_REST_RATE),
         "rate_range": _numbers(*np.concatenate([s["ctrlrange"] for s in servos.values()])),

@@ -207,6 +207,10 @@ END_STOP_DAMPING = 1e5  # N s/m [est]
 # Swing motor and reduction (SWING_MOTOR_DISPLACEMENT, SWING_REDUCTION above).
 SWING_MOTOR_VOLUMETRIC_EFFICIENCY = 0.95  # at SWING_RELIEF and full pump flow [est]
 SWING_MECHANICAL_EFFICIENCY = 0.90  # motor x reduction gear [est]
+# the torque the motor turns the upper structure with at its crossover relief, N m [derived]
+SWING_TORQUE_AT_RELIEF = (
+    SWING_MOTOR_DISPLACEMENT * SWING_REDUCTION / (2 * np.pi) * SWING_RELIEF * SWING_MECHANICAL_EFFICIENCY
+)
 SWING_MOTOR_LEAKAGE = (  # m^3/(s Pa), total leakage coefficient [derived from the efficiency]
     (1.0 - SWING_MOTOR_VOLUMETRIC_EFFICIENCY) * PUMP_MAX_FLOW / SWING_RELIEF
 )
