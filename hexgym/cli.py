@@ -100,8 +100,9 @@ def _cmd_tables(args: argparse.Namespace) -> int:
     if args.bench:
         from hexgym.fit import lookup_benchmark
 
+        timings = lookup_benchmark(args.bench, args.dir)
         for item in summary:
-            item["seconds_per_query"] = lookup_benchmark(args.bench, args.dir)[item["name"]]
+            item["seconds_per_query"] = timings[item["name"]]
     if args.json:
         print(json.dumps(summary, indent=2))
         return 0

@@ -26,6 +26,7 @@ import mujoco
 import numpy as np
 
 from hexgym import machine
+from hexgym.commandlog import CommandLog
 from hexgym.hydraulics import validate_spools
 from hexgym.learned import LearnedModel, trajectory_row
 from hexgym.physics import ExcavatorPhysics
@@ -245,48 +246,29 @@ def make_learned_model(
     return LearnedModel(tables=tables, control_period=control_period)
 
 
-def native_benchmark(seconds: float = 3.0) -> dict[str, float]:
-    """Real-time factors of the learned model on one thread: simulated time / wall time.
+def _timed(run: Callable[[], float], seconds: float) -> float:
+    """Simulated seconds per wall second of ``run`` (which returns the seconds it simulated), repeated
+    for at least ``seconds`` of wall time."""
+    simulated, wall = 0.0, 0.0
+    while wall < seconds:
+        t0 = time.perf_counter()
+        simulated += run()
+        wall += time.perf_counter() - t0
+    return simulated / wall
 
-    All replay the 50 s loading-cycle command log of ``hexgym validate`` (test3) from its start
-    pose, repeated for at least ``seconds`` of wall time each:
 
-    - ``learned_realtime_factor_python``: :class:`LearnedModel`, one ``step`` per control period;
-    - ``learned_realtime_factor_native``: the plugin model stepped by ``mujoco.rollout`` (the
-      per-step spools as its open-loop controls, one thread): the native model's own speed;
-    - ``learned_realtime_factor_native_python_loop``: :class:`NativeLearnedModel`, one ``step``
-      per control period from Python (what an environment stepping every period gets).
-    """
-    from mujoco import rollout
-
+def _test3() -> tuple[CommandLog, np.ndarray]:
     from hexgym.validate import scenarios
 
-    log, pose = scenarios()["test3"]
-    out: dict[str, float] = {}
+    return scenarios()["test3"]
 
-    def timed(run: Callable[[], float]) -> float:
-        simulated, wall = 0.0, 0.0
-        while wall < seconds:
-            t0 = time.perf_counter()
-            simulated += run()
-            wall += time.perf_counter() - t0
-        return simulated / wall
 
-    def per_period(model: LearnedModel | NativeLearnedModel) -> Callable[[], float]:
-        n = int(round(log.duration / model.timestep))
-        spools = np.array([log.spools_at((k + 1e-9) * model.timestep) * 1e-3 for k in range(n)])
+def native_rollout_realtime_factor(seconds: float = 3.0) -> float:
+    """The native model's own speed: ``hexgym validate``'s Test 3 spools as ``mujoco.rollout``'s
+    open-loop controls, one thread, in simulated seconds per wall second (needs the plugin)."""
+    from mujoco import rollout
 
-        def run() -> float:
-            model.reset(pose)
-            for u in spools:
-                model.step(u)
-            return n * model.timestep
-
-        return run
-
-    out["learned_realtime_factor_python"] = timed(per_period(LearnedModel()))
-    if not native_available():
-        return out
+    log, pose = _test3()
     native = NativeLearnedModel()
     m, d = native.physics.model, native.physics.data
     n = int(round(log.duration / native.timestep))
@@ -302,6 +284,38 @@ def native_benchmark(seconds: float = 3.0) -> dict[str, float]:
         rollout.rollout(m, rollout_data, x0[None], control, initial_warmstart=None, state=states)
         return n * native.timestep
 
-    out["learned_realtime_factor_native"] = timed(run_rollout)
-    out["learned_realtime_factor_native_python_loop"] = timed(per_period(native))
+    return _timed(run_rollout, seconds)
+
+
+def native_benchmark(seconds: float = 3.0) -> dict[str, float]:
+    """Real-time factors of the learned model on one thread: simulated time / wall time.
+
+    All replay the 50 s loading-cycle command log of ``hexgym validate`` (test3) from its start
+    pose, repeated for at least ``seconds`` of wall time each:
+
+    - ``learned_realtime_factor_python``: :class:`LearnedModel`, one ``step`` per control period;
+    - ``learned_realtime_factor_native``: :func:`native_rollout_realtime_factor`, the native
+      model's own speed;
+    - ``learned_realtime_factor_native_python_loop``: :class:`NativeLearnedModel`, one ``step``
+      per control period from Python (what an environment stepping every period gets).
+    """
+    log, pose = _test3()
+
+    def per_period(model: LearnedModel | NativeLearnedModel) -> Callable[[], float]:
+        n = int(round(log.duration / model.timestep))
+        spools = np.array([log.spools_at((k + 1e-9) * model.timestep) * 1e-3 for k in range(n)])
+
+        def run() -> float:
+            model.reset(pose)
+            for u in spools:
+                model.step(u)
+            return n * model.timestep
+
+        return run
+
+    out = {"learned_realtime_factor_python": _timed(per_period(LearnedModel()), seconds)}
+    if not native_available():
+        return out
+    out["learned_realtime_factor_native"] = native_rollout_realtime_factor(seconds)
+    out["learned_realtime_factor_native_python_loop"] = _timed(per_period(NativeLearnedModel()), seconds)
     return out

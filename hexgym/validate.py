@@ -148,21 +148,23 @@ def _speed(test3: dict[str, object]) -> dict[str, float]:
     """Real-time factors on Test 3 (one core): the reference's replay, the learned model's fastest path.
 
     The learned model's figure is the native plugin's (Test 3's spools through ``mujoco.rollout``,
-    one thread, :func:`hexgym.native.native_benchmark`) when it is built, else the Python path's.
+    one thread, :func:`hexgym.native.native_rollout_realtime_factor`) when it is built, else the
+    Python path's (this run's replay of Test 3).
     """
-    from hexgym.native import native_benchmark
+    from hexgym.native import native_available, native_rollout_realtime_factor
 
     wall_ref, wall_python = test3["wall"]
     duration = float(test3["duration"])
-    rates = native_benchmark(seconds=3.0)
-    learned = rates.get("learned_realtime_factor_native", duration / wall_python)
+    python = duration / wall_python
+    native = native_available()
+    learned = native_rollout_realtime_factor(seconds=3.0) if native else python
     reference = duration / wall_ref
     return {
         "simulated_s": duration,
         "reference_realtime_factor": reference,
         "learned_realtime_factor": learned,
-        "learned_backend": "native" if "learned_realtime_factor_native" in rates else "python",
-        "learned_realtime_factor_python": duration / wall_python,
+        "learned_backend": "native" if native else "python",
+        "learned_realtime_factor_python": python,
         "speedup": learned / reference,
     }
 
