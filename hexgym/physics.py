@@ -230,15 +230,8 @@ class ExcavatorPhysics:
         if not np.isfinite(mass_kg) or mass_kg < 0:
             raise ValueError(f"payload must be a finite mass >= 0 kg, got {mass_kg}")
         self.payload_kg = float(mass_kg)
-        volume = mass_kg / p.MATERIAL_DENSITY
-        depth = (volume / p.BUCKET_WIDTH) ** 0.5 if volume > 0 else 0.0
-        size = (depth, p.BUCKET_WIDTH, depth)
         self.model.body_mass[self._payload] = mass_kg
-        self.model.body_inertia[self._payload] = [
-            mass_kg * (size[1] ** 2 + size[2] ** 2) / 12,
-            mass_kg * (size[0] ** 2 + size[2] ** 2) / 12,
-            mass_kg * (size[0] ** 2 + size[1] ** 2) / 12,
-        ]
+        self.model.body_inertia[self._payload] = payload_inertia(np.array([mass_kg]))[0]
         # mj_setConst recomputes the model's constants at qpos0 in this MjData: keep the state
         kind = mujoco.mjtState.mjSTATE_INTEGRATION
         state = np.empty(mujoco.mj_stateSize(self.model, kind))
@@ -259,3 +252,16 @@ class ExcavatorPhysics:
         self.data.qfrc_applied[:] = 0.0
         tip = self.data.site_xpos[self._tip]
         mujoco.mj_applyFT(self.model, self.data, force, np.zeros(3), tip, self._bucket, self.data.qfrc_applied)
+
+
+def payload_inertia(mass_kg: np.ndarray) -> np.ndarray:
+    """Principal inertias (k, 3), kg m^2, of ``mass_kg`` (k,) of material in the bucket: a box of loose
+    material, its depth from the volume over the bucket's width (one formula for one and many envs)."""
+    mass = np.asarray(mass_kg, dtype=float)
+    volume = mass / p.MATERIAL_DENSITY
+    depth = np.sqrt(np.maximum(volume, 0.0) / p.BUCKET_WIDTH)
+    width = p.BUCKET_WIDTH
+    return np.stack(
+        [mass * (width**2 + depth**2) / 12, mass * (depth**2 + depth**2) / 12, mass * (depth**2 + width**2) / 12],
+        axis=1,
+    )

@@ -20,6 +20,11 @@ them, so their sum is constant (:meth:`Earthwork.total_kg`).
   capacity once tilted to the angle of repose, nothing once the mouth faces down past it. What it
   cannot hold leaves with a short time constant, into the truck when the caller says it falls
   in the bed, otherwise onto the ground.
+
+:class:`BatchedPiles` holds many sites' piles for the batched environment
+(:mod:`hexgym.envs.vector`) and cuts them with the single :class:`Pile`'s arithmetic, element for
+element (the helpers :func:`strip_mask`, :func:`relax_heights` and the array forms of the
+formulas are shared by both).
 """
 
 from __future__ import annotations
@@ -32,10 +37,10 @@ import numpy as np
 from hexgym import parameters as p
 
 _GAMMA = p.MATERIAL_DENSITY * p.GRAVITY  # unit weight, N/m^3
-_EDGE_SAMPLES = 5  # points along the cutting edge where the depth is measured
+EDGE_SAMPLES = 5  # points along the cutting edge where the depth is measured
 _RELAX_ITERATIONS = 3  # avalanche passes after each cut
 _RAKE_LIMITS = np.radians((5.0, 90.0))  # rake angles outside this are treated as at the limit
-_EDGE_OFFSETS = tuple(np.linspace(-p.BUCKET_WIDTH / 2.0, p.BUCKET_WIDTH / 2.0, _EDGE_SAMPLES).tolist())
+EDGE_OFFSETS = tuple(np.linspace(-p.BUCKET_WIDTH / 2.0, p.BUCKET_WIDTH / 2.0, EDGE_SAMPLES).tolist())
 
 
 def earthmoving_factors(
@@ -70,6 +75,16 @@ class UniformTable:
         self.start, self.stop = float(start), float(stop)
         self.step = (self.stop - self.start) / (len(values) - 1)
         self.values = values.tolist()
+        self._array = values  # for :meth:`at`
+
+    def at(self, x: np.ndarray) -> np.ndarray:
+        """The interpolated values at the points ``x`` (an array): the arithmetic of ``__call__``, element-wise."""
+        u = (np.asarray(x, dtype=float) - self.start) / self.step
+        last = len(self._array) - 1
+        i = np.minimum(np.maximum(np.floor(u), 0.0), last - 1).astype(np.intp)  # int(u) where 0 < u < last
+        lo = self._array[i]
+        inner = lo + (self._array[i + 1] - lo) * (u - i)
+        return np.where(u <= 0.0, self._array[0], np.where(u >= last, self._array[last], inner))
 
     def __call__(self, x: float) -> float:
         """The interpolated value at ``x``."""
@@ -92,18 +107,83 @@ def digging_resistance(depth: float, rake: float, surcharge_pa: float, width: fl
     if depth <= 0.0:
         return 0.0
     n_gamma = _N_GAMMA(float(rake))  # rakes outside the table's limits count as at them
-    return float(width * (_GAMMA * depth**2 * n_gamma + surcharge_pa * depth * 2.0 * n_gamma))  # N_q = 2 N_gamma
+    return float(earthmoving_force(depth, n_gamma, surcharge_pa, width))
+
+
+def earthmoving_force(
+    depth: np.ndarray | float, n_gamma: np.ndarray | float, surcharge_pa: np.ndarray | float, width: float
+) -> np.ndarray | float:
+    """The fundamental earthmoving equation without cohesion, for floats or arrays: ``w (gamma d^2 N_gamma +
+    q d N_q)`` with ``N_q = 2 N_gamma`` (McKyes' flat blade), N."""
+    return width * (_GAMMA * depth**2 * n_gamma + surcharge_pa * depth * 2.0 * n_gamma)
+
+
+def n_gamma_at(rake: np.ndarray) -> np.ndarray:
+    """N_gamma at rake angles ``rake`` (rad, an array), from the table :func:`digging_resistance` uses."""
+    return _N_GAMMA.at(rake)
+
+
+_RETAINED_TILTS = (0.0, p.MATERIAL_REPOSE_ANGLE, np.pi / 2.0 + p.MATERIAL_REPOSE_ANGLE)
+_RETAINED_VOLUMES = (p.BUCKET_HEAPED_CAPACITY, p.BUCKET_STRUCK_CAPACITY, 0.0)
 
 
 def retained_volume(tilt: float) -> float:
     """Material (m^3) the bucket holds with its mouth tilted ``tilt`` rad from facing straight up."""
-    return float(
-        np.interp(
-            tilt,
-            (0.0, p.MATERIAL_REPOSE_ANGLE, np.pi / 2.0 + p.MATERIAL_REPOSE_ANGLE),
-            (p.BUCKET_HEAPED_CAPACITY, p.BUCKET_STRUCK_CAPACITY, 0.0),
-        )
-    )
+    return float(np.interp(tilt, _RETAINED_TILTS, _RETAINED_VOLUMES))
+
+
+def retained_volumes(tilts: np.ndarray) -> np.ndarray:
+    """:func:`retained_volume` at each of ``tilts`` (an array)."""
+    return np.interp(tilts, _RETAINED_TILTS, _RETAINED_VOLUMES)
+
+
+def spilled_fraction(dt: np.ndarray | float) -> np.ndarray | float:
+    """Share of the excess over what the bucket holds that runs out in ``dt`` s (float or array)."""
+    return 1.0 - np.exp(-dt / p.BUCKET_SPILL_TIME_CONSTANT)
+
+
+def surcharge_pressure(bucket_volume: np.ndarray | float) -> np.ndarray | float:
+    """Pressure (Pa) of the bucket's contents (m^3) spread over its mouth: the earthmoving equation's surcharge."""
+    return _GAMMA * bucket_volume / (p.BUCKET_WIDTH * _MOUTH_LENGTH)
+
+
+def strip_mask(
+    dx: np.ndarray, dy: np.ndarray, lx: np.ndarray | float, ly: np.ndarray | float, width: float, spacing: float
+) -> np.ndarray:
+    """Grid points (offsets ``dx``, ``dy`` from the edge's centre, broadcast) within the edge's footprint: ``width``
+    along the unit vector (``lx``, ``ly``), one grid ``spacing`` across it (:meth:`Pile.take`)."""
+    along = dx * lx + dy * ly
+    across = np.abs(dx * ly - dy * lx)
+    return (np.abs(along) <= width / 2.0) & (across <= spacing)
+
+
+def relax_heights(h: np.ndarray, limit: float, iterations: int = _RELAX_ITERATIONS) -> None:
+    """Let slopes steeper than ``limit`` (height difference per grid step) slide, in place, mass-conserving.
+
+    ``h`` is one window ``(rows, cols)`` or a stack of equally shaped windows ``(..., rows, cols)`` relaxed
+    independently (the batched environment): a window with no steep slope gets zero flows, which leave it
+    unchanged, so each window ends as it would alone.
+    """
+    for _ in range(iterations):
+        moved = False
+        for axis in (-2, -1):
+            dh = np.diff(h, axis=axis)
+            excess = np.abs(dh)
+            excess -= limit
+            if excess.max() <= 0.0:
+                continue  # no slope steeper than the repose angle along this axis: nothing slides
+            moved = True
+            np.maximum(excess, 0.0, out=excess)
+            flow = np.copysign(excess, dh)  # from higher to lower
+            flow *= 0.25
+            if axis == -2:
+                h[..., 1:, :] -= flow
+                h[..., :-1, :] += flow
+            else:
+                h[..., :, 1:] -= flow
+                h[..., :, :-1] += flow
+        if not moved:
+            break  # settled: later passes would find the same slopes
 
 
 def frustum_heights(
@@ -233,9 +313,7 @@ class Pile:
         lx, ly = float(lateral[0]), float(lateral[1])
         dx = (self._origin_x + np.arange(cols.start, cols.stop) * self.spacing - float(xy[0]))[None, :]
         dy = (self._origin_y + np.arange(rows.start, rows.stop) * self.spacing - float(xy[1]))[:, None]
-        along = dx * lx + dy * ly
-        across = np.abs(dx * ly - dy * lx)
-        in_strip = (np.abs(along) <= width / 2.0) & (across <= self.spacing)
+        in_strip = strip_mask(dx, dy, lx, ly, width, self.spacing)
         patch = self.heights[rows, cols]
         available = np.where(in_strip, np.maximum(patch - floor, 0.0), 0.0)
         total = float(available.sum()) * self.cell_area
@@ -251,29 +329,8 @@ class Pile:
     def relax(self, window: tuple[slice, slice] | None = None, iterations: int = _RELAX_ITERATIONS) -> None:
         """Let slopes steeper than the angle of repose slide (mass-conserving), inside ``window``."""
         rows, cols = window if window is not None else (slice(None), slice(None))
-        h = self.heights[rows, cols]  # a view: updates land in the pile
-        limit = math.tan(p.MATERIAL_REPOSE_ANGLE) * self.spacing
         self._volume = None
-        for _ in range(iterations):
-            moved = False
-            for axis in (0, 1):
-                dh = np.diff(h, axis=axis)
-                excess = np.abs(dh)
-                excess -= limit
-                if excess.max() <= 0.0:
-                    continue  # no slope steeper than the repose angle along this axis: nothing slides
-                moved = True
-                np.maximum(excess, 0.0, out=excess)
-                flow = np.copysign(excess, dh)  # from higher to lower
-                flow *= 0.25
-                if axis == 0:
-                    h[1:, :] -= flow
-                    h[:-1, :] += flow
-                else:
-                    h[:, 1:] -= flow
-                    h[:, :-1] += flow
-            if not moved:
-                break  # settled: later passes would find the same slopes
+        relax_heights(self.heights[rows, cols], repose_limit(self.spacing), iterations)  # a view: updates land
 
 
 @dataclass
@@ -353,8 +410,8 @@ class Earthwork:
         if z >= self.pile.top:
             return DigResult(np.zeros(3), 0.0, 0.0)  # above the whole pile: kept cheap
         lx, ly, lz = _floats(lateral)
-        depths = (self.pile.height_at_point(x + o * lx, y + o * ly) - floor for o in _EDGE_OFFSETS)
-        depth = sum(max(d, 0.0) for d in depths) / _EDGE_SAMPLES
+        depths = (self.pile.height_at_point(x + o * lx, y + o * ly) - floor for o in EDGE_OFFSETS)
+        depth = sum(max(d, 0.0) for d in depths) / EDGE_SAMPLES
         if depth <= 0.0:
             return DigResult(np.zeros(3), 0.0, 0.0)
         tx, ty, tz = _floats(teeth)
@@ -380,7 +437,7 @@ class Earthwork:
         horizontal = math.hypot(ux, uy)
         forward = (tx * ux + ty * uy) / horizontal if horizontal > 1e-9 else 0.0
         rake = math.atan2(-tz, forward)
-        surcharge = _GAMMA * self.bucket_volume / (p.BUCKET_WIDTH * _MOUTH_LENGTH)
+        surcharge = surcharge_pressure(self.bucket_volume)
         scale = -digging_resistance(depth, rake, surcharge) / max(speed, p.DIG_REFERENCE_SPEED)
         fx, fy, fz = scale * vx, scale * vy, scale * vz
         sideways = fx * lx + fy * ly + fz * lz  # in the arm's plane: the edge cuts, its side plates do not
@@ -394,7 +451,7 @@ class Earthwork:
         excess_kg = self.bucket_kg - retained_volume(tilt) * self.density
         if excess_kg <= 0.0:
             return SpillResult(0.0, 0.0)
-        out = excess_kg * (1.0 - np.exp(-dt / p.BUCKET_SPILL_TIME_CONSTANT))
+        out = excess_kg * spilled_fraction(dt)
         if self.bucket_kg - out < 1.0:  # the last kilogram goes too, not asymptotically
             out = self.bucket_kg
         out = float(min(out, self.bucket_kg))
@@ -409,6 +466,11 @@ class Earthwork:
 _MOUTH_LENGTH = float(np.hypot(*np.subtract(p.BUCKET_EDGE, p.BUCKET_LIP)))  # strike line, m
 
 
+def repose_limit(spacing: float) -> float:
+    """Height difference (m) between neighbouring grid points ``spacing`` apart at the angle of repose."""
+    return math.tan(p.MATERIAL_REPOSE_ANGLE) * spacing
+
+
 def _floats(vector: np.ndarray | tuple[float, ...]) -> tuple[float, ...]:
     """A short vector's components as Python floats (a tuple or list passes through)."""
     return vector if isinstance(vector, tuple | list) else tuple(np.asarray(vector, dtype=float).tolist())
@@ -421,3 +483,146 @@ def mouth_normal() -> np.ndarray:
     n = np.array([-d[1], d[0]]) / np.hypot(*d)
     mid = (lip + edge) / 2.0
     return -n if n @ (np.zeros(2) - mid) > 0 else n  # the pin is on the inside
+
+
+class BatchedPiles:
+    """The heightmaps of ``count`` piles on equal square grids (``n`` points a side, ``spacing`` apart).
+
+    Args:
+        count: number of piles.
+        n: grid points per side.
+        spacing: distance between grid points, m.
+    """
+
+    def __init__(self, count: int, n: int, spacing: float) -> None:
+        self.heights = np.zeros((count, n, n))
+        self.origin = np.zeros((count, 2))  # world (x, y) of each grid's point [0, 0]
+        self.top = np.zeros(count)  # upper bound of each surface (its first maximum: digging only lowers it)
+        self.n, self.spacing = int(n), float(spacing)
+        self.cell_area = self.spacing**2  # as Pile.cell_area
+        self._inv = 1.0 / self.spacing  # as Pile._window
+        self._limit = repose_limit(self.spacing)
+        self._volume = np.zeros(count)
+        self._stale = np.ones(count, bool)  # volumes to recompute (heights changed)
+
+    def load(self, index: int, pile: Pile) -> None:
+        """Make pile ``index`` a copy of ``pile`` (same grid size and spacing)."""
+        if pile.heights.shape != (self.n, self.n) or pile.spacing != self.spacing:
+            raise ValueError(f"pile grid {pile.heights.shape} at {pile.spacing} m is not this batch's")
+        self.heights[index] = pile.heights
+        self.origin[index] = pile.centre - pile.half_size  # as Pile._origin
+        self.top[index] = pile.top
+        self._stale[index] = True
+
+    def volumes(self) -> np.ndarray:
+        """Material in each pile, m^3 (recomputed only where the heights changed; a view, do not modify)."""
+        stale = np.flatnonzero(self._stale)
+        if len(stale):
+            # each row summed alone, as Pile.volume sums one contiguous grid: the same floats
+            self._volume[stale] = self.heights[stale].reshape(len(stale), -1).sum(axis=1) * self.cell_area
+            self._stale[stale] = False
+        return self._volume
+
+    def height_at(self, ids: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Surface heights (m) of piles ``ids`` at world points (``x``, ``y``): :meth:`Pile.height_at_point`."""
+        u = (x - self.origin[ids, 0]) / self.spacing
+        v = (y - self.origin[ids, 1]) / self.spacing
+        last = self.n - 1
+        inside = (u >= 0.0) & (u <= last) & (v >= 0.0) & (v <= last)
+        j = np.minimum(np.maximum(np.floor(u), 0.0), last - 1).astype(np.intp)  # int(u) inside the grid
+        i = np.minimum(np.maximum(np.floor(v), 0.0), last - 1).astype(np.intp)
+        fu, fv = u - j, v - i
+        h = self.heights
+        top = h[ids, i, j] * (1.0 - fu) + h[ids, i, j + 1] * fu
+        bottom = h[ids, i + 1, j] * (1.0 - fu) + h[ids, i + 1, j + 1] * fu
+        return np.where(inside, top * (1.0 - fv) + bottom * fv, 0.0)
+
+    def windows(self, ids: np.ndarray, x: np.ndarray, y: np.ndarray, radius: float | np.ndarray) -> tuple:
+        """Row and column bounds ``(r0, r1, c0, c1)`` of the grid points within ``radius`` of (``x``, ``y``)
+        (a square), as :meth:`Pile._window`; a window is empty where ``r1 <= r0`` or ``c1 <= c0``. The
+        arguments broadcast (e.g. ``ids``, ``x``, ``y`` as (k, 1) and ``radius`` (m,) for k x m windows)."""
+        cx, cy = x - self.origin[ids, 0], y - self.origin[ids, 1]
+        c0 = np.maximum(np.floor((cx - radius) * self._inv), 0).astype(np.intp)
+        c1 = np.minimum(np.ceil((cx + radius) * self._inv) + 1, self.n).astype(np.intp)
+        r0 = np.maximum(np.floor((cy - radius) * self._inv), 0).astype(np.intp)
+        r1 = np.minimum(np.ceil((cy + radius) * self._inv) + 1, self.n).astype(np.intp)
+        return r0, r1, c0, c1
+
+    def first_blocked_window(
+        self, ids: np.ndarray, z: np.ndarray, bounds: tuple[np.ndarray, ...], travels: np.ndarray
+    ) -> np.ndarray:
+        """For each pile ``ids`` (k,) and height ``z``, the first of its nested windows ``bounds`` = (r0, r1, c0, c1),
+        each (k, m) from :meth:`windows` (window j inside window j + 1), that holds a grid point ``h`` with
+        ``z - h < travels[j]`` (:meth:`Pile.clearance` below ``travels[j]``); ``m`` where none does.
+
+        ``z - h`` falls as ``h`` rises, so a window's highest point decides as any of its points: window j
+        is blocked by a point that lies in it (from window ``w`` on) and is high enough (from travel ``t`` on)
+        when ``j >= max(w, t)``; the first blocked window is the least of those over the points.
+        """
+        r0, r1, c0, c1 = bounds
+        count = r0.shape[1]
+        first = np.full(len(ids), count, np.intp)
+        read = np.flatnonzero((r1[:, -1] > r0[:, -1]) & (c1[:, -1] > c0[:, -1]))  # the widest window holds points
+        if not len(read):
+            return first
+        ids, z, r0, r1, c0, c1 = ids[read], z[read], r0[read], r1[read], c0[read], c1[read]
+        size = int(max((r1[:, -1] - r0[:, -1]).max(), (c1[:, -1] - c0[:, -1]).max()))
+        offsets = np.arange(size)
+        rows, cols = r0[:, -1:] + offsets, c0[:, -1:] + offsets  # (k, size): the widest window's and beyond
+        n = self.n
+        row_starts = (ids * n * n)[:, None] + np.minimum(rows, n - 1) * n
+        patch = self.heights.reshape(-1).take(row_starts[:, :, None] + np.minimum(cols, n - 1)[:, None, :])
+        # the windows a row (column) is outside of: the first window holding it (count: none does)
+        row_from = ((rows[:, None, :] < r0[:, :, None]) | (rows[:, None, :] >= r1[:, :, None])).sum(axis=1)
+        col_from = ((cols[:, None, :] < c0[:, :, None]) | (cols[:, None, :] >= c1[:, :, None])).sum(axis=1)
+        high_from = np.searchsorted(travels, z[:, None, None] - patch, side="right")  # travels <= z - h: not blocking
+        blocked_from = np.maximum(np.maximum(row_from[:, :, None], col_from[:, None, :]), high_from)
+        first[read] = blocked_from.min(axis=(1, 2))
+        return first
+
+    def take(
+        self, ids: np.ndarray, x: np.ndarray, y: np.ndarray, lx: np.ndarray, ly: np.ndarray, width: float,
+        floor: np.ndarray, volume: np.ndarray,
+    ) -> np.ndarray:  # fmt: skip
+        """Cut up to ``volume`` m^3 above ``floor`` from each pile ``ids`` along its edge and relax (:meth:`Pile.take`).
+
+        Returns the volume each pile gave up, m^3.
+        """
+        taken = np.zeros(len(ids))
+        r0, r1, c0, c1 = self.windows(ids, x, y, width / 2.0 + self.spacing)
+        wanted = (volume > 0.0) & (r1 > r0) & (c1 > c0)
+        shapes = (r1 - r0) * (self.n + 1) + (c1 - c0)  # one code per window shape
+        for shape in np.unique(shapes[wanted]):
+            group = np.flatnonzero(wanted & (shapes == shape))
+            taken[group] = self._take_group(
+                ids[group], r0[group], c0[group], int(r1[group[0]] - r0[group[0]]), int(c1[group[0]] - c0[group[0]]),
+                x[group], y[group], lx[group], ly[group], width, floor[group], volume[group],
+            )  # fmt: skip
+        return taken
+
+    def _take_group(
+        self, ids: np.ndarray, r0: np.ndarray, c0: np.ndarray, n_rows: int, n_cols: int, x: np.ndarray,
+        y: np.ndarray, lx: np.ndarray, ly: np.ndarray, width: float, floor: np.ndarray, volume: np.ndarray,
+    ) -> np.ndarray:  # fmt: skip
+        """:meth:`take` for piles whose windows share one shape (n_rows, n_cols), from rows ``r0`` and cols ``c0``."""
+        rows = (r0[:, None] + np.arange(n_rows))[:, :, None]
+        cols = (c0[:, None] + np.arange(n_cols))[:, None, :]
+        patch = self.heights[ids[:, None, None], rows, cols]  # (k, n_rows, n_cols), a copy
+        dx = self.origin[ids, 0][:, None, None] + cols * self.spacing - x[:, None, None]
+        dy = self.origin[ids, 1][:, None, None] + rows * self.spacing - y[:, None, None]
+        in_strip = strip_mask(dx, dy, lx[:, None, None], ly[:, None, None], width, self.spacing)
+        available = np.where(in_strip, np.maximum(patch - floor[:, None, None], 0.0), 0.0)
+        total = available.sum(axis=(1, 2)) * self.cell_area
+        cut = np.flatnonzero(total > 0.0)  # the others give nothing and stay as they are (no relaxation)
+        if not len(cut):
+            return np.zeros(len(ids))
+        patch, available, total = patch[cut], available[cut], total[cut]
+        before = patch.sum(axis=(1, 2))
+        patch -= available * np.minimum(1.0, volume[cut] / total)[:, None, None]
+        relax_heights(patch, self._limit)
+        after = patch.sum(axis=(1, 2))
+        self.heights[ids[cut][:, None, None], rows[cut], cols[cut]] = patch
+        self._stale[ids[cut]] = True
+        taken = np.zeros(len(ids))
+        taken[cut] = (before - after) * self.cell_area
+        return taken

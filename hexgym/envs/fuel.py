@@ -37,8 +37,28 @@ def actuator_power(
 
 def brake_power(actuator_power_w: float) -> float:
     """Engine brake power (W) for ``actuator_power_w`` at the cylinders and the swing motor, capped at rated."""
+    return min(_uncapped_brake_power(actuator_power_w), p.ENGINE_POWER)
+
+
+def _uncapped_brake_power(actuator_power_w: np.ndarray | float) -> np.ndarray | float:
+    """Brake power (W) the engine would need for ``actuator_power_w`` (float or array), before its rating caps it."""
     hydraulic = actuator_power_w / p.HYDRAULIC_VALVE_EFFICIENCY + p.STANDBY_HYDRAULIC_POWER
-    return min(p.ACCESSORY_POWER + hydraulic / p.PUMP_OVERALL_EFFICIENCY, p.ENGINE_POWER)
+    return p.ACCESSORY_POWER + hydraulic / p.PUMP_OVERALL_EFFICIENCY
+
+
+def actuator_powers(
+    front_joint_loads: np.ndarray, front_joint_rates: np.ndarray, swing_torques: np.ndarray, swing_rates: np.ndarray
+) -> np.ndarray:
+    """:func:`actuator_power` of many machines at once: loads and rates (n, 3), swing torques and rates (n,), W."""
+    each = np.abs(front_joint_loads * front_joint_rates)
+    front = each[:, 0] + each[:, 1] + each[:, 2]  # summed in actuator_power's order, so the same floats
+    return front + np.abs(swing_torques * swing_rates)
+
+
+def fuel_litres_many(actuator_power_w: np.ndarray, seconds: np.ndarray) -> np.ndarray:
+    """:func:`fuel_litres` of many machines at once (arrays of actuator powers, W, and intervals, s)."""
+    brake = np.minimum(_uncapped_brake_power(actuator_power_w), p.ENGINE_POWER)
+    return _fuel_rate_table().at(brake) * seconds / 3600.0
 
 
 @functools.cache

@@ -146,7 +146,31 @@ def _servo_bands(model: mujoco.MjModel) -> tuple[np.ndarray, ...]:
 
 
 def _wrap(angle: float) -> float:
-    return (float(angle) + math.pi) % (2.0 * math.pi) - math.pi
+    return wrap_angle(float(angle))
+
+
+def wrap_angle(angle: np.ndarray | float) -> np.ndarray | float:
+    """Angle(s) wrapped to [-pi, pi) (floats or arrays: numpy's % is Python's for floats)."""
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def sample_start(rng: np.random.Generator) -> tuple[Layout, np.ndarray]:
+    """An episode's random site and the machine's start angles (rad), drawn from ``rng`` in a fixed order."""
+    layout = sample_layout(rng)
+    between = _wrap(layout.truck_direction - layout.pile_direction)
+    q = _HOME.copy()
+    q[0] = layout.pile_direction + rng.uniform(0.0, 1.0) * between
+    q[1:] += rng.uniform(-START_NOISE, START_NOISE, 3)
+    for i, name in enumerate(machine.JOINTS[1:], start=1):
+        q[i] = np.clip(q[i], *machine.joint_range(name))
+    return layout, q
+
+
+def heap_for(layout: Layout) -> Pile:
+    """The pile an episode on ``layout`` starts with."""
+    return Pile.heap(
+        layout.pile_centre, layout.pile_height, layout.pile_top_radius, PILE_GRID_POINTS, PILE_GRID_SPACING
+    )
 
 
 class HexLoadingEnv(gym.Env):
@@ -306,25 +330,11 @@ class HexLoadingEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
         """Start an episode on a new random site (see the class docstring)."""
         super().reset(seed=seed)
-        rng = self.np_random
-        self.layout = sample_layout(rng)
-        pile = Pile.heap(
-            self.layout.pile_centre, self.layout.pile_height, self.layout.pile_top_radius,
-            PILE_GRID_POINTS, PILE_GRID_SPACING,
-        )  # fmt: skip
+        self.layout, q = sample_start(self.np_random)
+        pile = heap_for(self.layout)
         self.earth = Earthwork(pile)
-        between = _wrap(self.layout.truck_direction - self.layout.pile_direction)
-        q = _HOME.copy()
-        q[0] = self.layout.pile_direction + rng.uniform(0.0, 1.0) * between
-        q[1:] += rng.uniform(-START_NOISE, START_NOISE, 3)
-        for i, name in enumerate(machine.JOINTS[1:], start=1):
-            q[i] = np.clip(q[i], *machine.joint_range(name))
-        mujoco.mj_resetData(self.physics.model, self.physics.data)  # warm starts too: same seed, same episode
-        self.machine.reset(q, payload_kg=0.0)
-        self.world.place(self.physics.data, self.layout)
+        self.start_machine(q, self.layout)
         self.world.show_pile(pile.heights)
-        self.physics.data.qfrc_applied[:] = 0.0
-        mujoco.mj_forward(self.physics.model, self.physics.data)
         self._pile_shown = False
         self._tip_before = self._bucket_pose()[0]
         self._tip_interval = math.inf  # s since _tip_before was taken: none yet, so the velocity reads 0
@@ -335,6 +345,15 @@ class HexLoadingEnv(gym.Env):
         self.steps = 0
         self.elapsed = 0.0
         return self._observation(), self._info({})
+
+    def start_machine(self, q: np.ndarray, layout: Layout) -> None:
+        """Put the machine at rest at angles ``q`` with an empty bucket on a site laid out as ``layout``
+        (the simulation part of :meth:`reset`; the batched environment starts its machines through it)."""
+        mujoco.mj_resetData(self.physics.model, self.physics.data)  # warm starts too: same seed, same episode
+        self.machine.reset(q, payload_kg=0.0)
+        self.world.place(self.physics.data, layout)
+        self.physics.data.qfrc_applied[:] = 0.0
+        mujoco.mj_forward(self.physics.model, self.physics.data)
 
     def _bucket_pose(self) -> tuple[list[float], tuple[float, ...], tuple[float, ...], float]:
         """Teeth position, lateral and teeth directions (world) and the mouth's tilt from facing up.

@@ -10,6 +10,8 @@
   chassis, a cab and wheels.
 - ``truck_load`` and ``bucket_load``: drawn-only boxes/ellipsoids sized to the material in the
   truck and in the bucket.
+- optionally ``tool_contacts``: a contact sensor of the stick's and bucket's contacts (the batched
+  environment reads contacts through it).
 
 :class:`World` holds the ids and moves things: :meth:`World.place` puts the truck and the pile
 where a :class:`Layout` says, :meth:`World.show_pile` copies the heightmap into the hfield.
@@ -141,11 +143,14 @@ def _add_bucket_load(spec: mujoco.MjSpec) -> None:
                      size=[_HIDDEN_SIZE] * 3, **_DRAWN)  # fmt: skip
 
 
-def build_world_model(scene_path: str | Path | None = None, machine_file: str | None = None) -> mujoco.MjModel:
+def build_world_model(
+    scene_path: str | Path | None = None, machine_file: str | None = None, tool_contact_slots: int = 0
+) -> mujoco.MjModel:
     """Compile the machine's scene (default: the packaged ``scene.xml``) with the pile, the truck and the loads.
 
     ``machine_file``: another packaged machine MJCF (e.g. ``cat325_mbl.xml``, the native plugin's)
-    to include in place of the one the scene names.
+    to include in place of the one the scene names. ``tool_contact_slots`` > 0 adds a contact
+    sensor ``tool_contacts`` (:func:`_add_tool_contact_sensor`) with that many slots.
     """
     path = Path(scene_path) if scene_path is not None else asset_path(SCENE_FILE)
     try:
@@ -159,9 +164,29 @@ def build_world_model(scene_path: str | Path | None = None, machine_file: str | 
         _add_pile(spec)
         _add_truck(spec)
         _add_bucket_load(spec)
+        if tool_contact_slots > 0:
+            _add_tool_contact_sensor(spec, tool_contact_slots)
         return spec.compile()
     except ValueError as exc:
         raise AssetError(f"cannot build the loading site on {path}: {exc}") from exc
+
+
+TOOL_CONTACT_SENSOR = "tool_contacts"
+
+
+def _add_tool_contact_sensor(spec: mujoco.MjSpec, slots: int) -> None:
+    """A contact sensor reporting, per slot, [number of matches, distance] of the contacts of the stick's subtree
+    (stick, bucket) in ``data.contact``'s order, so that a batch of simulations reports them without ``data.contact``.
+
+    The stick and bucket collide with the ground and the truck only (the machine's own geoms do not
+    collide with each other), so these are the contacts :meth:`World.tool_geoms` selects.
+    """
+    fields = mujoco.mjtConDataField
+    found_and_dist = (1 << int(fields.mjCONDATA_FOUND)) | (1 << int(fields.mjCONDATA_DIST))
+    spec.add_sensor(
+        name=TOOL_CONTACT_SENSOR, type=mujoco.mjtSensor.mjSENS_CONTACT, objtype=mujoco.mjtObj.mjOBJ_XBODY,
+        objname="stick", intprm=[found_and_dist, 0, slots],
+    )  # fmt: skip
 
 
 def _geoms_of_bodies(model: mujoco.MjModel, bodies: tuple[str, ...]) -> np.ndarray:
@@ -220,8 +245,7 @@ class World:
 
     def in_bed(self, xy: np.ndarray, layout: Layout) -> bool:
         """Whether world point ``xy`` is over the bed's floor (inside its walls)."""
-        along, across = bed_coordinates(float(xy[0]), float(xy[1]), layout)
-        return abs(along) <= p.TRUCK_BED_LENGTH / 2 and abs(across) <= p.TRUCK_BED_WIDTH / 2
+        return bool(over_bed(*bed_coordinates(float(xy[0]), float(xy[1]), layout)))
 
     @staticmethod
     def truck_frame(point: np.ndarray, layout: Layout) -> np.ndarray:
@@ -236,5 +260,22 @@ BED_RIM_HEIGHT = p.TRUCK_BED_FLOOR_HEIGHT + p.TRUCK_BED_WALL_HEIGHT  # m above t
 def bed_coordinates(x: float, y: float, layout: Layout) -> tuple[float, float]:
     """World point (x, y) along the truck and across it from the bed's centre, m (plain floats: called per step)."""
     c, s = math.cos(layout.truck_yaw), math.sin(layout.truck_yaw)
-    dx, dy = x - layout.truck_centre[0], y - layout.truck_centre[1]
-    return c * dx + s * dy, -s * dx + c * dy
+    return bed_frame(x, y, layout.truck_centre[0], layout.truck_centre[1], c, s)
+
+
+def bed_frame(
+    x: np.ndarray | float,
+    y: np.ndarray | float,
+    centre_x: np.ndarray | float,
+    centre_y: np.ndarray | float,
+    cos_yaw: np.ndarray | float,
+    sin_yaw: np.ndarray | float,
+) -> tuple[np.ndarray | float, np.ndarray | float]:
+    """World point(s) (x, y) along and across a truck whose bed's centre and heading are given (floats or arrays)."""
+    dx, dy = x - centre_x, y - centre_y
+    return cos_yaw * dx + sin_yaw * dy, -sin_yaw * dx + cos_yaw * dy
+
+
+def over_bed(along: np.ndarray | float, across: np.ndarray | float) -> np.ndarray | bool:
+    """Whether bed-frame point(s) (:func:`bed_frame`) lie over the bed's floor, inside its walls."""
+    return (abs(along) <= p.TRUCK_BED_LENGTH / 2) & (abs(across) <= p.TRUCK_BED_WIDTH / 2)

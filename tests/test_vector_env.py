@@ -1,0 +1,204 @@
+"""The batched HexLoading-v0 (gymnasium.make_vec): the same results as single environments, its API, its errors."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.vector import AutoresetMode
+from gymnasium.vector.utils import batch_space
+
+import hexgym  # noqa: F401 - registers HexLoading-v0
+from hexgym import parameters as p
+from hexgym.envs import fuel
+from hexgym.envs.earthwork import BatchedPiles, UniformTable
+from hexgym.envs.loading import HexLoadingEnv, heap_for, sample_start
+from hexgym.envs.scripted import ScriptedLoader
+from hexgym.envs.vector import HexLoadingVectorEnv, vector_steps_per_second
+from hexgym.native import native_available
+from hexgym.physics import payload_inertia
+
+needs_plugin = pytest.mark.skipif(not native_available(), reason="the batched environment needs the native plugin")
+
+
+def _assert_same(tag, batched, single):
+    """Equal exactly: values, shapes and dtypes (dicts key by key, as SyncVectorEnv builds them)."""
+    if isinstance(single, tuple):
+        for k, (b, s) in enumerate(zip(batched, single, strict=True)):
+            _assert_same(f"{tag}[{k}]", b, s)
+        return
+    if isinstance(single, dict):
+        assert batched.keys() == single.keys(), (tag, sorted(set(batched) ^ set(single)))
+        for key in single:
+            _assert_same(f"{tag}[{key!r}]", batched[key], single[key])
+        return
+    batched, single = np.asarray(batched), np.asarray(single)
+    assert batched.shape == single.shape and batched.dtype == single.dtype, (tag, batched.dtype, single.dtype)
+    differ = np.flatnonzero((batched != single).reshape(len(single), -1).any(axis=1))
+    assert not len(differ), f"{tag}: environments {differ.tolist()} differ"
+
+
+def _compare_with_single_envs(num_envs, steps, time_limit, seed=7):
+    """Step make_vec(num_envs) and a SyncVectorEnv of HexLoadingEnv with the same seeds and actions: the scripted
+    loader's on even sites (it digs and, given time, dumps), random ones on odd sites, one site driven into the
+    ground (hard contacts). Returns the largest bucket, truck, spilled and contact figures seen, and the resets."""
+    vec = gym.make_vec("HexLoading-v0", num_envs=num_envs, time_limit=time_limit)
+    sync = gym.vector.SyncVectorEnv([lambda: HexLoadingEnv(backend="native", time_limit=time_limit)] * num_envs)
+    assert isinstance(vec.unwrapped, HexLoadingVectorEnv)
+    _assert_same("reset", vec.reset(seed=seed), sync.reset(seed=seed))
+    loaders = [ScriptedLoader() if i % 2 == 0 else None for i in range(num_envs)]
+    rng = np.random.default_rng(seed)
+    seen = {"bucket_kg": 0.0, "truck_kg": 0.0, "spilled_kg": 0.0, "contact_impulse_ns": 0.0, "resets": 0}
+    for t in range(steps):
+        actions = rng.uniform(-1, 1, (num_envs, 4)).astype(np.float32)
+        if t % 40 < 15:
+            actions[num_envs - 1] = [0.0, -1.0, 1.0, 0.0]  # boom down, stick in: into the ground
+        for i, loader in enumerate(loaders):
+            if loader is not None:
+                actions[i] = loader.act(sync.envs[i])
+        batched, single = vec.step(actions), sync.step(actions)
+        for name, b, s in zip(("obs", "reward", "terminated", "truncated", "info"), batched, single, strict=True):
+            _assert_same(f"step {t} {name}", b, s)
+        info = single[4]
+        for key in ("bucket_kg", "truck_kg", "spilled_kg", "contact_impulse_ns"):
+            if key in info:
+                seen[key] = max(seen[key], float(info[key].max()))
+        for i in np.flatnonzero(single[2] | single[3]):
+            seen["resets"] += 1
+            if loaders[i] is not None:
+                loaders[i] = ScriptedLoader()
+    vec.close()
+    sync.close()
+    return seen
+
+
+@needs_plugin
+def test_results_equal_single_envs_through_digging_contacts_and_autoreset():
+    # exactly equal, not approximately: the batch steps each site's MjData as mj_step does, and the task
+    # logic does the single environment's float operations in its order (sums included)
+    seen = _compare_with_single_envs(num_envs=4, steps=160, time_limit=7.0)
+    assert seen["bucket_kg"] > 50  # the scripted sites dug (only digging fills the bucket)
+    assert seen["contact_impulse_ns"] > 0  # the site driven down hit the ground
+    assert seen["resets"] >= 4  # every site's episode ended (t = 7 s) and restarted on the next step
+
+
+@pytest.mark.slow
+@needs_plugin
+def test_results_equal_single_envs_through_loading_the_truck():
+    seen = _compare_with_single_envs(num_envs=3, steps=450, time_limit=40.0)
+    assert seen["truck_kg"] > 500 and seen["spilled_kg"] > 0  # the scripted site dumped into the bed
+
+
+@needs_plugin
+def test_make_vec_api_spaces_seeding_and_info_masks():
+    vec = gym.make_vec("HexLoading-v0", num_envs=3, time_limit=0.2)
+    single = HexLoadingEnv(backend="native", time_limit=0.2)
+    assert vec.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP
+    assert vec.action_space.shape == (3, 4) and vec.observation_space.shape == (3, 22)
+    assert vec.single_observation_space == single.observation_space
+    assert vec.observation_space == batch_space(single.observation_space, 3)
+    assert vec.action_space == batch_space(single.action_space, 3)
+    obs, info = vec.reset(seed=[5, 9, 11])
+    assert vec.observation_space.contains(obs)
+    assert np.array_equal(obs[1], single.reset(seed=9)[0])
+    assert info["_pile_kg"].all() and "fuel_l_step" not in info
+    for _ in range(2):  # 0.2 s: the second step truncates every site
+        obs, reward, terminated, truncated, info = vec.step(np.zeros((3, 4), np.float32))
+    assert truncated.all() and not terminated.any() and info["_fuel_l_step"].all()
+    obs, reward, terminated, truncated, info = vec.step(np.zeros((3, 4), np.float32))  # the autoreset step
+    assert not (truncated.any() or reward.any()) and "fuel_l_step" not in info and (info["time_s"] == 0).all()
+    assert np.array_equal(obs[1], single.reset()[0])  # site 1 goes on with its own generator, as after seed 9
+    vec.close()
+
+
+@needs_plugin
+def test_bad_actions_name_the_environment():
+    vec = gym.make_vec("HexLoading-v0", num_envs=3)
+    with pytest.raises(RuntimeError, match="reset"):
+        vec.step(np.zeros((3, 4)))
+    vec.reset(seed=0)
+    with pytest.raises(ValueError, match=r"shape \(3, 4\)"):
+        vec.step(np.zeros(4))
+    actions = np.zeros((3, 4))
+    actions[2, 1] = np.nan
+    with pytest.raises(ValueError, match="environment 2"):
+        vec.step(actions)
+    vec.close()
+
+
+def test_without_the_plugin_it_says_to_use_sync(monkeypatch):
+    import hexgym.native
+    from hexgym.native import NativePluginError
+
+    monkeypatch.setattr(hexgym.native, "load_plugin", lambda: "the native plugin was not built")
+    with pytest.raises(NativePluginError, match="vectorization_mode='sync'"):
+        HexLoadingVectorEnv(2)
+
+
+@needs_plugin
+@pytest.mark.parametrize("kwargs", [{"backend": "python"}, {"render_mode": "rgb_array"}, {"num_envs": 0}])
+def test_unsupported_arguments_are_refused(kwargs):
+    with pytest.raises(ValueError):
+        HexLoadingVectorEnv(**({"num_envs": 2} | kwargs))
+
+
+def test_batched_pile_cuts_as_the_single_pile():
+    rng = np.random.default_rng(1)
+    layouts = [sample_start(rng)[0] for _ in range(6)]
+    singles = [heap_for(layout) for layout in layouts]
+    batched = BatchedPiles(len(singles), singles[0].heights.shape[0], singles[0].spacing)
+    for i, pile in enumerate(singles):
+        batched.load(i, pile)
+    ids = np.arange(len(singles))
+    for _ in range(20):
+        centre = np.array([pile.centre for pile in singles]) + rng.uniform(-2.5, 2.5, (len(singles), 2))
+        angle = rng.uniform(-np.pi, np.pi, len(singles))
+        lateral = np.stack([np.cos(angle), np.sin(angle)], axis=1)
+        floor, volume = rng.uniform(0.0, 1.2, len(singles)), rng.uniform(0.0, 0.05, len(singles))
+        got = batched.take(ids, centre[:, 0], centre[:, 1], lateral[:, 0], lateral[:, 1], 1.5, floor, volume)
+        expected = [pile.take(c, lat, 1.5, f, v) for pile, c, lat, f, v in zip(singles, centre, lateral, floor, volume,
+                                                                                 strict=True)]  # fmt: skip
+        assert got.tolist() == expected and got.max() > 0
+        x, y = centre[:, 0] + 0.3, centre[:, 1] - 0.2
+        heights = [pile.height_at_point(a, b) for pile, a, b in zip(singles, x, y, strict=True)]
+        assert batched.height_at(ids, x, y).tolist() == heights
+    assert all(np.array_equal(batched.heights[i], pile.heights) for i, pile in enumerate(singles))
+    assert batched.volumes().tolist() == [pile.volume() for pile in singles]
+
+
+def test_vectorised_tables_fuel_and_payload_match_the_scalar_ones():
+    table = UniformTable(-1.0, 2.0, np.random.default_rng(0).normal(size=50))
+    x = np.linspace(-1.5, 2.5, 997)
+    assert table.at(x).tolist() == [table(v) for v in x]
+    power, seconds = np.linspace(0.0, 400e3, 301), np.full(301, 0.075)
+    assert fuel.fuel_litres_many(power, seconds).tolist() == [fuel.fuel_litres(w, 0.075) for w in power]
+    from hexgym.physics import ExcavatorPhysics
+
+    physics = ExcavatorPhysics()
+    masses = np.array([0.0, 0.5, 20.0, 1234.5, p.BUCKET_HEAPED_CAPACITY * p.MATERIAL_DENSITY])
+    inertias = payload_inertia(masses)
+    for mass, inertia in zip(masses, inertias, strict=True):
+        physics.set_payload(mass)
+        assert physics.model.body("payload").inertia.tolist() == inertia.tolist()
+
+
+@needs_plugin
+def test_benchmark_function_reports_env_steps_per_second():
+    assert vector_steps_per_second(num_envs=2, steps=3, seed=0) > 0
+
+
+@needs_plugin
+def test_reset_mask_resets_some_sites_as_sync_does():
+    vec = gym.make_vec("HexLoading-v0", num_envs=3)
+    sync = gym.vector.SyncVectorEnv([lambda: HexLoadingEnv(backend="native")] * 3)
+    _assert_same("reset", vec.reset(seed=1), sync.reset(seed=1))
+    actions = np.random.default_rng(0).uniform(-1, 1, (5, 3, 4)).astype(np.float32)
+    for a in actions:
+        _assert_same("step", vec.step(a), sync.step(a))
+    mask = np.array([False, True, False])
+    _assert_same("masked reset", vec.reset(seed=20, options={"reset_mask": mask.copy()}),
+                 sync.reset(seed=20, options={"reset_mask": mask.copy()}))  # fmt: skip
+    for a in actions:
+        _assert_same("step after", vec.step(a), sync.step(a))
+    with pytest.raises(ValueError, match="reset_mask"):
+        vec.reset(options={"reset_mask": np.zeros(3, bool)})
+    vec.close()
+    sync.close()
