@@ -1,6 +1,7 @@
-"""Generate ``assets/cat325_mbl.xml``: the lean machine driven by the native ``hexgym.mbl`` plugin.
+"""Generate ``assets/cat325_mbl.xml`` and ``assets/cat325_mbl_full.xml``: the machine driven by the
+native ``hexgym.mbl`` plugin.
 
-The file is ``assets/cat325_lean.xml`` (:func:`hexgym.mjcf.model_xml` with ``lean=True``) with its
+``cat325_mbl.xml`` is ``assets/cat325_lean.xml`` (:func:`hexgym.mjcf.model_xml` with ``lean=True``) with its
 four joint-rate servos replaced by plugin actuators of one ``hexgym.mbl`` instance: ctrl is the
 spool position in mm (±11), and the plugin turns spools into joint-rate targets through the MBL
 tables every step (see ``native/mbl_plugin.cc``). Each plugin actuator keeps its lean servo's
@@ -9,8 +10,16 @@ stiff velocity servo, exactly as the Python path's servos. The plugin's geometry
 from :mod:`hexgym.parameters` and :mod:`hexgym.machine` (config keys, floats written with
 ``repr`` so they round-trip exactly).
 
+``cat325_mbl_full.xml`` is the same for the full machine ``assets/cat325.xml`` (cylinders and the
+bucket four-bar as bodies closed by equality constraints, 2 ms step), for MuJoCo's viewer: its
+plugin actuators keep the full model's integrated-velocity servos (kp, kv, activation = position
+target, force and activation limits), since a stiff velocity servo on a tree joint of a closed
+chain would be damped implicitly while the constraint solver, which works with the plain mass
+matrix, drives the cylinder bodies explicitly (they blow up). Its control period is the lean
+machine's 25 ms: 12.5 steps, so table queries alternate 13 and 12 steps apart.
+
 Regenerate with ``hexgym build-assets`` (or :func:`write_mbl_model`); a test checks the committed
-file is current.
+files are current.
 """
 
 from __future__ import annotations
@@ -27,6 +36,7 @@ from hexgym.files import atomic_path
 from hexgym.resources import assets_dir
 
 MBL_MODEL_FILE = "cat325_mbl.xml"
+MBL_FULL_MODEL_FILE = "cat325_mbl_full.xml"
 PLUGIN_NAME = "hexgym.mbl"
 INSTANCE = "mbl"
 SPOOL_RANGE_MM = p.SPOOL_STROKE * 1e3
@@ -36,14 +46,15 @@ def _numbers(*values: float) -> str:
     return " ".join(repr(float(v)) for v in values)
 
 
-def plugin_config() -> dict[str, str]:
-    """The plugin's config keys (see ``kAttributes`` in native/mbl_plugin.cc) from the machine's numbers."""
+def plugin_config(lean: bool = True) -> dict[str, str]:
+    """The plugin's config keys (see ``kAttributes`` in native/mbl_plugin.cc) from the machine's numbers
+    (``lean``: the rate ranges of the lean machine's servos, else the full machine's)."""
     triangles = {}
     for name in ("boom", "stick"):
         base, rod, offset = machine._triangle(name)
         triangles[f"{name}_triangle"] = _numbers(*base, *rod, offset, machine._SIGN[name])
     four_bar = (*machine._G, *machine._P_BUCKET, *machine._K_BUCKET, *machine._C_BUCKET)
-    servos = _lean_servos()
+    servos = _servos(lean)
     return {
         **triangles,
         "bucket_four_bar": _numbers(*four_bar, p.GUIDE_LINK_LENGTH, p.POWER_LINK_LENGTH, machine._J_SIDE),
@@ -59,14 +70,18 @@ def plugin_config() -> dict[str, str]:
     }
 
 
-def _lean_text() -> str:
+def _machine_text(lean: bool = True) -> str:
     meshes = str(assets_dir() / "meshes")
-    return mjcf.model_xml(mjcf.home_keyframe(mjcf.model_xml(lean=True), meshes), lean=True)
+    return mjcf.model_xml(mjcf.home_keyframe(mjcf.model_xml(lean=lean), meshes), lean=lean)
 
 
-def _lean_servos() -> dict[str, dict[str, np.ndarray | bool]]:
-    """Per joint, the lean model's servo: gain, bias, ctrl (rate) range, force limit."""
-    spec = mujoco.MjSpec.from_string(mjcf.model_xml(lean=True))
+def _servos(lean: bool = True) -> dict[str, dict[str, np.ndarray | bool]]:
+    """Per joint, the (lean or full) model's servo: gain, bias, ctrl (rate) range, force limit.
+
+    (The full model's activation limits, its joints' ranges, the plugin applies itself: MuJoCo
+    allows ``actrange`` only with a ``dyntype``.)
+    """
+    spec = mujoco.MjSpec.from_string(mjcf.model_xml(lean=lean))
     spec.meshdir = str(assets_dir() / "meshes")
     model = spec.compile()
     servos = {}
@@ -95,13 +110,14 @@ def _defaults(servos: dict[str, dict[str, np.ndarray | bool]]) -> str:
     return "\n".join(lines)
 
 
-def _actuators() -> str:
+def _actuators(lean: bool = True) -> str:
     lines = [
         "  <actuator>",
         "    <!-- ctrl: spool position, mm (+ extends the cylinder / swings counter-clockwise) -->",
     ]
     for name in machine.JOINTS:
-        actdim = 1 if name == "swing" else 0  # the swing's rate target is its activation
+        # lean: the swing's rate target is its activation; full: each activation is a position target
+        actdim = 1 if name == "swing" or not lean else 0
         lines.append(
             f'    <plugin name="{name}" joint="{name}" instance="{INSTANCE}" class="mbl_{name}" actdim="{actdim}"'
             f' ctrlrange="{_numbers(-SPOOL_RANGE_MM, SPOOL_RANGE_MM)}"/>'
@@ -109,8 +125,8 @@ def _actuators() -> str:
     return "\n".join([*lines, "  </actuator>"])
 
 
-def _extension(tables_dir: str | Path | None, control_period: float | None) -> str:
-    config = plugin_config()
+def _extension(tables_dir: str | Path | None, control_period: float | None, lean: bool) -> str:
+    config = plugin_config(lean)
     if tables_dir is not None:
         config = {"tables": str(Path(tables_dir).resolve()), **config}
     if control_period is not None:
@@ -122,30 +138,37 @@ def _extension(tables_dir: str | Path | None, control_period: float | None) -> s
     )
 
 
-def mbl_model_xml(tables_dir: str | Path | None = None, control_period: float | None = None) -> str:
-    """The text of ``cat325_mbl.xml``.
+def mbl_model_xml(tables_dir: str | Path | None = None, control_period: float | None = None, full: bool = False) -> str:
+    """The text of ``cat325_mbl.xml`` (``full``: ``cat325_mbl_full.xml``).
 
     ``tables_dir``: other tables than the packaged ones; ``control_period``: seconds between
-    table queries, a multiple of the step (default: every step).
+    table queries, at least one step (default: every step of the lean machine; the lean machine's
+    25 ms on the full one).
     """
-    text = _lean_text().replace('<mujoco model="cat325_lean">', '<mujoco model="cat325_mbl">', 1)
+    lean = not full
+    source, name = ("cat325_lean", "cat325_mbl") if lean else ("cat325", "cat325_mbl_full")
+    which = "lean" if lean else "full"
+    if full and control_period is None:
+        control_period = mjcf.LEAN_TIMESTEP
+    text = _machine_text(lean).replace(f'<mujoco model="{source}">', f'<mujoco model="{name}">', 1)
     text = text.replace(
         "edit those, then run `hexgym build-assets`. -->",
         "edit those, then run `hexgym build-assets`.\n"
-        "       The lean machine driven by the native hexgym.mbl plugin (hexgym/mjcf_native.py). -->",
+        f"       The {which} machine driven by the native hexgym.mbl plugin (hexgym/mjcf_native.py). -->",
         1,
     )
-    text = text.replace("  <default>\n", _extension(tables_dir, control_period) + "  <default>\n", 1)
-    text = re.sub(r"^  </default>$", lambda _: _defaults(_lean_servos()) + "\n  </default>", text, count=1, flags=re.M)
-    text, count = re.subn(r"  <actuator>.*?</actuator>", lambda _: _actuators(), text, count=1, flags=re.S)
+    text = text.replace("  <default>\n", _extension(tables_dir, control_period, lean) + "  <default>\n", 1)
+    defaults = _defaults(_servos(lean))
+    text = re.sub(r"^  </default>$", lambda _: defaults + "\n  </default>", text, count=1, flags=re.M)
+    text, count = re.subn(r"  <actuator>.*?</actuator>", lambda _: _actuators(lean), text, count=1, flags=re.S)
     if count != 1:
-        raise RuntimeError("the lean model text has no <actuator> block to replace")
+        raise RuntimeError(f"the {which} model text has no <actuator> block to replace")
     return text
 
 
-def write_mbl_model(path: str | Path) -> Path:
-    """Generate ``cat325_mbl.xml`` and write it atomically to ``path``."""
+def write_mbl_model(path: str | Path, full: bool = False) -> Path:
+    """Generate ``cat325_mbl.xml`` (``full``: ``cat325_mbl_full.xml``) and write it atomically to ``path``."""
     path = Path(path)
     with atomic_path(path) as tmp:
-        tmp.write_text(mbl_model_xml())
+        tmp.write_text(mbl_model_xml(full=full))
     return path

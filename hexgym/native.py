@@ -1,11 +1,12 @@
 """The native learned model: the ``hexgym.mbl`` MuJoCo plugin (``native/``) and its Python face.
 
 ``import hexgym`` loads the plugin library the package build compiled (``hexgym/_mbl_plugin*.so``,
-see ``setup.py``) with ``mujoco.mj_loadPluginLibrary``; models that name the plugin
-(``assets/cat325_mbl.xml``, :func:`hexgym.mjcf_native.mbl_model_xml`) then compile in this
-process. The plugin does in C++, inside ``mj_step``, what :class:`hexgym.learned.LearnedModel`
-does in Python each control period (loads, stall, tables, swing integration, servo targets), from
-the same table files, so the two give the same trajectories (``tests/test_native.py``).
+see ``setup.py``) with ``mujoco.mj_loadPluginLibrary``; models that name the plugin (the lean
+``assets/cat325_mbl.xml``, the full ``assets/cat325_mbl_full.xml``, or one from
+:func:`hexgym.mjcf_native.mbl_model_xml`) then compile in this process. The plugin does in C++,
+inside ``mj_step``, what :class:`hexgym.learned.LearnedModel` does in Python each control period
+(loads, stall, tables, swing integration, servo targets), from the same table files, so the two
+give the same trajectories (``tests/test_native.py``).
 
 :class:`NativeLearnedModel` has LearnedModel's interface (``reset``, ``step``, ``observe``,
 ``physics``, ``cylinder_loads``, ``spools_m``, ``timestep``); :func:`make_learned_model` picks a
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import ctypes
 import functools
+import os
 import time
 import warnings
 from collections.abc import Callable
@@ -98,16 +100,18 @@ def require_plugin() -> None:
         raise NativePluginError(f"{reason}; use backend='python'")
 
 
-def load_mbl_model(tables_dir: str | Path | None = None, control_period: float | None = None) -> mujoco.MjModel:
+def load_mbl_model(
+    tables_dir: str | Path | None = None, control_period: float | None = None, full: bool = False
+) -> mujoco.MjModel:
     """The lean machine driven by the plugin (the packaged ``cat325_mbl.xml``, or one generated for
-    other tables or another control period).
+    other tables or another control period); ``full``: the full machine (``cat325_mbl_full.xml``).
 
     Table files the plugin cannot use fail the compile with a message naming the file and the
     problem: ValueError (AssetError for the packaged model).
     """
     require_plugin()
     if tables_dir is None and control_period is None:
-        path = asset_path("cat325_mbl.xml")
+        path = asset_path("cat325_mbl_full.xml" if full else "cat325_mbl.xml")
         try:
             return mujoco.MjModel.from_xml_path(str(path))
         except ValueError as exc:
@@ -116,7 +120,7 @@ def load_mbl_model(tables_dir: str | Path | None = None, control_period: float |
 
     if tables_dir is not None and not Path(tables_dir).is_dir():
         raise FileNotFoundError(f"MBL table directory {tables_dir} does not exist")
-    spec = mujoco.MjSpec.from_string(mbl_model_xml(tables_dir, control_period))
+    spec = mujoco.MjSpec.from_string(mbl_model_xml(tables_dir, control_period, full=full))
     spec.meshdir = str(asset_path("cat325_lean.xml").parent / "meshes")
     return spec.compile()
 
@@ -136,8 +140,13 @@ class NativeLearnedModel:
         tables_dir: directory of the four ``.npz`` tables (default: the packaged ones).
         model: a compiled model whose four actuators are ``hexgym.mbl`` plugin actuators
             (default: :func:`load_mbl_model`).
-        control_period: seconds between table queries, a multiple of the step (default: one
-            step); with ``model`` it must be the model's configured period.
+        control_period: seconds between table queries, at least one step (default: one step);
+            with ``model`` it must be the model's configured period.
+
+    The model's servos may be the lean machine's velocity servos or the full machine's
+    integrated-velocity servos (``load_mbl_model(full=True)``). A period that is no whole number
+    of steps (the full machine's 25 ms at 2 ms steps) is kept on average: :meth:`step` runs to the
+    first step at or after each period boundary, as the plugin queries its tables.
     """
 
     def __init__(
@@ -155,19 +164,24 @@ class NativeLearnedModel:
         if m.nplugin != 1 or not all(m.actuator_plugin[i] == 0 for i in self._ctrl):
             raise ValueError("model must drive swing, boom, stick and bucket with one hexgym.mbl plugin instance")
         self._swing_act = int(m.actuator_actadr[self._ctrl[0]])
+        # the full machine's servos hold position targets in their activations, the lean's swing its rate
+        self._integrated = bool(m.actuator_biasprm[self._ctrl[0], 1] != 0.0)
         self._state = slice(int(m.plugin_stateadr[0]), int(m.plugin_stateadr[0]) + _STATE_SIZE)
         configured = plugin_config_values(m)["control_period"]
         period = float(configured) if configured else self.physics.timestep
         if control_period is not None and abs(period - control_period) > 1e-9:
             raise ValueError(f"control_period {control_period} s differs from the model's {period} s")
-        self._substeps = int(round(period / self.physics.timestep))
+        self._period = period
+        # as the plugin: steps per period rounded to a multiple of 2**-20, so the step counts are exact
+        self._steps_per_period = round(period / self.physics.timestep * 2**20) / 2**20
+        self._periods = self._steps = 0  # since reset: the plugin queried the tables at steps ceil(k * period / step)
         self._dofs = np.array([m.joint(n).dofadr[0] for n in machine.JOINTS])
         self.spools_m = np.zeros(4)
 
     @property
     def timestep(self) -> float:
         """One control period, s."""
-        return self._substeps * self.physics.timestep
+        return self._period
 
     @property
     def swing_acceleration(self) -> float:
@@ -178,7 +192,8 @@ class NativeLearnedModel:
         """Start at a keyframe name or joint angles (rad), at rest, spools neutral."""
         d = self.physics.data
         self.physics.start_at(start, payload_kg)
-        d.act[:] = 0.0  # the swing's rate target (start_at writes pose targets for integrating servos)
+        if not self._integrated:
+            d.act[:] = 0.0  # the swing's rate target (start_at writes pose targets for integrating servos)
         d.plugin_state[self._state] = 0.0
         self.spools_m = np.zeros(4)
         d.ctrl[self._ctrl] = 0.0
@@ -187,12 +202,16 @@ class NativeLearnedModel:
         d.plugin_state[self._state.start + _PHASE] = 0.0
         d.plugin_state[self._state.start + _ACCELERATION] = 0.0
         d.time = 0.0
+        self._periods = self._steps = 0
 
     def step(self, spools_m: np.ndarray, n: int = 1) -> None:
         """Advance ``n`` control periods with the spools (m; swing, boom, stick, bucket) held."""
         self.spools_m = validate_spools(spools_m).copy()
         self.physics.data.ctrl[self._ctrl] = self.spools_m * 1e3  # the plugin's ctrl is in mm
-        self.physics.step(n * self._substeps)
+        self._periods += n
+        end = int(np.ceil(self._periods * self._steps_per_period - 1e-9))
+        self.physics.step(end - self._steps)
+        self._steps = end
 
     def joint_loads(self) -> np.ndarray:
         """Torque each main joint's actuator must supply to hold the present motion (N m).
@@ -246,15 +265,21 @@ def make_learned_model(
     return LearnedModel(tables=tables, control_period=control_period)
 
 
-def _timed(run: Callable[[], float], seconds: float) -> float:
+def _timed_with_cores(run: Callable[[], float], seconds: float) -> tuple[float, float]:
     """Simulated seconds per wall second of ``run`` (which returns the seconds it simulated), repeated
-    for at least ``seconds`` of wall time."""
-    simulated, wall = 0.0, 0.0
+    for at least ``seconds`` of wall time, and the cores the process got meanwhile (CPU / wall seconds)."""
+    simulated, wall, cpu = 0.0, 0.0, 0.0
     while wall < seconds:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         simulated += run()
         wall += time.perf_counter() - t0
-    return simulated / wall
+        cpu += time.process_time() - c0
+    return simulated / wall, cpu / wall
+
+
+def _timed(run: Callable[[], float], seconds: float) -> float:
+    """Simulated seconds per wall second of ``run`` (see :func:`_timed_with_cores`)."""
+    return _timed_with_cores(run, seconds)[0]
 
 
 def _test3() -> tuple[CommandLog, np.ndarray]:
@@ -263,16 +288,23 @@ def _test3() -> tuple[CommandLog, np.ndarray]:
     return scenarios()["test3"]
 
 
+def _test3_controls(model: NativeLearnedModel) -> np.ndarray:
+    """Test 3's spools (mm), one row per control period of ``model`` (one step of the lean machine)."""
+    log, _ = _test3()
+    n = int(round(log.duration / model.timestep))
+    return np.array([log.spools_at((k + 1e-9) * model.timestep) for k in range(n)])
+
+
 def native_rollout_realtime_factor(seconds: float = 3.0) -> float:
     """The native model's own speed: ``hexgym validate``'s Test 3 spools as ``mujoco.rollout``'s
     open-loop controls, one thread, in simulated seconds per wall second (needs the plugin)."""
     from mujoco import rollout
 
-    log, pose = _test3()
+    _, pose = _test3()
     native = NativeLearnedModel()
     m, d = native.physics.model, native.physics.data
-    n = int(round(log.duration / native.timestep))
-    control = np.array([log.spools_at((k + 1e-9) * native.timestep) for k in range(n)])[None]  # mm
+    control = _test3_controls(native)[None]  # mm
+    n = control.shape[1]
     state_kind = mujoco.mjtState.mjSTATE_FULLPHYSICS
     native.reset(pose)
     x0 = np.empty(mujoco.mj_stateSize(m, state_kind))
@@ -285,6 +317,57 @@ def native_rollout_realtime_factor(seconds: float = 3.0) -> float:
         return n * native.timestep
 
     return _timed(run_rollout, seconds)
+
+
+def batch_realtime_factor_native(
+    nbatch: int = 64, nthread: int | None = None, seconds: float = 3.0, seed: int = 0
+) -> float:
+    """Simulated seconds of ``nbatch`` native rollouts per wall second, ``nthread`` threads (default:
+    every core) of ``mujoco.rollout`` (needs the plugin); see :func:`batch_benchmark`."""
+    return batch_benchmark(nbatch, nthread, seconds, seed)["batch_realtime_factor_native"]
+
+
+def batch_benchmark(nbatch: int = 64, nthread: int | None = None, seconds: float = 3.0, seed: int = 0) -> dict:
+    """``batch_realtime_factor_native``: simulated seconds of ``nbatch`` native rollouts per wall
+    second on ``nthread`` threads (default: every core) of ``mujoco.rollout`` (needs the plugin);
+    ``batch_cores_used``: the cores the process got meanwhile (CPU / wall seconds: below ``nthread``
+    when other processes share the cores, and the first figure is then that much short).
+
+    Each rollout is the whole of ``hexgym validate``'s Test 3 spools (48 s), started at a different point of the
+    log (a seeded cyclic shift) from Test 3's start pose moved by up to ±0.1 rad per joint, so the
+    rollouts differ (as a batch of environments would) but have the same length.
+    """
+    from mujoco import rollout
+
+    if nbatch < 1:
+        raise ValueError(f"nbatch must be >= 1, got {nbatch}")
+    nthread = (os.cpu_count() or 1) if nthread is None else nthread
+    if nthread < 1:
+        raise ValueError(f"nthread must be >= 1, got {nthread}")
+    _, pose = _test3()
+    native = NativeLearnedModel()
+    m, d = native.physics.model, native.physics.data
+    control = _test3_controls(native)
+    rng = np.random.default_rng(seed)
+    state_kind = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    x0 = np.empty((nbatch, mujoco.mj_stateSize(m, state_kind)))
+    controls = np.empty((nbatch, *control.shape))
+    ranges = np.array([machine.joint_range(n) if n != "swing" else (-np.inf, np.inf) for n in machine.JOINTS])
+    for b in range(nbatch):
+        native.reset(np.clip(pose + rng.uniform(-0.1, 0.1, 4), ranges[:, 0] + 0.02, ranges[:, 1] - 0.02))
+        mujoco.mj_getState(m, d, x0[b], state_kind)
+        controls[b] = np.roll(control, -int(rng.integers(len(control))), axis=0)
+    states = np.empty((nbatch, len(control), x0.shape[1]))
+    datas = [mujoco.MjData(m) for _ in range(nthread)]
+    simulated = nbatch * len(control) * native.timestep
+    with rollout.Rollout(nthread=nthread) as pool:
+
+        def run_batch() -> float:
+            pool.rollout(m, datas, x0, controls, initial_warmstart=None, state=states)
+            return simulated
+
+        factor, cores = _timed_with_cores(run_batch, seconds)
+    return {"batch_realtime_factor_native": factor, "batch_cores_used": cores, "batch_threads": nthread}
 
 
 def native_benchmark(seconds: float = 3.0) -> dict[str, float]:

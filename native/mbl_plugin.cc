@@ -7,12 +7,19 @@
 //           cylinder forces f = tau / (dC/dq)                               (Eqns 4-5)
 //   spools  stalled functions (stroke end, relief) closed, dead band -> no flow
 //   tables  boom, bucket, stick velocities; swing acceleration integrated to a rate target
-//   servo   force = gain * target + bias(length, velocity): a stiff velocity servo whose
-//           -kv (the actuators' affine biasprm[2]) MuJoCo's implicit integrators treat implicitly.
-// State: the swing rate target is the swing actuator's activation (actdim 1); the previous
-// step's constraint forces at the four dofs (without the joint limits' share: at a stroke end
-// the stop carries the load, not the oil) and the last swing acceleration are the plugin
-// state (mjSTATE_PLUGIN). So mj_getState/mj_setState (mjSTATE_FULLPHYSICS) restore a step exactly.
+//   servo   one of two forms, read from the actuators' gain and affine bias (the same for all four):
+//           velocity servo (lean machine, assets/cat325_mbl.xml): biasprm 0 0 -kv,
+//             force = kv * target - kv * velocity; the swing's activation (actdim 1) is its rate target;
+//           integrated-velocity servo (full machine, assets/cat325_mbl_full.xml, as its intvelocity
+//             servos): biasprm 0 -kp -kv, actdim 1 each, act_dot = target, so the activation is a
+//             position target (kept within a limited joint's range, as intvelocity's actrange,
+//             which MuJoCo allows only with a dyntype), force = kp * act - kp * position - kv * velocity.
+//           MuJoCo's implicit integrators treat the -kv (biasprm[2]) implicitly.
+// State: the previous step's constraint forces at the four dofs (without the joint limits' share:
+// at a stroke end the stop carries the load, not the oil; on the full machine the closed chains'
+// equality forces are part of it), the last swing acceleration, the place in the control period
+// and the targets held within it (the swing's unclipped rate) are the plugin state (mjSTATE_PLUGIN).
+// So mj_getState/mj_setState (mjSTATE_FULLPHYSICS) restore a step exactly.
 #include <dlfcn.h>
 #include <limits.h>
 #include <sys/stat.h>
@@ -39,7 +46,8 @@ namespace {
 constexpr char kPluginName[] = "hexgym.mbl";
 constexpr const char* kJoints[4] = {"swing", "boom", "stick", "bucket"};
 // Plugin state: constraint load at the 4 dofs (previous step), swing acceleration, steps since
-// the last table query, the 4 joint-rate targets held until the next query.
+// the last table query (less whole control periods: fractional when the period is not a whole
+// number of steps), the 4 joint-rate targets held until the next query (the swing's unclipped).
 constexpr int kLoad = 0, kAcceleration = 4, kPhase = 5, kTargets = 6, kStateSize = 10;
 
 // Config keys; hexgym/mjcf_native.py writes them from hexgym/parameters.py.
@@ -57,7 +65,9 @@ constexpr const char* kAttributes[] = {
     "dead_band",          // m of spool
     "swing_rest_rate",    // rad/s
     "rate_range",         // lo hi per joint, rad/s (the Python path's servo ctrlrange)
-    "control_period",     // s between table queries, a multiple of the step (default: one step)
+    "control_period",     // s between table queries, >= one step (default: one step); when it is no
+                          // whole number of steps, queries fall on the first step at or after each
+                          // period boundary (e.g. 25 ms at 2 ms steps: 13, 12, 13, ... steps)
 };
 constexpr int kNumAttributes = sizeof(kAttributes) / sizeof(kAttributes[0]);
 
@@ -157,9 +167,12 @@ struct Instance {
   double retracted[3], stroke[3], push_limit[3], pull_limit[3], rate_lo[4], rate_hi[4];
   double end_margin, swing_torque_limit, dead_band, swing_rest_rate;
   int actuator[4], qadr[4], dadr[4];
-  int swing_actadr, swing_diag, stateadr;
+  int actadr[4], swing_actadr, swing_diag, stateadr;
+  bool act_limited[4];                   // integrated servos: the activation stays within the joint's range
+  double act_lo[4], act_hi[4];
+  bool integrated;                       // integrated-velocity servos (act = position target)
   double slowest_swing, fastest_swing;  // the swing table's rate axis
-  int substeps;                          // MuJoCo steps per control period
+  double steps_per_period;               // MuJoCo steps per control period (need not be whole)
   double period;                         // the control period, s
   // set by compute, committed by advance (the same mj_step)
   bool queried = false;
@@ -194,17 +207,19 @@ struct Instance {
     fastest_swing = swing.axis_hi(swing.dims() - 1);
     const char* period_text = mj_getPluginConfig(m, instance, "control_period");
     double wanted = period_text && period_text[0] ? Number(m, instance, "control_period") : m->opt.timestep;
-    substeps = static_cast<int>(std::lround(wanted / m->opt.timestep));
-    if (substeps < 1 || std::fabs(substeps * m->opt.timestep - wanted) > 1e-9) {
-      throw SetupError("control_period " + std::to_string(wanted) + " s is not a multiple of the step " +
+    // steps per period, rounded to a multiple of 2^-20 so that the phase arithmetic is exact
+    steps_per_period = std::ldexp(std::round(std::ldexp(wanted / m->opt.timestep, 20)), -20);
+    if (steps_per_period < 1.0) {
+      throw SetupError("control_period " + std::to_string(wanted) + " s is shorter than the step " +
                        std::to_string(m->opt.timestep) + " s");
     }
-    period = substeps * m->opt.timestep;
+    period = wanted;
     FindActuators(m, instance);
     stateadr = m->plugin_stateadr[instance];
   }
 
   void FindActuators(const mjModel* m, int instance) {
+    bool kind[4];  // integrated-velocity servo
     for (int k = 0; k < 4; ++k) actuator[k] = -1;
     for (int i = 0; i < m->nu; ++i) {
       if (m->actuator_plugin[i] != instance) continue;
@@ -213,23 +228,42 @@ struct Instance {
       int k = 0;
       while (k < 4 && !(joint && std::strcmp(joint, kJoints[k]) == 0)) ++k;
       if (k == 4) throw SetupError("actuator " + std::to_string(i) + " must act on joint swing, boom, stick or bucket");
-      if (actuator[k] >= 0) throw SetupError(std::string("two actuators on joint ") + kJoints[k]);
-      if (m->actuator_gaintype[i] != mjGAIN_FIXED || m->actuator_biastype[i] != mjBIAS_AFFINE ||
-          m->actuator_biasprm[mjNBIAS * i + 2] >= 0) {
+      const mjtNum* bias = m->actuator_biasprm + mjNBIAS * i;
+      bool servo = m->actuator_gaintype[i] == mjGAIN_FIXED && m->actuator_biastype[i] == mjBIAS_AFFINE &&
+                   bias[0] == 0 && bias[2] < 0;
+      bool velocity = servo && bias[1] == 0, position = servo && bias[1] == -m->actuator_gainprm[mjNGAIN * i];
+      if (!velocity && !position) {
         throw SetupError(std::string("actuator on ") + kJoints[k] +
-                         " must be a velocity servo: gaintype fixed (kv), biastype affine with biasprm 0 0 -kv");
+                         " must be a velocity servo (gaintype fixed kv, biastype affine, biasprm 0 0 -kv) or an"
+                         " integrated-velocity servo (gaintype fixed kp, biastype affine, biasprm 0 -kp -kv)");
       }
-      if (m->actuator_actnum[i] != (k == 0 ? 1 : 0)) {
-        throw SetupError(std::string("actuator on ") + kJoints[k] + " needs actdim=" + (k == 0 ? "1" : "0") +
-                         " (the swing keeps its rate target as activation)");
-      }
+      if (actuator[k] >= 0) throw SetupError(std::string("two actuators on joint ") + kJoints[k]);
+      kind[k] = position;
       actuator[k] = i;
+      actadr[k] = m->actuator_actadr[i];
       int joint_id = m->actuator_trnid[2 * i];
+      act_limited[k] = m->jnt_limited[joint_id];
+      act_lo[k] = m->jnt_range[2 * joint_id];
+      act_hi[k] = m->jnt_range[2 * joint_id + 1];
       qadr[k] = m->jnt_qposadr[joint_id];
       dadr[k] = m->jnt_dofadr[joint_id];
     }
     for (int k = 0; k < 4; ++k) {
       if (actuator[k] < 0) throw SetupError(std::string("no plugin actuator on joint ") + kJoints[k]);
+    }
+    integrated = kind[0];
+    for (int k = 0; k < 4; ++k) {
+      int i = actuator[k], actdim = (k == 0 || integrated) ? 1 : 0;
+      if (kind[k] != integrated) {
+        throw SetupError(std::string("actuator on ") + kJoints[k] + " is not the same kind of servo as the swing's");
+      }
+      if (m->actuator_actnum[i] != actdim || m->actuator_dyntype[i] != mjDYN_NONE) {
+        throw SetupError(std::string("actuator on ") + kJoints[k] + " needs actdim=" + std::to_string(actdim) +
+                         " and no dyntype (" +
+                         (integrated ? "an integrated-velocity servo's activation is its position target"
+                                     : "a velocity servo's swing keeps its rate target as activation") +
+                         ")");
+      }
     }
     swing_actadr = m->actuator_actadr[actuator[0]];
     int upper = mj_name2id(m, mjOBJ_BODY, "upper");
@@ -244,20 +278,32 @@ struct Instance {
   // LearnedModel._control_period, from the MuJoCo state, ending in the servo forces.
   void Compute(const mjModel* m, mjData* d) {
     const mjtNum* state = d->plugin_state + stateadr;
-    queried = state[kPhase] == 0.0;
+    queried = state[kPhase] < 1.0;  // the first step at or after a period boundary
     if (queried) {
       Query(m, d, state + kLoad);
     } else {  // between queries the servos hold the last targets (the Python path holds its ctrl)
-      next_rate = d->act[swing_actadr];
-      d->act_dot[swing_actadr] = 0.0;
-      for (int k = 0; k < 4; ++k) target[k] = state[kTargets + k];
+      next_rate = state[kTargets];
+      for (int k = 0; k < 4; ++k) target[k] = std::fmin(std::fmax(state[kTargets + k], rate_lo[k]), rate_hi[k]);
+      if (!integrated) {
+        next_rate = d->act[swing_actadr];
+        d->act_dot[swing_actadr] = 0.0;
+      }
     }
     for (int k = 0; k < 4; ++k) {
       int i = actuator[k];
       const mjtNum* bias = m->actuator_biasprm + mjNBIAS * i;
       int out = m->actuator_outadr[i];
       double b = bias[0] + bias[1] * d->actuator_length[out] + bias[2] * d->actuator_velocity[out];
-      d->actuator_force[out] = m->actuator_gainprm[mjNGAIN * i] * target[k] + b;
+      double input = target[k];
+      if (integrated) {  // as MuJoCo's intvelocity: the activation integrates the rate target
+        d->act_dot[actadr[k]] = target[k];
+        input = d->act[actadr[k]];
+      }
+      double force = m->actuator_gainprm[mjNGAIN * i] * input + b;
+      if (m->actuator_forcelimited[i]) {
+        force = std::fmin(std::fmax(force, m->actuator_forcerange[2 * i]), m->actuator_forcerange[2 * i + 1]);
+      }
+      d->actuator_force[out] = force;
     }
   }
 
@@ -291,7 +337,7 @@ struct Instance {
     double v_boom = closed[1] ? 0.0 : t[0](boom_in);
     double v_bucket = closed[3] ? 0.0 : t[1](boom_in);
     double v_stick = closed[2] ? 0.0 : t[2](stick_in);
-    double rate = d->act[swing_actadr];
+    double rate = integrated ? d->plugin_state[stateadr + kTargets] : d->act[swing_actadr];
     double swing_in[5] = {u[0], u[2], f[1], inertia, rate};
     swing_acceleration = t[3](swing_in);
     if (!(slowest_swing < rate && rate < fastest_swing) && swing_acceleration * rate > 0.0) {
@@ -307,7 +353,7 @@ struct Instance {
     double wanted[4] = {new_rate, v_boom / arms[0], v_stick / arms[1], v_bucket / arms[2]};
     StallAtContacts(m, d, wanted);
     next_rate = wanted[0];
-    d->act_dot[swing_actadr] = (next_rate - rate) / m->opt.timestep;
+    if (!integrated) d->act_dot[swing_actadr] = (next_rate - rate) / m->opt.timestep;
     for (int k = 0; k < 4; ++k) target[k] = std::fmin(std::fmax(wanted[k], rate_lo[k]), rate_hi[k]);
   }
 
@@ -339,15 +385,21 @@ struct Instance {
   // After integration: the rate target exactly (not act + dt * act_dot), and this step's
   // constraint forces, which the next step's loads need.
   void Advance(const mjModel* m, mjData* d) {
-    d->act[swing_actadr] = next_rate;
+    if (!integrated) d->act[swing_actadr] = next_rate;
+    for (int k = 0; integrated && k < 4; ++k) {  // MuJoCo integrated act_dot; the stop bounds the target
+      if (act_limited[k]) d->act[actadr[k]] = std::fmin(std::fmax(d->act[actadr[k]], act_lo[k]), act_hi[k]);
+    }
     mjtNum* state = d->plugin_state + stateadr;
     for (int k = 0; k < 4; ++k) state[kLoad + k] = d->qfrc_constraint[dadr[k]];
     SubtractJointLimits(m, d, state + kLoad);
     if (queried) {
       state[kAcceleration] = swing_acceleration;
       for (int k = 0; k < 4; ++k) state[kTargets + k] = target[k];
+      state[kTargets] = next_rate;  // the swing's rate, unclipped (the servo clips it when used)
     }
-    state[kPhase] = (state[kPhase] + 1.0 >= substeps) ? 0.0 : state[kPhase] + 1.0;
+    // whole periods are subtracted, not the phase zeroed: a period of 12.5 steps alternates 13 and 12
+    double phase = state[kPhase] + 1.0;
+    state[kPhase] = phase >= steps_per_period ? phase - steps_per_period : phase;
   }
 
   // load[k] -= the joint-limit rows' share of qfrc_constraint at dof k (J^T f over those rows).
@@ -372,15 +424,23 @@ std::string& LoadError() {
   return error;
 }
 
+// Why a library built against MuJoCo `built` must not register in MuJoCo `running` ("" if it may):
+// mjModel/mjData layouts and the plugin API change between versions.
+std::string VersionError(int built, int running) {
+  if (built == running) return "";
+  char message[256];
+  std::snprintf(message, sizeof(message),
+                "hexgym.mbl was built against MuJoCo %d but is loaded into MuJoCo %d: rebuild hexgym "
+                "(pip install -e . or pip install .) for this MuJoCo",
+                built, running);
+  return message;
+}
+
 void Register() {
-  if (mj_version() != mjVERSION_HEADER) {
-    char message[256];
-    std::snprintf(message, sizeof(message),
-                  "hexgym.mbl was built against MuJoCo %d but is loaded into MuJoCo %d: rebuild hexgym "
-                  "(pip install -e . or pip install .) for this MuJoCo",
-                  mjVERSION_HEADER, mj_version());
-    LoadError() = message;
-    std::fprintf(stderr, "%s\n", message);  // also for processes that do not ask (MuJoCo's viewer)
+  std::string refusal = VersionError(mjVERSION_HEADER, mj_version());
+  if (!refusal.empty()) {
+    LoadError() = refusal;
+    std::fprintf(stderr, "%s\n", refusal.c_str());  // also for processes that do not ask (MuJoCo's viewer)
     return;  // not registered: a model that uses it fails to load, naming the plugin
   }
   mjpPlugin plugin;
@@ -426,6 +486,14 @@ extern "C" {
 // Empty when the plugin registered; else why not (e.g. a MuJoCo version mismatch).
 __attribute__((visibility("default"))) const char* hexgym_mbl_load_error(void) {
   return hexgym::LoadError().c_str();
+}
+
+// The check Register makes, for any pair of versions (tests): writes its message ("" if they agree)
+// into out (size bytes, truncated) and returns the message's full length.
+__attribute__((visibility("default"))) int hexgym_mbl_version_error(int built, int running, char* out, int size) {
+  std::string message = hexgym::VersionError(built, running);
+  if (out && size > 0) std::snprintf(out, static_cast<size_t>(size), "%s", message.c_str());
+  return static_cast<int>(message.size());
 }
 
 // The MuJoCo version (mjVERSION_HEADER) this library was built against.

@@ -67,7 +67,13 @@ MblTable::MblTable(const std::string& path, const std::string& name, const std::
   std::vector<long> shape;
   for (int j = 0; j < d_; ++j) shape.push_back(static_cast<long>(array("axis_" + std::to_string(j)).f8.size()));
   if (values.shape != shape || values.descr != "<f8") {
-    throw TableError(where + ": 'values' does not have the axes' shape as float64");
+    auto text = [](const std::vector<long>& dims) {
+      std::string out = "(";
+      for (size_t j = 0; j < dims.size(); ++j) out += (j ? ", " : "") + std::to_string(dims[j]);
+      return out + ")";
+    };
+    throw TableError(where + ": 'values' has shape " + text(values.shape) + " dtype " + values.descr +
+                     "; its axes need shape " + text(shape) + " dtype <f8");
   }
   for (double v : values.f8) {
     if (!std::isfinite(v)) throw TableError(where + ": 'values' holds a non-finite number");

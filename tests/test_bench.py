@@ -1,24 +1,56 @@
-"""`hexgym bench`: HexLoading-v0 and Hopper-v5 steps per second in one process."""
+"""`hexgym bench`: the issue's speed figures (env steps/s, vector env, real-time factors) in one process."""
 
 import json
 
 import pytest
 
-from hexgym.bench import steps_per_second
+from hexgym import native
+from hexgym.bench import steps_per_second, vector_steps_per_second
 from hexgym.cli import main
+
+ISSUE_KEYS = (
+    "learned_realtime_factor_python",
+    "learned_realtime_factor_native",
+    "batch_realtime_factor_native",
+    "hexloading_steps_per_s",
+    "hopper_steps_per_s",
+    "vector_steps_per_s",
+)
 
 
 def test_bench_command_prints_and_writes_consistent_json(tmp_path, capsys):
     out = tmp_path / "bench.json"
-    assert main(["bench", "--steps", "30", "--json", str(out)]) == 0
+    assert main(["bench", "--steps", "30", "--seconds", "0.05", "--json", str(out)]) == 0
     printed = capsys.readouterr().out
-    assert "HexLoading-v0" in printed and "Hopper-v5" in printed and "ratio" in printed
+    assert "HexLoading-v0" in printed and "Hopper-v5" in printed and "ratio" in printed and "vector" in printed
     data = json.loads(out.read_text())
-    assert data["steps"] == 30 and data["hexloading_steps_per_s"] > 0 and data["hopper_steps_per_s"] > 0
+    keys = ISSUE_KEYS if native.native_available() else ISSUE_KEYS[:1] + ISSUE_KEYS[3:]
+    assert all(data[k] > 0 for k in keys), {k: data.get(k) for k in keys}
+    assert data["steps"] == 30 and data["vector_envs"] == 64
     assert data["ratio"] == pytest.approx(data["hexloading_steps_per_s"] / data["hopper_steps_per_s"])
+    assert data["vector_ratio"] == pytest.approx(data["vector_steps_per_s"] / data["hopper_steps_per_s"])
+    if native.native_available():
+        assert 0 < data["batch_cores_used"] <= data["batch_threads"] + 0.1
+        assert data["batch_realtime_factor_per_core"] == pytest.approx(
+            data["batch_realtime_factor_native"] / data["batch_cores_used"]
+        )
     assert not list(tmp_path.glob(".*tmp*"))
+
+
+def test_vector_rate_works_with_whatever_vector_env_is_registered():
+    rate, kind = vector_steps_per_second(num_envs=2, vector_steps=3)
+    assert rate > 0 and kind.endswith("VectorEnv")
+
+
+@pytest.mark.skipif(not native.native_available(), reason="needs the native plugin")
+def test_batch_rollouts_are_timed_and_checked():
+    assert native.batch_realtime_factor_native(nbatch=2, nthread=1, seconds=0.01) > 0
+    with pytest.raises(ValueError, match="nbatch"):
+        native.batch_realtime_factor_native(nbatch=0)
 
 
 def test_bad_step_count_is_refused():
     with pytest.raises(ValueError, match="steps"):
         steps_per_second("HexLoading-v0", 0)
+    with pytest.raises(ValueError, match="num_envs"):
+        vector_steps_per_second(num_envs=0)

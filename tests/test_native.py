@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 import hexgym  # noqa: F401  (loads the plugin)
-from hexgym import native
+from hexgym import machine, native
 from hexgym.fit import packaged_tables_dir
 from hexgym.learned import LearnedModel
-from hexgym.mjcf_native import MBL_MODEL_FILE, mbl_model_xml
+from hexgym.mjcf_native import MBL_FULL_MODEL_FILE, MBL_MODEL_FILE, mbl_model_xml
 from hexgym.replay import replay
-from hexgym.resources import asset_path
+from hexgym.resources import asset_path, assets_dir, load_model
 from hexgym.validate import scenarios
 
 _COMPILER = shutil.which(sysconfig.get_config_var("CXX").split()[0] if sysconfig.get_config_var("CXX") else "c++")
@@ -42,8 +42,9 @@ def test_library_matches_the_running_mujoco():
     assert lib.hexgym_mbl_built_mujoco_version() == mujoco.mj_version()
 
 
-def test_committed_mbl_model_matches_generator():
-    assert asset_path(MBL_MODEL_FILE).read_text() == mbl_model_xml(), "stale: run `hexgym build-assets`"
+@pytest.mark.parametrize(("name", "full"), [(MBL_MODEL_FILE, False), (MBL_FULL_MODEL_FILE, True)])
+def test_committed_mbl_model_matches_generator(name, full):
+    assert asset_path(name).read_text() == mbl_model_xml(full=full), "stale: run `hexgym build-assets`"
 
 
 @needs_plugin
@@ -64,6 +65,72 @@ def test_mbl_model_compiles_and_a_boom_spool_lifts_the_boom():
     for _ in range(40):
         mujoco.mj_step(m, d)
     assert np.abs(d.qpos - q1).max() < 1e-5
+
+
+_JOINT_FOR_SPOOL = {"swing": 0, "boom": 1, "stick": 2, "bucket": 3}
+
+
+@needs_plugin
+@pytest.mark.parametrize("joint", list(_JOINT_FOR_SPOOL))
+def test_full_machine_with_plugin_moves_each_joint_its_way(joint):
+    """What the viewer shows on the full machine (cat325_mbl_full.xml): from the keyframe, ctrl = spools
+    in mm; each spool moves its joint the way the lean machine does and no other, a closed spool holds."""
+    moves = {}
+    for name in (MBL_FULL_MODEL_FILE, MBL_MODEL_FILE):
+        m = mujoco.MjModel.from_xml_path(str(asset_path(name)))
+        d = mujoco.MjData(m)
+        mujoco.mj_resetDataKeyframe(m, d, m.key("home").id)
+        main = [m.joint(j).qposadr[0] for j in _JOINT_FOR_SPOOL]
+        q0 = d.qpos[main].copy()
+        d.ctrl[m.actuator(joint).id] = 8.0
+        while d.time < 1.0:
+            mujoco.mj_step(m, d)
+        moves[name] = d.qpos[main] - q0
+        k = _JOINT_FOR_SPOOL[joint]
+        if joint == "swing":  # + turns counter-clockwise seen from above (DESIGN.md)
+            assert moves[name][0] > 0.1, name
+        else:  # + extends the joint's cylinder
+            assert machine.cylinder_length(joint, d.qpos[main][k]) > machine.cylinder_length(joint, q0[k]) + 0.05, name
+        d.ctrl[:] = 0.0  # spools closed: the machine holds (the swing once its brakes stopped it)
+        while d.time < 3.0:
+            mujoco.mj_step(m, d)
+        q1 = d.qpos[main].copy()
+        while d.time < 4.0:
+            mujoco.mj_step(m, d)
+        assert np.abs(d.qpos[main] - q1).max() < 1e-3, name
+    full, lean = moves[MBL_FULL_MODEL_FILE], moves[MBL_MODEL_FILE]
+    k = _JOINT_FOR_SPOOL[joint]
+    assert full[k] == pytest.approx(lean[k], rel=0.15)
+    assert np.abs(np.delete(full, k)).max() < 0.01
+
+
+@needs_plugin
+def test_full_machine_plugin_equals_the_python_learned_model_on_it():
+    """The plugin's loads on the closed chains (equality forces included, joint limits not) are the
+    Python path's: the same trajectory on the full machine (at 50 ms, a whole number of its 2 ms steps)."""
+    log, pose = scenarios()["test1"]
+    python = replay(LearnedModel(model=load_model(), control_period=0.05), log, start=pose, duration=4.0)
+    full = native.NativeLearnedModel(model=native.load_mbl_model(full=True, control_period=0.05))
+    native_rows = replay(full, log, start=pose, duration=4.0)
+    assert full.physics.model.neq == 4  # the closed chains are there
+    np.testing.assert_allclose(_tip(native_rows), _tip(python), atol=1e-9)
+    np.testing.assert_allclose(native_rows["boom_force_n"], python["boom_force_n"], rtol=1e-9, atol=1e-3)
+
+
+@needs_plugin
+def test_full_machine_follows_the_lean_machine():
+    """validate's Test 1 (8 s) on cat325_mbl_full.xml (2 ms steps, queries 12.5 steps apart) and on
+    the lean cat325_mbl.xml: the tips differ by what the lumped masses and the full model's servo lag make."""
+    log, pose = scenarios()["test1"]
+    lean = replay(native.NativeLearnedModel(), log, start=pose)
+    full_model = native.NativeLearnedModel(model=native.load_mbl_model(full=True))
+    full = replay(full_model, log, start=pose)
+    assert full_model.timestep == 0.025 and full_model.physics.timestep == 0.002
+    err = np.linalg.norm(_tip(full) - _tip(lean), axis=1)
+    print(f"full vs lean machine, Test 1: max tip difference {err.max():.3f} m, rms {np.sqrt(np.mean(err**2)):.3f} m")
+    assert full["t"][-1] == pytest.approx(8.0)
+    assert err.max() < 0.2 and np.sqrt(np.mean(err**2)) < 0.06
+    assert np.ptp(_tip(lean), axis=0).max() > 4.0
 
 
 @needs_plugin
@@ -148,32 +215,99 @@ def test_other_tables_directory_is_used(tmp_path):
     assert model.physics.joint_velocities()[1] > 0.05
 
 
+def _rewrite_values(path: Path, values: np.ndarray) -> None:
+    with np.load(path, allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays["values"] = values(arrays["values"])
+    with path.open("wb") as fh:
+        np.savez_compressed(fh, **arrays)
+
+
+def _flip_byte(path: Path) -> None:
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0xFF  # inside the compressed values
+    path.write_bytes(bytes(data))
+
+
+_DAMAGE = {
+    "version": (lambda p: _rewrite_meta(p, format_version=2), "has format version 2; this plugin reads version 1"),
+    "name": (lambda p: _rewrite_meta(p, name="stick"), "holds table 'stick', expected 'swing'"),
+    "shape": (
+        lambda p: _rewrite_values(p, lambda v: v[..., :-1].copy()),
+        "'values' has shape (23, 23, 3, 4, 22) dtype <f8; its axes need shape (23, 23, 3, 4, 23)",
+    ),
+    "dtype": (lambda p: _rewrite_values(p, lambda v: v.astype(np.float32)), "values.npy has dtype <f4, expected <f8"),
+    "truncated": (lambda p: p.write_bytes(p.read_bytes()[: p.stat().st_size // 2]), "is corrupt or not a table file"),
+    "corrupt": (_flip_byte, "is corrupt or not a table file: zip member values.npy fails its CRC check"),
+    "not a zip": (lambda p: p.write_text("swing table\n"), "is corrupt or not a table file: not a zip archive"),
+    "inputs": (
+        lambda p: _rewrite_meta(
+            p, inputs=["stick_spool_m", "swing_spool_m", "stick_force_n", "swing_inertia_kgm2", "swing_rate_radps"]
+        ),
+        "has inputs [stick_spool_m, swing_spool_m",
+    ),
+    "missing": (Path.unlink, "does not exist"),
+}
+
+
 @needs_plugin
-@pytest.mark.parametrize(
-    ("damage", "message"),
-    [
-        ("version", "has format version 2; this plugin reads version 1"),
-        ("truncate", "is corrupt or not a table file"),
-        ("inputs", "has inputs [stick_spool_m, swing_spool_m"),
-        ("missing", "does not exist"),
-    ],
-)
-def test_bad_table_file_fails_model_loading_naming_file_and_problem(tmp_path, damage, message):
+@pytest.mark.parametrize("damage", list(_DAMAGE))
+def test_bad_table_file_fails_model_loading_naming_file_and_problem(tmp_path, damage):
+    """MuJoCo's own loading (``MjModel.from_xml_path``, as the viewer loads a model) fails with the
+    plugin's message: the file and what does not match."""
     directory = _copy_tables(tmp_path)
     path = directory / "swing.npz"
-    if damage == "version":
-        _rewrite_meta(path, format_version=2)
-    elif damage == "truncate":
-        path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
-    elif damage == "inputs":
-        _rewrite_meta(
-            path, inputs=["stick_spool_m", "swing_spool_m", "stick_force_n", "swing_inertia_kgm2", "swing_rate_radps"]
-        )
-    else:
-        path.unlink()
+    spoil, message = _DAMAGE[damage]
+    spoil(path)
+    xml = tmp_path / "cat325_mbl.xml"
+    meshes = assets_dir() / "meshes"
+    xml.write_text(mbl_model_xml(directory).replace('meshdir="meshes"', f'meshdir="{meshes}"', 1))
     with pytest.raises(ValueError) as info:
-        native.load_mbl_model(directory)
-    assert str(path) in str(info.value) and message in str(info.value)
+        mujoco.MjModel.from_xml_path(str(xml))
+    assert f"MBL table file {path}" in str(info.value) and message in str(info.value), str(info.value)
+    with pytest.raises(ValueError, match="MBL table file"):
+        native.load_mbl_model(directory)  # the Python face says the same
+
+
+@needs_plugin
+def test_randomly_damaged_table_files_fail_cleanly(tmp_path):
+    """Bytes flipped anywhere in a table file (headers, directory, compressed data): the model loads
+    (damage the zip format does not see, e.g. in a name's padding) or fails with the file's name; never
+    a crash of the process."""
+    directory = _copy_tables(tmp_path)
+    path = directory / "stick.npz"
+    original = path.read_bytes()
+    rng = np.random.default_rng(0)
+    failed = 0
+    for _ in range(25):
+        data = bytearray(original)
+        for i in rng.integers(0, len(data), size=rng.integers(1, 4)):
+            data[i] ^= int(rng.integers(1, 256))
+        path.write_bytes(bytes(data))
+        try:
+            native.load_mbl_model(directory)
+        except ValueError as exc:
+            assert f"MBL table file {path}" in str(exc), str(exc)
+            failed += 1
+    assert failed >= 20
+
+
+@needs_plugin
+def test_version_check_names_both_mujoco_versions():
+    """The check the library makes before registering (native/mbl_plugin.cc VersionError), called with
+    a pair of versions: that it refuses a MuJoCo it was not built against. (The refusal itself, the
+    library loaded into another MuJoCo, is not exercised: only one MuJoCo is installed here.)"""
+    import ctypes
+
+    lib = ctypes.CDLL(str(native.plugin_library()))
+    buffer = ctypes.create_string_buffer(512)
+    lib.hexgym_mbl_version_error.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_char_p, ctypes.c_int]
+    assert lib.hexgym_mbl_version_error(3003007, 4000000, buffer, len(buffer)) > 0
+    message = buffer.value.decode()
+    assert "built against MuJoCo 3003007 but is loaded into MuJoCo 4000000" in message and "rebuild" in message
+    running = mujoco.mj_version()
+    assert lib.hexgym_mbl_version_error(running, running, buffer, len(buffer)) == 0 and buffer.value == b""
+    assert native.load_plugin() == ""  # this build agrees with this MuJoCo: nothing refused
 
 
 @needs_plugin
