@@ -71,16 +71,18 @@ constexpr const char* kAttributes[] = {
 };
 constexpr int kNumAttributes = sizeof(kAttributes) / sizeof(kAttributes[0]);
 
-// The tables and the inputs each takes, in order (hexgym.fit.TABLES).
+// The tables, the inputs each takes, in order, and its output (hexgym.fit.TABLES).
 struct TableSpec {
   const char* name;
   std::vector<std::string> inputs;
+  const char* output;
 };
 const TableSpec kTables[4] = {
-    {"boom", {"boom_spool_m", "bucket_spool_m", "boom_force_n", "bucket_force_n"}},
-    {"bucket", {"boom_spool_m", "bucket_spool_m", "boom_force_n", "bucket_force_n"}},
-    {"stick", {"swing_spool_m", "stick_spool_m", "swing_inertia_kgm2", "stick_force_n"}},
-    {"swing", {"swing_spool_m", "stick_spool_m", "stick_force_n", "swing_inertia_kgm2", "swing_rate_radps"}},
+    {"boom", {"boom_spool_m", "bucket_spool_m", "boom_force_n", "bucket_force_n"}, "boom_velocity_mps"},
+    {"bucket", {"boom_spool_m", "bucket_spool_m", "boom_force_n", "bucket_force_n"}, "bucket_velocity_mps"},
+    {"stick", {"swing_spool_m", "stick_spool_m", "swing_inertia_kgm2", "stick_force_n"}, "stick_velocity_mps"},
+    {"swing", {"swing_spool_m", "stick_spool_m", "stick_force_n", "swing_inertia_kgm2", "swing_rate_radps"},
+     "swing_acceleration_radps2"},
 };
 
 struct TableSet {
@@ -124,7 +126,7 @@ std::shared_ptr<const TableSet> LoadTables(const std::string& directory) {
   auto set = std::make_shared<TableSet>();
   for (const TableSpec& spec : kTables) {
     try {
-      set->tables.emplace_back(directory + "/" + spec.name + ".npz", spec.name, spec.inputs);
+      set->tables.emplace_back(directory + "/" + spec.name + ".npz", spec.name, spec.inputs, spec.output);
     } catch (const TableError& e) {
       throw SetupError(e.what());
     }

@@ -22,7 +22,8 @@ std::string Join(const std::vector<std::string>& names) {
 
 }  // namespace
 
-MblTable::MblTable(const std::string& path, const std::string& name, const std::vector<std::string>& inputs) {
+MblTable::MblTable(const std::string& path, const std::string& name, const std::vector<std::string>& inputs,
+                   const std::string& output) {
   const std::string where = "MBL table file " + path;
   std::map<std::string, NpyArray> arrays;
   try {
@@ -60,6 +61,11 @@ MblTable::MblTable(const std::string& path, const std::string& name, const std::
   }
   if (got != inputs) {
     throw TableError(where + " has inputs " + Join(got) + "; the plugin expects " + Join(inputs));
+  }
+  const Json* file_output = meta.Member("output");
+  if (!file_output || file_output->type != Json::kString || file_output->text != output) {
+    throw TableError(where + " has output " + (file_output ? file_output->Text() : std::string("(none)")) +
+                     "; the plugin expects '" + output + "'");
   }
   d_ = static_cast<int>(inputs.size());
   if (d_ < 1 || d_ > kMaxDims) throw TableError(where + ": tables of 1 to 8 inputs are supported");

@@ -21,8 +21,9 @@ class TableError : public std::runtime_error {
 
 class MblTable {
  public:
-  // Read `path`, checking format version, table name, input names (in order) and shapes.
-  MblTable(const std::string& path, const std::string& name, const std::vector<std::string>& inputs);
+  // Read `path`, checking format version, table name, input names (in order), output name and shapes.
+  MblTable(const std::string& path, const std::string& name, const std::vector<std::string>& inputs,
+           const std::string& output);
 
   // The interpolated output at the query x (length d); x must be finite.
   double operator()(const double* x) const;

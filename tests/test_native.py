@@ -246,6 +246,10 @@ _DAMAGE = {
         ),
         "has inputs [stick_spool_m, swing_spool_m",
     ),
+    "output": (
+        lambda p: _rewrite_meta(p, output="swing_torque_nm"),
+        "has output 'swing_torque_nm'; the plugin expects 'swing_acceleration_radps2'",
+    ),
     "missing": (Path.unlink, "does not exist"),
 }
 
