@@ -24,7 +24,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 def _cmd_bench(args: argparse.Namespace) -> int:
     from hexgym.bench import print_bench, run_bench
 
-    print_bench(run_bench(steps=args.steps, seed=args.seed), args.json)
+    print_bench(run_bench(steps=args.steps, seed=args.seed, seconds=args.seconds), args.json)
     return 0
 
 
@@ -133,9 +133,10 @@ def _cmd_build_assets(args: argparse.Namespace) -> int:
     for name, lean in (("cat325.xml", False), ("cat325_lean.xml", True)):
         mjcf.write_model(directory / name, lean=lean)
         print(f"wrote {directory / name}")
-    from hexgym.mjcf_native import MBL_MODEL_FILE, write_mbl_model
+    from hexgym.mjcf_native import MBL_FULL_MODEL_FILE, MBL_MODEL_FILE, write_mbl_model
 
     print(f"wrote {write_mbl_model(directory / MBL_MODEL_FILE)}")
+    print(f"wrote {write_mbl_model(directory / MBL_FULL_MODEL_FILE, full=True)}")
     with atomic_path(directory / LEAN_SCENE_FILE) as tmp:
         tmp.write_text(mjcf.scene_xml_around((directory / SCENE_FILE).read_text(), LEAN_MODEL_FILE))
     print(f"wrote {directory / LEAN_SCENE_FILE}")
@@ -157,7 +158,8 @@ def _cmd_clone(args: argparse.Namespace) -> int:
 
     path = clone_scripted(args.out, episodes=args.episodes, dagger_rounds=args.dagger_rounds,
                           dagger_episodes=args.dagger_episodes, epochs=args.epochs, seed=args.seed, noise=args.noise,
-                          hyperparams=args.hyperparams)  # fmt: skip
+                          hyperparams=args.hyperparams, select_episodes=args.select_episodes,
+                          rounds_dir=args.rounds_dir)  # fmt: skip
     print(f"model: {path}")
     return 0
 
@@ -208,6 +210,7 @@ def build_parser() -> argparse.ArgumentParser:
     bench = sub.add_parser("bench", help="HexLoading-v0 vs Gymnasium Hopper-v5 steps per second, one process")
     bench.add_argument("--steps", type=int, default=2000, help="random steps per environment (default: 2000)")
     bench.add_argument("--seed", type=int, default=0, help="seed of the resets and actions (default: 0)")
+    bench.add_argument("--seconds", type=float, default=2.0, help="wall seconds per real-time factor (default: 2)")
     bench.add_argument("--json", metavar="OUT", default=None, help="also write the figures to this JSON file")
     bench.set_defaults(func=_cmd_bench)
 
@@ -298,6 +301,9 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
     clone.add_argument("--epochs", type=int, default=30, help="fitting epochs per round (default: 30)")
     clone.add_argument("--noise", type=float, default=0.0, help="DART: spool noise std (default: 0)")
     clone.add_argument("--seed", type=int, default=1000, help="first episode seed (default: 1000)")
+    clone.add_argument("--select-episodes", type=int, default=0, help="score each round's clone on N more "
+                       "episodes and keep the best (default: 0: the last)")  # fmt: skip
+    clone.add_argument("--rounds-dir", default=None, help="also keep each round's clone here (round<k>.zip)")
     clone.add_argument("--hyperparams", default=None, help="PPO YAML giving the network (default: ppo.yml)")
     clone.set_defaults(func=_cmd_clone)
 

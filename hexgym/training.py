@@ -7,9 +7,9 @@ Running the same command again resumes from the newest checkpoint.
 
 Reinforcement learning from scratch on a 180 s, 10 Hz loading task is slow on a laptop CPU (the
 delivery reward comes ~200 steps after the dig), so :func:`clone_scripted` first fits the PPO actor
-to the scripted loader by behaviour cloning with DAgger rounds (the scripted loader labels the
-states the learner itself visits), and fits the critic to the demonstrations' discounted returns;
-``hexgym train --init-from`` then fine-tunes that model with PPO.
+to the scripted loader by behaviour cloning with DAgger rounds (the scripted loader, whose action
+is a function of the state, labels the states the learner itself visits), and fits the critic to
+the demonstrations' discounted returns; ``hexgym train --init-from`` then fine-tunes that model with PPO.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ from __future__ import annotations
 import importlib.util
 import os
 import re
+import shutil
 import tempfile
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
@@ -79,10 +80,9 @@ def algo_kwargs(hp: dict[str, Any]) -> dict[str, Any]:
 class PreviousActionWrapper:
     """Appends the previous action (4 spools, zeros after a reset) to the observation.
 
-    The scripted loader is a state machine: above the pile, "hold" (arriving) and "go down"
-    (penetrating) are one observation. The last action tells them apart, so a cloned policy keeps
-    going instead of averaging the two into a stall. (rl-zoo3: ``env_wrapper:
-    hexgym.training.PreviousActionWrapper``.)
+    For policies that need a memory of what they were doing (rl-zoo3: ``env_wrapper:
+    hexgym.training.PreviousActionWrapper``). The shipped PPO settings do not use it: the scripted
+    loader acts on the state alone, and clones given their last action tended to repeat it.
     """
 
     def __new__(cls, env: Any) -> Any:  # a gymnasium.Wrapper subclass, made lazily: gymnasium is imported late
@@ -292,14 +292,13 @@ def record_episode(
     wrapper: str | None = None,
     noise: float = 0.0,
 ) -> Demonstrations:
-    """One episode labelled by the scripted loader; it is driven by the learner with probability ``1 - beta``.
+    """One episode labelled by the scripted loader; each step the learner drives with probability ``1 - beta``.
 
-    ``noise`` (DART): the executed action is the loader's plus Gaussian noise of this standard
-    deviation, held for a second at a time, so the data shows how the loader recovers from
-    disturbances while the loader itself stays in control (its phases stay consistent with the state).
-
-    With a learner (DAgger), the loader still labels every state, including those only the
-    learner's mistakes lead to: that is what teaches recovery.
+    The labels are :meth:`ScriptedLoader.label`: the loader re-derives its phase from the state
+    every step, so a state gets the same label however it was reached, by the loader or by the
+    learner (DAgger: the learner's own mistakes lead to the states that teach recovery).
+    ``noise`` (DART): the loader's executed action gets Gaussian noise of this standard deviation,
+    held for a second at a time, so even the loader's own episodes show recoveries.
     """
     import torch
 
@@ -308,16 +307,18 @@ def record_episode(
     torch.set_num_threads(1)
     env = make_env(ENV_ID, wrapper, **(env_kwargs or {}))
     learner = load_trained(learner_path) if learner_path else None
-    expert = ScriptedLoader()
-    rng = np.random.default_rng(seed + 7919)  # the mixing draws: reproducible per seed
+    rng = np.random.default_rng(seed + 7919)  # the mixing and noise draws: reproducible per seed
     obs, _ = env.reset(seed=seed)
+    if learner is not None:
+        learner.reset()
     observations, labels, rewards = [], [], []
     done = False
     while not done:
-        label = expert.act(env.unwrapped)
+        label = ScriptedLoader.label(env.unwrapped)
         if env.unwrapped.steps % NOISE_HOLD_STEPS == 0:
             disturbance = rng.normal(0.0, noise, label.shape) if noise > 0 else np.zeros_like(label)
-        action = label + disturbance if learner is None or rng.random() < beta else learner.act(obs, env.unwrapped)
+        learner_action = learner.act(obs, env.unwrapped) if learner is not None else None  # keeps its state
+        action = label + disturbance if learner is None or rng.random() < beta else learner_action
         observations.append(obs)
         labels.append(label)
         obs, reward, terminated, truncated, _ = env.step(action)
@@ -341,14 +342,40 @@ def record_demonstrations(
     wrapper: str | None = None,
     noise: float = 0.0,
     workers: int | None = None,
+    pool: ProcessPoolExecutor | None = None,
 ) -> Demonstrations:
-    """:func:`record_episode` for each seed, in parallel worker processes (spawned: torch is not fork-safe)."""
-    workers = max(1, min(workers or os.cpu_count() or 1, len(seeds)))
-    with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
-        parts = list(pool.map(record_episode, seeds, [gamma] * len(seeds), [learner_path] * len(seeds),
-                              [beta] * len(seeds), [env_kwargs] * len(seeds), [wrapper] * len(seeds),
-                              [noise] * len(seeds)))  # fmt: skip
+    """:func:`record_episode` for each seed, in parallel worker processes (``pool``, or new ones)."""
+    n = len(seeds)
+    parts = _in_workers(pool, workers, record_episode, seeds, [gamma] * n, [learner_path] * n, [beta] * n,
+                        [env_kwargs] * n, [wrapper] * n, [noise] * n)  # fmt: skip
     return Demonstrations.concatenate(parts)
+
+
+def _worker_pool(workers: int | None = None) -> ProcessPoolExecutor:
+    """Worker processes, one per core (spawned: torch is not fork-safe)."""
+    return ProcessPoolExecutor(max(1, workers or os.cpu_count() or 1), mp_context=get_context("spawn"))
+
+
+def _in_workers(pool: ProcessPoolExecutor | None, workers: int | None, function: Any, *arguments: list) -> list:
+    """``function`` over the argument lists in ``pool`` (or in a new pool of at most ``workers``)."""
+    if pool is not None:
+        return list(pool.map(function, *arguments))
+    with _worker_pool(min(workers or os.cpu_count() or 1, len(arguments[0]))) as new_pool:
+        return list(new_pool.map(function, *arguments))
+
+
+def score_episode(model_path: str, seed: int, env_kwargs: dict | None = None) -> dict[str, float]:
+    """One seeded episode of a saved policy: tonnes delivered and full-enough dumps (to pick a clone by)."""
+    import gymnasium as gym
+    import torch
+
+    from hexgym.evaluate import run_episode
+
+    torch.set_num_threads(1)
+    env = gym.make(ENV_ID, **(env_kwargs or {}))
+    summary = run_episode(env, load_trained(model_path), seed).summary()
+    env.close()
+    return {"delivered_t": summary["delivered_t"], "full_dumps": summary["full_dumps"]}
 
 
 def fit_to_demonstrations(model: Any, demos: Demonstrations, epochs: int, seed: int, batch: int = 512) -> dict:
@@ -404,40 +431,70 @@ def clone_scripted(
     epochs: int = 30,
     seed: int = 1000,
     hyperparams: str | Path | None = None,
+    select_episodes: int = 0,
+    rounds_dir: str | Path | None = None,
     log: Any = print,
 ) -> Path:
     """Behaviour-clone the scripted loader into a PPO model saved at ``out`` (+ VecNormalize statistics).
 
     Seeds start at ``seed`` (default 1000: away from the evaluation seeds 0..N). Round 0 records
-    ``episodes`` scripted episodes; each DAgger round adds ``dagger_episodes`` driven half by the
-    learner (then fully), labelled by the loader, and refits on everything.
+    ``episodes`` scripted episodes (with DART ``noise``) and fits; DAgger round k records
+    ``dagger_episodes`` more in which the learner of round k-1 drives each step with probability
+    1 - 0.5**k, all labelled by the loader, and refits on everything (warm-started). With
+    ``select_episodes`` > 0 each round's clone is scored on that many further seeded episodes
+    (tonnes delivered) and the best is saved at ``out``; otherwise the last round's. Each round's
+    clone is kept in ``rounds_dir`` (``round<k>.zip``) when given.
     """
-    if episodes < 1 or dagger_rounds < 0 or epochs < 1:
-        raise ValueError(f"need episodes >= 1, dagger_rounds >= 0, epochs >= 1; got {episodes}, {dagger_rounds}, "
-                         f"{epochs}")  # fmt: skip
+    if episodes < 1 or dagger_rounds < 0 or epochs < 1 or select_episodes < 0:
+        raise ValueError(f"need episodes >= 1, dagger_rounds >= 0, epochs >= 1, select_episodes >= 0; got "
+                         f"{episodes}, {dagger_rounds}, {epochs}, {select_episodes}")  # fmt: skip
     hp = load_hyperparams("ppo", ENV_ID, hyperparams)
-    out = Path(out)
+    with _worker_pool() as pool, tempfile.TemporaryDirectory() as tmp:  # workers start once (torch, MuJoCo: s)
+        rounds = Path(rounds_dir) if rounds_dir is not None else Path(tmp)
+        return _clone_rounds(Path(out), rounds, hp, pool, episodes, dagger_rounds, dagger_episodes, noise, epochs,
+                             seed, select_episodes, log)  # fmt: skip
+
+
+def _clone_rounds(
+    out: Path, rounds: Path, hp: dict[str, Any], pool: ProcessPoolExecutor, episodes: int, dagger_rounds: int,
+    dagger_episodes: int, noise: float, epochs: int, seed: int, select_episodes: int, log: Any,
+) -> Path:  # fmt: skip
+    """:func:`clone_scripted`'s rounds, recording and scoring in ``pool``."""
     gamma = float(hp.get("gamma", 0.99))
     model = _new_ppo(hp, seed)
     env_kwargs, wrapper = hp.get("env_kwargs"), hp.get("env_wrapper")
-    seeds = list(range(seed, seed + episodes))
-    demos = record_demonstrations(seeds, gamma, env_kwargs=env_kwargs, wrapper=wrapper, noise=noise)
     next_seed = seed + episodes
+    demos = record_demonstrations(list(range(seed, next_seed)), gamma, env_kwargs=env_kwargs, wrapper=wrapper,
+                                  noise=noise, pool=pool)  # fmt: skip
+    select_seeds = list(range(seed + 100_000, seed + 100_000 + select_episodes))  # never trained on
+    best: tuple[float, Path] | None = None
     for round_ in range(dagger_rounds + 1):
         stats = model.get_vec_normalize_env().obs_rms
         stats.mean, stats.var, stats.count = demos.obs.mean(0), demos.obs.var(0) + 1e-8, len(demos.obs)
         losses = fit_to_demonstrations(model, demos, epochs, seed + round_)
-        log(f"round {round_}: {len(demos.obs)} samples, action MSE {losses['action_mse']:.4f}, "
-            f"value MSE {losses['value_mse']:.4f}")  # fmt: skip
-        save_model(model, out.with_name(f"{out.stem}_round{round_}.zip"))  # each round's clone, to compare
+        path = save_model(model, rounds / f"round{round_}.zip")  # each round's clone, to compare and select
+        message = (f"round {round_}: {len(demos.obs)} samples, action MSE {losses['action_mse']:.4f}, "
+                   f"value MSE {losses['value_mse']:.4f}")  # fmt: skip
+        if select_seeds:
+            n = len(select_seeds)
+            scores = _in_workers(pool, None, score_episode, [str(path)] * n, select_seeds, [env_kwargs] * n)
+            delivered = float(np.mean([s["delivered_t"] for s in scores]))
+            message += f", {delivered:.2f} t delivered per selection episode"
+            if best is None or delivered >= best[0]:  # ties: the later round, fitted on more data
+                best = (delivered, path)
+        log(message)
         if round_ == dagger_rounds:
             break
-        with tempfile.TemporaryDirectory() as tmp:
-            learner = save_model(model, Path(tmp) / "learner.zip")
-            beta = 0.5 if round_ == 0 else 0.0
-            seeds = list(range(next_seed, next_seed + dagger_episodes))
-            demos = Demonstrations.concatenate(
-                [demos, record_demonstrations(seeds, gamma, str(learner), beta, env_kwargs, wrapper)]
-            )
+        seeds = list(range(next_seed, next_seed + dagger_episodes))
+        beta = 0.5 ** (round_ + 1)
+        demos = Demonstrations.concatenate(
+            [demos, record_demonstrations(seeds, gamma, str(path), beta, env_kwargs, wrapper, noise, pool=pool)]
+        )
         next_seed += dagger_episodes
-    return save_model(model, out)
+    if best is None:
+        return save_model(model, out)
+    log(f"selected {best[1].name} ({best[0]:.2f} t per selection episode)")
+    for source, target in ((best[1], out), (normalizer_path(best[1]), normalizer_path(out))):
+        with atomic_path(target) as tmp:
+            shutil.copyfile(source, tmp)
+    return out

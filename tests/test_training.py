@@ -98,3 +98,17 @@ def test_previous_action_wrapper_appends_the_executed_action():
     assert env.observation_space.contains(obs)
     with pytest.raises(ValueError, match="env_wrapper"):
         make_env("HexLoading-v0", "hexgym.nowhere.Wrapper")
+
+
+def test_demonstrations_are_labelled_by_the_state_derived_loader():
+    from hexgym.envs.scripted import ScriptedLoader
+    from hexgym.training import make_env, record_episode
+
+    demos = record_episode(seed=5, gamma=0.99, env_kwargs={"time_limit": 3.0}, noise=0.3)
+    assert demos.obs.shape == (30, 22) and demos.actions.shape == (30, 4) and demos.returns.shape == (30,)
+    assert np.all(np.abs(demos.actions) <= 1.0)
+    # the first state is the reset's: its label is the loader's action there, noise or not
+    env = make_env("HexLoading-v0", time_limit=3.0)
+    obs, _ = env.reset(seed=5)
+    assert np.array_equal(obs, demos.obs[0])
+    assert np.array_equal(ScriptedLoader.label(env.unwrapped), demos.actions[0])

@@ -1,18 +1,24 @@
-"""A scripted loading controller: a state machine of tip targets, tracked by resolved-rate control.
+"""A scripted loading controller: loading phases read off the state, tracked by resolved-rate control.
 
-Phases: ``to_pile`` (swing to the pile, bucket open above its far side), ``penetrate`` (teeth into
-the pile), ``drag`` (pull the edge towards the machine at a constant depth below the surface,
-turning the teeth along the motion), ``curl`` (close the bucket, mouth up, and lift out),
-``to_truck`` (lift above the bed's rim and swing), ``dump`` (open the bucket over the bed), then
-``to_pile`` again. It proves the task can be done and drives the demo; :func:`run_scripted` measures
-cycle time, tonnes per hour and fuel.
+Phases: ``to_pile`` (swing to the cut where the pile stands highest, bucket open above its far
+side), ``penetrate`` (teeth into the pile), ``drag`` (pull the edge towards the machine at a
+constant depth below the surface, turning the teeth along the motion), ``curl`` (close the bucket,
+mouth up), ``to_truck`` (lift and swing, the swing held short of the truck until the teeth clear
+its rim), ``dump`` (reach out and open the bucket over the bed), then ``to_pile`` again. The phase
+is not remembered: :func:`infer_phase` derives it every step from the state (payload, teeth
+relative to pile and truck, mouth tilt, swing angles), so the loader's action is a function of
+the state and it can label any state a learner reaches (DAgger, :mod:`hexgym.training`). It
+proves the task can be done and drives the demo; :func:`run_scripted` measures cycle time,
+tonnes per hour and fuel.
 
 Control: the front linkage is planar, so a target is the teeth's radius and height and the
 bucket's absolute angle. Boom and stick steer the bucket pin (its error gives a saturated
 velocity, the linkage Jacobian the two joint rates), the bucket joint turns the bucket to its
 angle; the joint rates give cylinder speeds and the machine's own MBL tables, inverted at the
 present loads, the spool for each speed (the open-centre valves' dead zone is large). The swing
-follows the stopping curve of its brake-limited deceleration.
+follows the stopping curve of the deceleration its crossover reliefs give at the present
+inertia. Functions sharing a pump slow each other (boom + bucket, swing + stick), so the loader
+overlaps only what the pumps allow: boom raise with swing, stick reach-out after the swing.
 """
 
 from __future__ import annotations
@@ -24,24 +30,49 @@ import numpy as np
 
 from hexgym import machine
 from hexgym import parameters as p
-from hexgym.envs.earthwork import mouth_normal
-from hexgym.envs.loading import REWARD_TERMS, STEP_PERIOD, HexLoadingEnv
+from hexgym.envs.earthwork import Pile, mouth_normal
+from hexgym.envs.loading import REWARD_TERMS, HexLoadingEnv
 from hexgym.envs.world import TRUCK_CAB_LENGTH, Layout, World
 from hexgym.tables import MBLTable
 
 # bucket frame directions (angle from the bucket frame's x axis towards z) of the teeth and mouth
 _TEETH_ANGLE = float(np.arctan2(p.BUCKET_TEETH_DIRECTION[1], p.BUCKET_TEETH_DIRECTION[0]))
 _MOUTH_ANGLE = float(np.arctan2(mouth_normal()[1], mouth_normal()[0]))
+_MOUTH_NORMAL_3D = np.array([mouth_normal()[0], 0.0, mouth_normal()[1]])  # bucket frame
 FULL_SPOOL_CYLINDER_SPEED = np.array([0.14, 0.35, 0.29])  # m/s boom, stick, bucket [README: reference model]
-SWING_BRAKE = 0.35  # rad/s^2 planned deceleration (the crossover reliefs give ~0.5 with a loaded bucket)
-SWING_GAIN = 2.0  # spool per rad/s of swing-rate error
+SWING_BRAKE = 0.35  # rad/s^2: default planned deceleration of swing_spool (the loader plans with swing_brake)
+BRAKE_MARGIN = 1.0  # of the crossover reliefs' deceleration, planned for the swing's stop
+SWING_GAIN = 4.0  # spool per rad/s of swing-rate error (the valve's dead zone swallows small spools)
 POSITION_GAIN = 1.5  # 1/s: planar velocity per metre (or rad) of error
-MAX_TIP_SPEED = 1.2  # m/s planned
+MAX_TIP_SPEED = 2.0  # m/s planned (beyond the boom's full-spool speed: it sets the pace)
 DIG_DEPTH = 0.45  # m below the surface during the drag
+DRAG_BEYOND_TOP = 1.3  # m: the drag ends at the latest this far towards the machine from the pile's flat top
+DRAG_FLOOR = 0.3  # m: lowest teeth height in the drag (teeth along it: the bucket's body rides above them)
 DRAG_SPEED = 0.6  # m/s towards the machine
 GROUND_CLEARANCE = 0.5  # m: lowest teeth height while digging (the bucket's heel hangs below the teeth)
-FULL_FRACTION = 0.95  # of the heaped capacity: stop dragging
+DRAG_LEAD = 0.3  # m: the drag's radius target runs this far ahead of the teeth
+FULL_FRACTION = 0.85  # of the heaped capacity: stop dragging (a fuller bucket spills its heap on the way)
 CLEARANCE = 1.5  # m: teeth above the bed's rim when swinging over it (the curled bucket hangs below them)
+PILE_CLEARANCE = 0.5  # m: teeth above the pile's surface before the loaded swing starts
+APPROACH_HEIGHT = 0.6  # m above the pile's top: where the empty bucket arrives before it goes in
+ENTRY_BEYOND_CENTRE = 0.8  # m: the teeth enter the pile this far beyond its centre
+REACH_PER_METRE = 2.0  # m: the empty bucket reaches out over the pile this far per metre above its top
+OPEN_WITHIN = 2.0  # m: the empty bucket opens for the dig over this distance to the entry radius
+ENTRY_TOLERANCE = 0.4  # m: radius error within which the teeth are at the entry point
+IN_PILE = 0.05  # m: teeth lower than this above the surface are in the pile...
+MATERIAL_DEPTH = 0.1  # m: ...where it is at least this high (elsewhere the teeth are at the ground)
+EMPTY_KG = 100.0  # kg: less left in the bucket counts as empty (the open bucket drops the rest on its way)
+WORTH_CARRYING_KG = 500.0  # kg: out of the pile with this much, curl and carry it; with less, dig on
+CARRIED_TILT = 0.6  # rad: the mouth this close to facing up holds its load (repose 0.59): carry it
+DUMP_PIN_HEIGHT = 1.5  # m: bucket pin above the rim to dump from (the opened bucket's teeth swing down and out)
+DUMP_PIN_BEYOND = 0.0  # m: bucket pin radius beyond the bed's centre line
+ARRIVE_HEIGHT = 1.2  # m: teeth above the rim before the loaded bucket swings over the truck
+LEAVE_HEIGHT = 0.5  # m: teeth (the open bucket's lowest point) above the rim before it swings away
+TRUCK_APPROACH = 0.8  # rad: the loaded swing waits at most this far from the truck until the teeth clear it...
+HOLD_BACK_PER_METRE = 1.0  # rad: ...this much short of it per metre they still have to rise
+DIG_SWING_RANGE = 0.3  # rad either side of the pile's direction where the loader looks for material
+CENTRE_PREFERENCE = 1.0  # m^2 of cut cross-section per rad off the pile's centre line: prefer the centre
+DUMP_WINDOW = 0.25  # rad: the swing this close to the truck's direction: reach out and dump
 
 
 def bucket_angle_for(teeth_world_angle: float | None = None, mouth_world_angle: float | None = None) -> float:
@@ -155,9 +186,14 @@ def front_spools(env: HexLoadingEnv, target: np.ndarray, feed: np.ndarray | None
     )
 
 
-def swing_spool(error: float, rate: float) -> float:
-    """Swing spool (fraction) following the braking curve to a swing error (rad) from a rate (rad/s)."""
-    wanted = np.sign(error) * min(np.sqrt(2.0 * SWING_BRAKE * abs(error)), p.SWING_SPEED)
+def swing_brake(inertia_kgm2: float) -> float:
+    """Planned swing deceleration (rad/s^2) at a swing inertia: the crossover reliefs' torque, with a margin."""
+    return BRAKE_MARGIN * p.SWING_TORQUE_AT_RELIEF / inertia_kgm2
+
+
+def swing_spool(error: float, rate: float, brake: float = SWING_BRAKE) -> float:
+    """Swing spool (fraction) following the braking curve (``brake`` rad/s^2) to a swing error (rad) from a rate."""
+    wanted = np.sign(error) * min(np.sqrt(2.0 * brake * abs(error)), p.SWING_SPEED)
     u = SWING_GAIN * (wanted - rate)
     return float(np.clip(u, -1.0, 1.0)) if abs(error) > 0.01 or abs(rate) > 0.02 else 0.0
 
@@ -173,85 +209,220 @@ def _wrap(a: float) -> float:
     return float((a + np.pi) % (2 * np.pi) - np.pi)
 
 
+RIM = p.TRUCK_BED_FLOOR_HEIGHT + p.TRUCK_BED_WALL_HEIGHT  # m: the bed's rim above the ground
+
+
+@dataclass(frozen=True)
+class LoaderState:
+    """What the loader decides from: the machine and site now (the observation's quantities, and the pile)."""
+
+    q: np.ndarray  # joint angles, rad
+    qd: np.ndarray  # joint rates, rad/s
+    tip: np.ndarray  # teeth, world m
+    radius: float  # teeth from the swing axis, m
+    surface: float  # height of the pile's surface below the teeth, m (0 off the pile)
+    above_pile: float  # teeth above the pile's surface below them, m (negative: in the pile)
+    tilt: float  # mouth from facing up, rad
+    payload_kg: float
+    swing_to_pile: float  # swing minus the pile's direction, rad
+    swing_to_truck: float  # swing minus the truck's direction, rad
+    dig_direction: float  # swing angle of the next cut (where the pile stands highest), rad
+    swing_to_dig: float  # swing minus dig_direction, rad
+
+    @staticmethod
+    def of(env: HexLoadingEnv) -> LoaderState:
+        """The state of ``env`` (unwrapped) now."""
+        ph, lay = env.physics, env.layout
+        q, tip = ph.joint_positions(), ph.tip_position()
+        rotation = ph.data.xmat[ph.model.body("bucket").id].reshape(3, 3)
+        surface = env.earth.pile.height_at_point(float(tip[0]), float(tip[1]))
+        dig = dig_direction(env.earth.pile, lay)
+        return LoaderState(
+            q=q, qd=ph.joint_velocities(), tip=tip, radius=float(np.hypot(*tip[:2])),
+            surface=surface, above_pile=float(tip[2] - surface),
+            tilt=float(np.arccos(np.clip(rotation[2] @ _MOUTH_NORMAL_3D, -1.0, 1.0))),
+            payload_kg=float(env.earth.bucket_kg),
+            swing_to_pile=_wrap(q[0] - lay.pile_direction), swing_to_truck=_wrap(q[0] - lay.truck_direction),
+            dig_direction=dig, swing_to_dig=_wrap(q[0] - dig),
+        )  # fmt: skip
+
+
+def entry_radius(layout: Layout) -> float:
+    """Where the teeth enter the pile: beyond its far edge of the flat top, m from the swing axis."""
+    return float(np.hypot(*layout.pile_centre)) + ENTRY_BEYOND_CENTRE
+
+
+def inner_radius(layout: Layout) -> float:
+    """Where a drag ends at the latest: DRAG_BEYOND_TOP inside the pile's near edge of the flat top."""
+    return float(np.hypot(*layout.pile_centre)) - layout.pile_top_radius - DRAG_BEYOND_TOP
+
+
+def dig_direction(pile: Pile, layout: Layout) -> float:
+    """Swing angle of the cut with the most material along its drag (from the entry to the inner radius).
+
+    Cutting the same line every time would leave a trench: the material is where the pile still stands.
+    A small preference for the pile's centre line breaks ties.
+    """
+    offsets = np.linspace(-DIG_SWING_RANGE, DIG_SWING_RANGE, 9)
+    radii = np.arange(inner_radius(layout), entry_radius(layout), 0.25)
+    angles = layout.pile_direction + offsets
+    points = np.stack([np.outer(np.cos(angles), radii), np.outer(np.sin(angles), radii)], axis=-1)
+    material = pile.height_at(points).sum(axis=1) * 0.25  # m^2: the cut line's cross-section
+    return float(angles[np.argmax(material - CENTRE_PREFERENCE * np.abs(offsets))])
+
+
+def infer_phase(s: LoaderState, layout: Layout) -> str:
+    """The loading phase the state calls for: a function of the state alone (no timers, no memory).
+
+    The same state always gets the same phase, so the loader can label any state a learner
+    reaches (DAgger) consistently. Hysteresis comes from the state itself: a dump runs while
+    material is left, a curl until the mouth faces up, a drag until the bucket is full.
+    """
+    loaded = s.payload_kg > EMPTY_KG
+    if loaded and abs(s.swing_to_truck) < DUMP_WINDOW:
+        return "dump"
+    if loaded and s.tilt < CARRIED_TILT:
+        return "to_truck"
+    full = s.payload_kg >= FULL_FRACTION * p.BUCKET_HEAPED_CAPACITY * p.MATERIAL_DENSITY
+    if s.above_pile < IN_PILE and s.surface > MATERIAL_DEPTH:
+        if full:
+            return "curl"
+        if s.radius < inner_radius(layout):  # at the near edge: carry what is there, or go round again
+            return "curl" if s.payload_kg >= WORTH_CARRYING_KG else "to_pile"
+        depth = -s.above_pile
+        at_entry = s.radius > entry_radius(layout) - ENTRY_TOLERANCE
+        if at_entry and depth < DIG_DEPTH - 0.15 and s.tip[2] > GROUND_CLEARANCE + 0.15:
+            return "penetrate"
+        return "drag"
+    if s.payload_kg >= WORTH_CARRYING_KG:
+        return "curl"  # out of the pile with a load and the bucket open: close it
+    aligned = abs(s.swing_to_dig) < 0.08 and abs(s.qd[0]) < 0.2
+    low = s.tip[2] < layout.pile_height + APPROACH_HEIGHT + 0.3
+    if aligned and abs(s.radius - entry_radius(layout)) < ENTRY_TOLERANCE and low:
+        return "penetrate"
+    return "to_pile"
+
+
 @dataclass
 class ScriptedLoader:
-    """The state machine; call :meth:`act` with the (unwrapped) environment every step."""
+    """The loader; call :meth:`act` with the (unwrapped) environment every step.
+
+    Its phase is re-derived from the state every step (:func:`infer_phase`), so :meth:`act` is a
+    function of the state: :meth:`label` gives the same action for any state, however it was reached.
+    """
 
     phase: str = "to_pile"
-    phase_time: float = 0.0
-    drag_radius: float = 0.0
     log: list[tuple[float, str]] = field(default_factory=list)
 
     def reset(self) -> None:
-        """Start over at ``to_pile``."""
-        self.phase, self.phase_time, self.log = "to_pile", 0.0, []
-
-    def _go(self, phase: str, env: HexLoadingEnv) -> None:
-        self.phase, self.phase_time = phase, 0.0
-        self.log.append((env.elapsed, phase))
+        """Forget the phase log."""
+        self.phase, self.log = "to_pile", []
 
     def act(self, env: HexLoadingEnv) -> np.ndarray:
-        """The action (4 spool fractions) for the environment's present state."""
-        lay, earth, ph = env.layout, env.earth, env.physics
-        q, qd = ph.joint_positions(), ph.joint_velocities()
-        tip = ph.tip_position()
-        radius = float(np.hypot(*tip[:2]))
-        pile_r = float(np.hypot(*lay.pile_centre))
-        far = pile_r + 0.8
-        self.phase_time += STEP_PERIOD
-        swing_target = lay.pile_direction
-        feed = None
-        if self.phase == "to_pile":
-            target = np.array([far, lay.pile_height + 0.6, PENETRATE_ANGLE])
-            rim = p.TRUCK_BED_FLOOR_HEIGHT + p.TRUCK_BED_WALL_HEIGHT
-            if _over_truck(tip, lay):  # above the truck: up to the carry height, swing once above the rim
-                target = np.array([radius, rim + CLEARANCE, _planar_state(q)[2]])
-                swing_target = lay.pile_direction if tip[2] > rim + 0.5 else q[0]
-            state = _planar_state(q)
-            if abs(_wrap(lay.pile_direction - q[0])) < 0.04 and np.hypot(*(target - state)[:2]) < 0.35:
-                self._go("penetrate", env)
-        if self.phase == "penetrate":
-            surface = float(earth.pile.height_at(tip[:2]))
-            target = np.array([far, max(surface - DIG_DEPTH - 0.2, GROUND_CLEARANCE), PENETRATE_ANGLE])
-            if surface - tip[2] > DIG_DEPTH or tip[2] < target[1] + 0.1 or self.phase_time > 4.0:
-                self.drag_radius = radius
-                self._go("drag", env)
-        if self.phase == "drag":
-            self.drag_radius = max(self.drag_radius - DRAG_SPEED * STEP_PERIOD, 0.0)
-            ahead = tip[:2] * max(self.drag_radius, 1.0) / max(radius, 1e-6)
-            surface = float(earth.pile.height_at(ahead))
-            target = np.array([self.drag_radius, max(surface - DIG_DEPTH, GROUND_CLEARANCE), DRAG_ANGLE])
-            feed = np.array([-DRAG_SPEED, 0.0, 0.0])
-            near_edge = radius < pile_r - lay.pile_top_radius - 1.0
-            if earth.bucket_volume >= FULL_FRACTION * p.BUCKET_HEAPED_CAPACITY or near_edge or self.phase_time > 8.0:
-                self._go("curl", env)
-        if self.phase == "curl":  # close the bucket while the pile still holds the contents
-            surface = float(earth.pile.height_at(tip[:2]))
-            target = np.array([radius, max(surface - 0.1, tip[2], 2 * GROUND_CLEARANCE), CARRY_ANGLE])
-            state = _planar_state(q)
-            if abs(CARRY_ANGLE - state[2]) < 0.15 or self.phase_time > 4.0:
-                self._go("to_truck", env)
-        if self.phase == "to_truck":
-            rim = p.TRUCK_BED_FLOOR_HEIGHT + p.TRUCK_BED_WALL_HEIGHT
-            target = np.array([CARRY_RADIUS, rim + CLEARANCE, CARRY_ANGLE])
-            if radius > CARRY_RADIUS + 0.5:  # pull in low first: only close in can the curled bucket be level
-                target[1] = min(target[1], tip[2] + 0.3)
-            clear = tip[2] > max(lay.pile_height + 0.5, rim - 0.5)  # the boom keeps rising while it swings
-            swing_target = lay.truck_direction if clear else q[0]
-            if abs(_wrap(lay.truck_direction - q[0])) < 0.05 and abs(qd[0]) < 0.1:
-                self._go("dump", env)
-        if self.phase == "dump":
-            swing_target = lay.truck_direction
-            rim = p.TRUCK_BED_FLOOR_HEIGHT + p.TRUCK_BED_WALL_HEIGHT
-            over_bed = env.world.in_bed(env.mouth_position()[:2], lay)
-            target = np.array([lay.truck_distance + 0.3, rim + CLEARANCE, DUMP_ANGLE if over_bed else CARRY_ANGLE])
-            if earth.bucket_kg < 5.0 or self.phase_time > 5.0:
-                self._go("to_pile", env)
-                target = np.array([far, lay.pile_height + 0.6, PENETRATE_ANGLE])
-        action = np.zeros(4)
-        action[0] = swing_spool(_wrap(swing_target - q[0]), qd[0])
-        action[1:] = front_spools(env, target, feed)
-        return action.astype(np.float32)
+        """The action (4 spool fractions) for the environment's present state; logs phase changes."""
+        state = LoaderState.of(env)
+        phase = infer_phase(state, env.layout)
+        if phase != self.phase:
+            self.phase = phase
+            self.log.append((env.elapsed, phase))
+        return action_for(env, state, phase)
+
+    @staticmethod
+    def label(env: HexLoadingEnv) -> np.ndarray:
+        """The action for the present state, without touching any loader's log (the DAgger expert's label)."""
+        state = LoaderState.of(env)
+        return action_for(env, state, infer_phase(state, env.layout))
+
+
+Targets = tuple[np.ndarray, float, np.ndarray | None]  # teeth (radius, height, angle), swing angle, planar feed
+
+
+def _to_pile(env: HexLoadingEnv, s: LoaderState) -> Targets:
+    lay = env.layout
+    entry = entry_radius(lay)
+    if _over_truck(s.tip, lay):  # above the truck: up to the carry height, swing once above the rim
+        swing = s.dig_direction if s.tip[2] > RIM + LEAVE_HEIGHT else s.q[0]
+        return np.array([s.radius, RIM + CLEARANCE, _planar_state(s.q)[2]]), swing, None
+    # reach out only as far as the height over the pile's top allows (reaching out sags the teeth)
+    reach = REACH_PER_METRE * max(s.tip[2] - lay.pile_height - 0.1, 0.0)
+    radius = entry if s.radius > entry - ENTRY_TOLERANCE else min(entry, s.radius + reach)
+    # open the bucket (teeth down) near the entry; until then carry it mouth up, clear of its stops
+    opened = float(np.clip((s.radius - entry + OPEN_WITHIN) / OPEN_WITHIN, 0.0, 1.0))  # smoothly: no chatter
+    angle = CARRY_ANGLE + opened * (PENETRATE_ANGLE - CARRY_ANGLE)
+    return np.array([radius, lay.pile_height + APPROACH_HEIGHT, angle]), s.dig_direction, None
+
+
+def _penetrate(env: HexLoadingEnv, s: LoaderState) -> Targets:
+    surface = float(env.earth.pile.height_at(s.tip[:2]))
+    target = [entry_radius(env.layout), max(surface - DIG_DEPTH - 0.2, GROUND_CLEARANCE), PENETRATE_ANGLE]
+    return np.array(target), s.q[0], None  # in the pile the swing holds (the cut's direction moves as it digs)
+
+
+def _drag(env: HexLoadingEnv, s: LoaderState) -> Targets:
+    ahead_radius = max(s.radius - DRAG_LEAD, 1.0)
+    surface = float(env.earth.pile.height_at(s.tip[:2] * ahead_radius / max(s.radius, 1e-6)))
+    target = [ahead_radius, max(surface - DIG_DEPTH, DRAG_FLOOR), DRAG_ANGLE]
+    return np.array(target), s.q[0], np.array([-DRAG_SPEED, 0.0, 0.0])
+
+
+def _curl(env: HexLoadingEnv, s: LoaderState) -> Targets:  # close the bucket while the pile still holds the contents
+    surface = float(env.earth.pile.height_at(s.tip[:2]))
+    radius = s.radius if s.above_pile < IN_PILE else min(s.radius, CARRY_RADIUS)  # out: level it close in
+    return np.array([radius, max(surface - 0.1, s.tip[2], 2 * GROUND_CLEARANCE), CARRY_ANGLE]), s.q[0], None
+
+
+def _to_truck(env: HexLoadingEnv, s: LoaderState) -> Targets:
+    target = np.array([CARRY_RADIUS, RIM + CLEARANCE, CARRY_ANGLE])
+    if s.radius > CARRY_RADIUS + 0.5:  # pull in low first: only close in can the curled bucket be level
+        target[1] = min(target[1], s.tip[2] + 0.3)
+    # the boom keeps rising while it swings: clear of the pile, swing to short of the truck until above its rim
+    swing = s.q[0]
+    if s.above_pile > PILE_CLEARANCE:  # the curled bucket hangs ~1 m below the teeth: clear the cab and rim
+        deficit = max(RIM + ARRIVE_HEIGHT - s.tip[2], 0.0)
+        swing = env.layout.truck_direction + min(TRUCK_APPROACH, HOLD_BACK_PER_METRE * deficit) * np.sign(
+            s.swing_to_truck
+        )
+    return target, swing, None
+
+
+def _dump(env: HexLoadingEnv, s: LoaderState) -> Targets:
+    lay = env.layout
+    mouth = env.mouth_position()
+    # open with the mouth over the bed: the pin is over the bed's centre line, so the teeth swing out over it
+    over_bed = env.world.in_bed(mouth[:2], lay) and mouth[2] > RIM + 0.3
+    # the bucket pin goes to one place over the bed whatever the bucket does; the bucket opens once over the
+    # bed and until then holds (never curls back): the labels either side of the bed's edge then agree on
+    # boom and stick, and a clone averaging them does not stall there
+    angle = DUMP_ANGLE if over_bed else _planar_state(s.q)[2]
+    return _teeth_for_pin(lay.truck_distance + DUMP_PIN_BEYOND, RIM + DUMP_PIN_HEIGHT, angle), lay.truck_direction, None
+
+
+_PHASES = {
+    "to_pile": _to_pile, "penetrate": _penetrate, "drag": _drag, "curl": _curl, "to_truck": _to_truck, "dump": _dump,
+}  # fmt: skip
+
+
+def _phase_targets(env: HexLoadingEnv, s: LoaderState, phase: str) -> Targets:
+    """(teeth target: radius, height, bucket angle; swing target, rad; planar feed velocity or None) of a phase."""
+    if phase not in _PHASES:
+        raise ValueError(f"unknown phase {phase!r} (one of {sorted(_PHASES)})")
+    return _PHASES[phase](env, s)
+
+
+def _teeth_for_pin(radius: float, height: float, angle: float) -> np.ndarray:
+    """The teeth target (radius, height, angle) that puts the bucket pin at ``radius``, ``height`` (m)."""
+    teeth = machine.rotation(angle) @ np.array(p.BUCKET_TIP)
+    return np.array([radius + teeth[0], height + teeth[1], angle])
+
+
+def action_for(env: HexLoadingEnv, s: LoaderState, phase: str) -> np.ndarray:
+    """The four spool fractions that carry out ``phase`` from state ``s``."""
+    target, swing_target, feed = _phase_targets(env, s, phase)
+    action = np.zeros(4)
+    brake = swing_brake(env.physics.swing_inertia())
+    action[0] = swing_spool(_wrap(swing_target - s.q[0]), s.qd[0], brake)
+    action[1:] = front_spools(env, target, feed)
+    return action.astype(np.float32)
 
 
 def run_scripted(env: HexLoadingEnv, seed: int = 0, seconds: float | None = None, frames: list | None = None) -> dict:
