@@ -288,7 +288,7 @@ def _test3() -> tuple[CommandLog, np.ndarray]:
     return scenarios()["test3"]
 
 
-def _test3_controls(model: NativeLearnedModel) -> np.ndarray:
+def _test3_controls(model: LearnedModel | NativeLearnedModel) -> np.ndarray:
     """Test 3's spools (mm), one row per control period of ``model`` (one step of the lean machine)."""
     log, _ = _test3()
     n = int(round(log.duration / model.timestep))
@@ -382,17 +382,16 @@ def native_benchmark(seconds: float = 3.0) -> dict[str, float]:
     - ``learned_realtime_factor_native_python_loop``: :class:`NativeLearnedModel`, one ``step``
       per control period from Python (what an environment stepping every period gets).
     """
-    log, pose = _test3()
+    _, pose = _test3()
 
     def per_period(model: LearnedModel | NativeLearnedModel) -> Callable[[], float]:
-        n = int(round(log.duration / model.timestep))
-        spools = np.array([log.spools_at((k + 1e-9) * model.timestep) * 1e-3 for k in range(n)])
+        spools = _test3_controls(model) * 1e-3
 
         def run() -> float:
             model.reset(pose)
             for u in spools:
                 model.step(u)
-            return n * model.timestep
+            return len(spools) * model.timestep
 
         return run
 
