@@ -3,7 +3,8 @@
 - ``hexloading_steps_per_s`` / ``hopper_steps_per_s``: HexLoading-v0 (default backend: the native
   plugin when built) against Gymnasium's Hopper-v5, both made with ``gymnasium.make`` (so both carry
   Gymnasium's default wrappers), seeded, reset, then stepped with seeded random actions; only
-  ``step`` calls are timed (a reset after an episode end is not). ``ratio`` is the first over the
+  ``step`` calls are timed (a reset after an episode end is not). They are stepped in turn, ten
+  blocks each, so a slower spell of the machine weighs on both. ``ratio`` is the first over the
   second (target >= 1.0).
 - ``vector_steps_per_s``: environment steps (transitions) per second of
   ``gymnasium.make_vec("HexLoading-v0", num_envs=64)`` with random actions: the registered vector
@@ -35,12 +36,37 @@ BATCH_ROLLOUTS = 64
 
 def steps_per_second(env_id: str, steps: int, seed: int = 0, **kwargs: object) -> float:
     """Random-action ``step`` calls per second of ``env_id`` made with ``kwargs`` (resets excluded from the timing)."""
-    if steps < 1:
-        raise ValueError(f"steps must be >= 1, got {steps}")
-    env = gym.make(env_id, **kwargs)
-    env.reset(seed=seed)
-    env.action_space.seed(seed)
-    actions = [env.action_space.sample() for _ in range(steps)]
+    return interleaved_steps_per_second({env_id: (env_id, kwargs)}, steps, seed)[env_id]
+
+
+def interleaved_steps_per_second(
+    envs: dict[str, tuple[str, dict]], steps: int, seed: int = 0, rounds: int = 10
+) -> dict[str, float]:
+    """Random-action ``step`` calls per second of each named ``(env_id, make kwargs)``, stepped in turn in
+    ``rounds`` blocks of ``steps / rounds`` steps each, so that a change of the machine's speed during the
+    run (other processes, a VM's neighbours) weighs on all of them alike and their ratios stay fair."""
+    if steps < 1 or rounds < 1:
+        raise ValueError(f"steps and rounds must be >= 1, got {steps} and {rounds}")
+    made = {name: gym.make(env_id, **kwargs) for name, (env_id, kwargs) in envs.items()}
+    try:
+        actions = {}
+        for name, env in made.items():
+            env.reset(seed=seed)
+            env.action_space.seed(seed)
+            actions[name] = [env.action_space.sample() for _ in range(steps)]
+        elapsed = dict.fromkeys(made, 0.0)
+        bounds = np.linspace(0, steps, min(rounds, steps) + 1).astype(int)
+        for first, last in zip(bounds[:-1], bounds[1:], strict=True):
+            for name, env in made.items():
+                elapsed[name] += _timed_steps(env, actions[name][first:last])
+        return {name: steps / seconds for name, seconds in elapsed.items()}
+    finally:
+        for env in made.values():
+            env.close()
+
+
+def _timed_steps(env: gym.Env, actions: list) -> float:
+    """Wall seconds in ``env.step`` over ``actions`` (an episode's end resets, untimed)."""
     elapsed = 0.0
     for action in actions:
         start = time.perf_counter()
@@ -48,8 +74,7 @@ def steps_per_second(env_id: str, steps: int, seed: int = 0, **kwargs: object) -
         elapsed += time.perf_counter() - start
         if terminated or truncated:
             env.reset()
-    env.close()
-    return steps / elapsed
+    return elapsed
 
 
 def vector_steps_per_second(
@@ -78,9 +103,11 @@ def run_bench(steps: int = 2000, seed: int = 0, seconds: float = 2.0) -> dict:
     many environment steps of the vector env), ``seconds`` of wall time per real-time factor."""
     if not seconds > 0:
         raise ValueError(f"seconds must be > 0, got {seconds}")
-    loading = steps_per_second(ENV_ID, steps, seed)
-    hopper = steps_per_second(REFERENCE_ENV, steps, seed)
-    python = steps_per_second(ENV_ID, steps, seed, backend="python")
+    rates = interleaved_steps_per_second(
+        {"loading": (ENV_ID, {}), "hopper": (REFERENCE_ENV, {}), "python": (ENV_ID, {"backend": "python"})},
+        steps, seed,
+    )  # fmt: skip
+    loading, hopper, python = rates["loading"], rates["hopper"], rates["python"]
     vector, vector_env = vector_steps_per_second(vector_steps=max(1, steps // VECTOR_ENVS), seed=seed)
     result = {
         "steps": steps,

@@ -159,7 +159,7 @@ def _cmd_clone(args: argparse.Namespace) -> int:
     path = clone_scripted(args.out, episodes=args.episodes, dagger_rounds=args.dagger_rounds,
                           dagger_episodes=args.dagger_episodes, epochs=args.epochs, seed=args.seed, noise=args.noise,
                           hyperparams=args.hyperparams, select_episodes=args.select_episodes,
-                          rounds_dir=args.rounds_dir)  # fmt: skip
+                          rounds_dir=args.rounds_dir, loss=args.loss)  # fmt: skip
     print(f"model: {path}")
     return 0
 
@@ -305,6 +305,8 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
                        "episodes and keep the best (default: 0: the last)")  # fmt: skip
     clone.add_argument("--rounds-dir", default=None, help="also keep each round's clone here (round<k>.zip)")
     clone.add_argument("--hyperparams", default=None, help="PPO YAML giving the network (default: ppo.yml)")
+    clone.add_argument("--loss", choices=("mse", "l1"), default="mse", help="the actor's fit to the labels: mse "
+                       "(their mean) or l1 (their median: one side of a phase change, not the average)")
     clone.set_defaults(func=_cmd_clone)
 
     evaluate = sub.add_parser("evaluate", help="measure a policy on HexLoading-v0: success, t/h, cycle, fuel")

@@ -99,6 +99,7 @@ class ExcavatorPhysics:
 
     def __init__(self, model: mujoco.MjModel | None = None, scene: bool = False) -> None:
         self.model = model if model is not None else load_model(scene=scene)
+        skip_collisions_if_none_possible(self.model)
         self.data = mujoco.MjData(self.model)
         m = self.model
         self._qadr = np.array([m.jnt_qposadr[m.joint(n).id] for n in machine.JOINTS])
@@ -252,6 +253,26 @@ class ExcavatorPhysics:
         self.data.qfrc_applied[:] = 0.0
         tip = self.data.site_xpos[self._tip]
         mujoco.mj_applyFT(self.model, self.data, force, np.zeros(3), tip, self._bucket, self.data.qfrc_applied)
+
+
+def skip_collisions_if_none_possible(model: mujoco.MjModel) -> bool:
+    """Turn off MuJoCo's collision pass (``mjDSBL_CONTACT``) when no two geoms of ``model`` can ever touch.
+
+    The machine alone is such a model: its geoms collide only with world geoms (contype 2 /
+    conaffinity 1), so the pass finds nothing, yet its broad phase costs ~15 % of a step. Exact:
+    nothing it could find is lost. A scene with ground or truck keeps the pass. True when turned off.
+    """
+    types, affinities, bodies = model.geom_contype, model.geom_conaffinity, model.geom_bodyid
+    candidates = np.flatnonzero((types != 0) | (affinities != 0))
+    for k, i in enumerate(candidates):
+        others = candidates[k + 1 :]
+        others = others[bodies[others] != bodies[i]]  # MuJoCo never collides two geoms of one body
+        if np.any((types[i] & affinities[others]) | (types[others] & affinities[i])):
+            return False
+    if model.npair:  # explicit <pair>s collide whatever their geoms' types say
+        return False
+    model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+    return True
 
 
 def payload_inertia(mass_kg: np.ndarray) -> np.ndarray:

@@ -378,15 +378,26 @@ def score_episode(model_path: str, seed: int, env_kwargs: dict | None = None) ->
     return {"delivered_t": summary["delivered_t"], "full_dumps": summary["full_dumps"]}
 
 
-def fit_to_demonstrations(model: Any, demos: Demonstrations, epochs: int, seed: int, batch: int = 512) -> dict:
-    """Supervised fit of a PPO policy: actor mean to the loader's actions (MSE), critic to the returns.
+CLONE_LOSSES = ("mse", "l1")
 
+
+def fit_to_demonstrations(
+    model: Any, demos: Demonstrations, epochs: int, seed: int, batch: int = 512, loss: str = "mse"
+) -> dict:
+    """Supervised fit of a PPO policy: actor mean to the loader's actions, critic to the returns (MSE).
+
+    ``loss`` of the actor: ``"mse"`` (the mean of the labels a state gets), or ``"l1"`` (their median:
+    where nearby states get different labels, as either side of a phase change, the fit takes one side
+    instead of their average, which can fall in the valves' dead zone and freeze the machine).
     The observations are normalised with the model's VecNormalize statistics, as PPO will see them.
     Uses its own optimiser, so the model's (saved with it) stays empty and the file small.
     """
     import torch
 
+    if loss not in CLONE_LOSSES:
+        raise ValueError(f"loss must be one of {CLONE_LOSSES}, got {loss!r}")
     torch.manual_seed(seed)
+    power = 2 if loss == "mse" else 1
     policy = model.policy
     obs = torch.as_tensor(model.get_vec_normalize_env().normalize_obs(demos.obs), dtype=torch.float32)
     actions = torch.as_tensor(demos.actions, dtype=torch.float32)
@@ -400,14 +411,14 @@ def fit_to_demonstrations(model: Any, demos: Demonstrations, epochs: int, seed: 
             idx = order[start : start + batch]
             features = policy.extract_features(obs[idx])
             latent_pi, latent_vf = policy.mlp_extractor(features)
-            action_loss = torch.mean((policy.action_net(latent_pi) - actions[idx]) ** 2)
+            action_loss = torch.mean(torch.abs(policy.action_net(latent_pi) - actions[idx]) ** power)
             value_loss = torch.mean((policy.value_net(latent_vf).squeeze(-1) - returns[idx]) ** 2)
             optimiser.zero_grad()
             (action_loss + 0.1 * value_loss).backward()
             optimiser.step()
         schedule.step()
     policy.eval()
-    return {"action_mse": action_loss.item(), "value_mse": value_loss.item()}
+    return {"action_loss": action_loss.item(), "value_mse": value_loss.item()}
 
 
 def _new_ppo(hp: dict[str, Any], seed: int) -> Any:
@@ -433,6 +444,7 @@ def clone_scripted(
     hyperparams: str | Path | None = None,
     select_episodes: int = 0,
     rounds_dir: str | Path | None = None,
+    loss: str = "mse",
     log: Any = print,
 ) -> Path:
     """Behaviour-clone the scripted loader into a PPO model saved at ``out`` (+ VecNormalize statistics).
@@ -443,8 +455,11 @@ def clone_scripted(
     1 - 0.5**k, all labelled by the loader, and refits on everything (warm-started). With
     ``select_episodes`` > 0 each round's clone is scored on that many further seeded episodes
     (tonnes delivered) and the best is saved at ``out``; otherwise the last round's. Each round's
-    clone is kept in ``rounds_dir`` (``round<k>.zip``) when given.
+    clone is kept in ``rounds_dir`` (``round<k>.zip``) when given. ``loss``: the actor's fit
+    (:func:`fit_to_demonstrations`).
     """
+    if loss not in CLONE_LOSSES:
+        raise ValueError(f"loss must be one of {CLONE_LOSSES}, got {loss!r}")
     if episodes < 1 or dagger_rounds < 0 or epochs < 1 or select_episodes < 0:
         raise ValueError(f"need episodes >= 1, dagger_rounds >= 0, epochs >= 1, select_episodes >= 0; got "
                          f"{episodes}, {dagger_rounds}, {epochs}, {select_episodes}")  # fmt: skip
@@ -452,12 +467,12 @@ def clone_scripted(
     with _worker_pool() as pool, tempfile.TemporaryDirectory() as tmp:  # workers start once (torch, MuJoCo: s)
         rounds = Path(rounds_dir) if rounds_dir is not None else Path(tmp)
         return _clone_rounds(Path(out), rounds, hp, pool, episodes, dagger_rounds, dagger_episodes, noise, epochs,
-                             seed, select_episodes, log)  # fmt: skip
+                             seed, select_episodes, loss, log)  # fmt: skip
 
 
 def _clone_rounds(
     out: Path, rounds: Path, hp: dict[str, Any], pool: ProcessPoolExecutor, episodes: int, dagger_rounds: int,
-    dagger_episodes: int, noise: float, epochs: int, seed: int, select_episodes: int, log: Any,
+    dagger_episodes: int, noise: float, epochs: int, seed: int, select_episodes: int, loss: str, log: Any,
 ) -> Path:  # fmt: skip
     """:func:`clone_scripted`'s rounds, recording and scoring in ``pool``."""
     gamma = float(hp.get("gamma", 0.99))
@@ -471,9 +486,9 @@ def _clone_rounds(
     for round_ in range(dagger_rounds + 1):
         stats = model.get_vec_normalize_env().obs_rms
         stats.mean, stats.var, stats.count = demos.obs.mean(0), demos.obs.var(0) + 1e-8, len(demos.obs)
-        losses = fit_to_demonstrations(model, demos, epochs, seed + round_)
+        losses = fit_to_demonstrations(model, demos, epochs, seed + round_, loss=loss)
         path = save_model(model, rounds / f"round{round_}.zip")  # each round's clone, to compare and select
-        message = (f"round {round_}: {len(demos.obs)} samples, action MSE {losses['action_mse']:.4f}, "
+        message = (f"round {round_}: {len(demos.obs)} samples, action {loss} {losses['action_loss']:.4f}, "
                    f"value MSE {losses['value_mse']:.4f}")  # fmt: skip
         if select_seeds:
             n = len(select_seeds)

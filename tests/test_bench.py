@@ -5,7 +5,7 @@ import json
 import pytest
 
 from hexgym import native
-from hexgym.bench import steps_per_second, vector_steps_per_second
+from hexgym.bench import interleaved_steps_per_second, steps_per_second, vector_steps_per_second
 from hexgym.cli import main
 
 ISSUE_KEYS = (
@@ -49,8 +49,21 @@ def test_batch_rollouts_are_timed_and_checked():
         native.batch_realtime_factor_native(nbatch=0)
 
 
+def test_interleaved_rates_time_every_env_in_blocks(monkeypatch):
+    from hexgym import bench
+
+    blocks = []
+    timed = bench._timed_steps
+    monkeypatch.setattr(bench, "_timed_steps", lambda env, actions: blocks.append(len(actions)) or timed(env, actions))
+    rates = interleaved_steps_per_second({"a": ("Hopper-v5", {}), "b": ("HexLoading-v0", {})}, 7, rounds=3)
+    assert set(rates) == {"a", "b"} and all(r > 0 for r in rates.values())
+    assert blocks == [2, 2, 2, 2, 3, 3]  # a, b, a, b, a, b: the 7 steps of each in three blocks, in turn
+
+
 def test_bad_step_count_is_refused():
     with pytest.raises(ValueError, match="steps"):
         steps_per_second("HexLoading-v0", 0)
     with pytest.raises(ValueError, match="num_envs"):
         vector_steps_per_second(num_envs=0)
+    with pytest.raises(ValueError, match="rounds"):
+        interleaved_steps_per_second({"a": ("Hopper-v5", {})}, 5, rounds=0)

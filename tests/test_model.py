@@ -8,7 +8,7 @@ import pytest
 
 from hexgym import machine, mjcf
 from hexgym import parameters as p
-from hexgym.physics import ExcavatorPhysics, force_actuated_model
+from hexgym.physics import ExcavatorPhysics, force_actuated_model, skip_collisions_if_none_possible
 from hexgym.resources import AssetError, asset_path, assets_dir, load_model
 
 
@@ -181,3 +181,14 @@ def test_setting_the_payload_mid_motion_keeps_the_state():
     np.testing.assert_array_equal(physics.joint_positions(), q)
     np.testing.assert_array_equal(physics.joint_velocities(), qd)
     assert physics.data.time == 3.0 and physics.model.body("payload").mass[0] == 1500.0
+
+
+def test_collision_pass_is_skipped_only_where_nothing_can_touch():
+    contact_off = int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+    machine = ExcavatorPhysics(load_model(lean=True))  # machine geoms collide only with world geoms
+    assert machine.model.opt.disableflags & contact_off
+    scene = ExcavatorPhysics(scene=True)  # the ground can touch the bucket
+    assert not scene.model.opt.disableflags & contact_off
+    lean = load_model(lean=True)
+    lean.geom_conaffinity[lean.geom("bucket_collision").id] = 2  # now the bucket could hit the boom
+    assert not skip_collisions_if_none_possible(lean) and not lean.opt.disableflags & contact_off
