@@ -305,8 +305,13 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
                        "episodes and keep the best (default: 0: the last)")  # fmt: skip
     clone.add_argument("--rounds-dir", default=None, help="also keep each round's clone here (round<k>.zip)")
     clone.add_argument("--hyperparams", default=None, help="PPO YAML giving the network (default: ppo.yml)")
-    clone.add_argument("--loss", choices=("mse", "l1"), default="mse", help="the actor's fit to the labels: mse "
-                       "(their mean) or l1 (their median: one side of a phase change, not the average)")
+    clone.add_argument(
+        "--loss",
+        choices=("mse", "l1"),
+        default="mse",
+        help="the actor's fit to the labels: mse "
+        "(their mean) or l1 (their median: one side of a phase change, not the average)",
+    )
     clone.set_defaults(func=_cmd_clone)
 
     evaluate = sub.add_parser("evaluate", help="measure a policy on HexLoading-v0: success, t/h, cycle, fuel")
