@@ -98,6 +98,12 @@ def vector_steps_per_second(
         envs.close()
 
 
+def _physics_bound(vector_steps: int, seed: int) -> float:
+    from hexgym.envs.vector import physics_bound_steps_per_second
+
+    return physics_bound_steps_per_second(VECTOR_ENVS, vector_steps, seed)
+
+
 def run_bench(steps: int = 2000, seed: int = 0, seconds: float = 2.0) -> dict:
     """All figures (see the module docstring); ``steps`` random steps per single environment (and as
     many environment steps of the vector env), ``seconds`` of wall time per real-time factor."""
@@ -109,6 +115,7 @@ def run_bench(steps: int = 2000, seed: int = 0, seconds: float = 2.0) -> dict:
     )  # fmt: skip
     loading, hopper, python = rates["loading"], rates["hopper"], rates["python"]
     vector, vector_env = vector_steps_per_second(vector_steps=max(1, steps // VECTOR_ENVS), seed=seed)
+    bound = _physics_bound(max(1, steps // VECTOR_ENVS), seed) if vector_env == "HexLoadingVectorEnv" else None
     result = {
         "steps": steps,
         "hexloading_steps_per_s": loading,
@@ -121,6 +128,8 @@ def run_bench(steps: int = 2000, seed: int = 0, seconds: float = 2.0) -> dict:
         "vector_envs": VECTOR_ENVS,
         "vector_env": vector_env,
         "vector_ratio": vector / hopper,
+        # what the batch's physics alone allows the vector env (no task logic): the ceiling of vector_steps_per_s
+        "vector_physics_bound_steps_per_s": bound,
         "hexloading_sim_seconds_per_s": loading * 0.1,  # one step is 0.1 s of simulated time
         **native_benchmark(seconds=seconds),  # learned_realtime_factor_python / _native (one thread)
     }
@@ -148,6 +157,10 @@ def print_bench(result: dict, json_path: str | Path | None = None) -> None:
     )
     vector = f"vector ({r['vector_envs']} envs, {r['vector_env']})"
     print(f"{vector}: {r['vector_steps_per_s']:.0f} env steps/s, ratio {r['vector_ratio']:.3f}")
+    if r["vector_physics_bound_steps_per_s"] is not None:
+        bound = r["vector_physics_bound_steps_per_s"]
+        ratio = bound / r["hopper_steps_per_s"]
+        print(f"  its physics alone (no task logic): {bound:.0f} env steps/s, ratio {ratio:.3f}")
     for key in ("learned_realtime_factor_python", "learned_realtime_factor_native"):
         print(f"{key}: {result.get(key, float('nan')):.0f}x real time (one thread)")
     if "batch_realtime_factor_native" in result:

@@ -729,6 +729,29 @@ def vector_steps_per_second(num_envs: int = 64, steps: int = 300, seed: int = 0,
     return _timed_random_steps(num_envs, steps, seed, **kwargs)[0]
 
 
+def physics_bound_steps_per_second(num_envs: int = 64, vector_steps: int = 100, seed: int = 0) -> float:
+    """Environment steps per second that the batch's physics alone allows: ``num_envs`` sites stepped a whole
+    0.1 s step (its control periods in one ``Batch.step``) under random spools, no task logic. The vector env
+    cannot beat this on the same cores: it is the physics' share of the speed target."""
+    if num_envs < 1 or vector_steps < 1:
+        raise ValueError(f"num_envs and vector_steps must be >= 1, got {num_envs} and {vector_steps}")
+    envs = HexLoadingVectorEnv(num_envs)
+    try:
+        envs.reset(seed=seed)
+        rng = np.random.default_rng(seed)
+        ids = np.arange(num_envs)
+        spools = rng.uniform(-1.0, 1.0, (vector_steps, num_envs, 4)) * p.SPOOL_STROKE * 1e3  # the plugin's mm
+        elapsed = 0.0
+        for row in spools:
+            envs._ctrl[:, envs._ctrl_ids] = row
+            start = time.perf_counter()
+            envs._batch.step(ids, nstep=envs._periods, stage=_VEL)
+            elapsed += time.perf_counter() - start
+        return num_envs * vector_steps / elapsed
+    finally:
+        envs.close()
+
+
 def _timed_random_steps(num_envs: int, steps: int, seed: int, **kwargs: Any) -> tuple[float, float, float]:
     """(env steps per second, share of the step time in the batch's physics, wall seconds per MuJoCo step of one
     site in it) under seeded random actions."""
@@ -766,6 +789,11 @@ def main() -> None:
             f"{REFERENCE_ENV}, {rate / single:.2f}x one env; {physics:.0%} of it in the batch's physics, "
             f"{per_step * 1e6:.1f} us per MuJoCo step of one site)"
         )
+    bound = physics_bound_steps_per_second(64)
+    print(
+        f"  physics alone (64 sites, whole steps in one Batch.step, no task logic): {bound:.0f} env steps/s "
+        f"({bound / hopper:.2f}x {REFERENCE_ENV})"
+    )
     profile = mujoco_step_profile()
     print(
         f"one mj_step of the plugin's model (MuJoCo's timers, one env): {profile['step_s'] * 1e6:.1f} us, "
