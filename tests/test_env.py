@@ -44,7 +44,7 @@ def test_passes_gymnasium_and_sb3_checkers_without_warnings():
 
 def test_spaces_and_metadata(env):
     assert env.action_space == gym.spaces.Box(-1.0, 1.0, (4,), np.float32)
-    assert env.observation_space.shape == (len(OBSERVATION_NAMES),) == (22,)
+    assert env.observation_space.shape == (len(OBSERVATION_NAMES),) == (23,)
     assert env.metadata["render_fps"] == 10
     assert {"rgb_array", "depth_array"} <= set(env.metadata["render_modes"])
 
@@ -215,13 +215,13 @@ def test_make_vec_and_subproc_vec_env():
     vec = gym.make_vec("HexLoading-v0", num_envs=2, vectorization_mode="sync")
     obs, _ = vec.reset(seed=0)
     obs, reward, *_ = vec.step(np.zeros((2, 4), np.float32))
-    assert obs.shape == (2, 22) and reward.shape == (2,)
+    assert obs.shape == (2, 23) and reward.shape == (2,)
     vec.close()
     # the workers are fresh processes: "hexgym:" makes gymnasium import hexgym (which registers the id)
     sub = make_vec_env("hexgym:HexLoading-v0", n_envs=2, seed=0, vec_env_cls=SubprocVecEnv)
     sub.reset()
     obs, reward, done, _ = sub.step(np.zeros((2, 4), np.float32))
-    assert obs.shape == (2, 22) and not done.any()
+    assert obs.shape == (2, 23) and not done.any()
     sub.close()
 
 
@@ -314,3 +314,30 @@ def test_digging_once_per_step_fills_and_curls_like_digging_every_period():
     assert phases[4]["curl"] == pytest.approx(phases[1]["curl"], abs=0.5)
     curl = {k: v["to_truck"] - v["curl"] for k, v in phases.items()}
     assert curl[4] == pytest.approx(curl[1], abs=0.3)
+
+
+def test_fullest_cut_line_moves_off_a_trench():
+    from hexgym.envs.loading import heap_for, sample_start
+    from hexgym.envs.world import CUT_SWING_RANGE, entry_radius, fullest_cut_direction, inner_radius
+
+    layout, _ = sample_start(np.random.default_rng(5))
+    pile = heap_for(layout)
+    assert fullest_cut_direction(pile.height_at, layout) == pytest.approx(layout.pile_direction)  # a round heap
+    # dig a trench along the centre line: the fullest line is now beside it, within the range
+    c, s = np.cos(layout.pile_direction), np.sin(layout.pile_direction)
+    for r in np.arange(inner_radius(layout), entry_radius(layout), 0.2):
+        pile.take((r * c, r * s), (-s, c), p.BUCKET_WIDTH, 0.0, 10.0)
+    offset = fullest_cut_direction(pile.height_at, layout) - layout.pile_direction
+    assert 0.1 < abs(offset) <= CUT_SWING_RANGE + 1e-9
+
+
+def test_observation_points_to_the_fullest_cut_and_follows_the_pile(env):
+    u = env.unwrapped
+    obs, _ = env.reset(seed=7)
+    swing = u.physics.joint_positions()[0]
+    direction = u.fullest_cut_direction()
+    assert obs[OBSERVATION_NAMES.index("swing_to_cut")] == pytest.approx(swing - direction, abs=1e-6)
+    c, s, centre = np.cos(direction), np.sin(direction), np.hypot(*u.layout.pile_centre)
+    for r in np.arange(centre - 2.0, centre + 1.0, 0.2):
+        u.earth.pile.take((r * c, r * s), (-s, c), p.BUCKET_WIDTH, 0.0, 10.0)  # take the line it points to
+    assert u.fullest_cut_direction() != pytest.approx(direction)  # the cached value followed the pile's change

@@ -92,9 +92,9 @@ def test_previous_action_wrapper_appends_the_executed_action():
 
     env = make_env("HexLoading-v0", "hexgym.training.PreviousActionWrapper", time_limit=2.0)
     obs, _ = env.reset(seed=0)
-    assert obs.shape == (26,) == env.observation_space.shape and np.all(obs[22:] == 0.0)
+    assert obs.shape == (27,) == env.observation_space.shape and np.all(obs[23:] == 0.0)
     obs, *_ = env.step(np.array([2.0, 0.5, -0.5, 0.0], np.float32))
-    assert np.allclose(obs[22:], [1.0, 0.5, -0.5, 0.0])  # clipped, as the environment applies it
+    assert np.allclose(obs[23:], [1.0, 0.5, -0.5, 0.0])  # clipped, as the environment applies it
     assert env.observation_space.contains(obs)
     with pytest.raises(ValueError, match="env_wrapper"):
         make_env("HexLoading-v0", "hexgym.nowhere.Wrapper")
@@ -105,7 +105,7 @@ def test_demonstrations_are_labelled_by_the_state_derived_loader():
     from hexgym.training import make_env, record_episode
 
     demos = record_episode(seed=5, gamma=0.99, env_kwargs={"time_limit": 3.0}, noise=0.3)
-    assert demos.obs.shape == (30, 22) and demos.actions.shape == (30, 4) and demos.returns.shape == (30,)
+    assert demos.obs.shape == (30, 23) and demos.actions.shape == (30, 4) and demos.returns.shape == (30,)
     assert np.all(np.abs(demos.actions) <= 1.0)
     # the first state is the reset's: its label is the loader's action there, noise or not
     env = make_env("HexLoading-v0", time_limit=3.0)

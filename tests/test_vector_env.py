@@ -92,7 +92,7 @@ def test_make_vec_api_spaces_seeding_and_info_masks():
     vec = gym.make_vec("HexLoading-v0", num_envs=3, time_limit=0.2)
     single = HexLoadingEnv(backend="native", time_limit=0.2)
     assert vec.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP
-    assert vec.action_space.shape == (3, 4) and vec.observation_space.shape == (3, 22)
+    assert vec.action_space.shape == (3, 4) and vec.observation_space.shape == (3, 23)
     assert vec.single_observation_space == single.observation_space
     assert vec.observation_space == batch_space(single.observation_space, 3)
     assert vec.action_space == batch_space(single.action_space, 3)

@@ -219,6 +219,7 @@ class Pile:
         self._origin_x, self._origin_y = self._origin.tolist()  # the same as floats, for scalar arithmetic
         self.top = float(heights.max())  # an upper bound of the surface: digging only lowers it
         self._volume: float | None = None  # cached sum of the heights x cell area; None once they change
+        self.revision = 0  # counts the changes of ``heights`` (by take and relax): for caches of derived values
 
     @classmethod
     def heap(cls, centre: tuple[float, float], height: float, top_radius: float, n: int, spacing: float) -> Pile:
@@ -322,6 +323,7 @@ class Pile:
         before = float(patch.sum())
         patch -= available * min(1.0, volume / total)
         self._volume = None
+        self.revision += 1
         self.relax((rows, cols))
         # the relaxation moves material inside the window only, so the window's loss is the take
         return (before - float(self.heights[rows, cols].sum())) * self.cell_area
@@ -330,6 +332,7 @@ class Pile:
         """Let slopes steeper than the angle of repose slide (mass-conserving), inside ``window``."""
         rows, cols = window if window is not None else (slice(None), slice(None))
         self._volume = None
+        self.revision += 1
         relax_heights(self.heights[rows, cols], repose_limit(self.spacing), iterations)  # a view: updates land
 
 
@@ -504,6 +507,7 @@ class BatchedPiles:
         self._limit = repose_limit(self.spacing)
         self._volume = np.zeros(count)
         self._stale = np.ones(count, bool)  # volumes to recompute (heights changed)
+        self.changed = np.ones(count, bool)  # heights changed since the owner last cleared the flag (its caches)
 
     def load(self, index: int, pile: Pile) -> None:
         """Make pile ``index`` a copy of ``pile`` (same grid size and spacing)."""
@@ -512,7 +516,7 @@ class BatchedPiles:
         self.heights[index] = pile.heights
         self.origin[index] = pile.centre - pile.half_size  # as Pile._origin
         self.top[index] = pile.top
-        self._stale[index] = True
+        self._stale[index] = self.changed[index] = True
 
     def volumes(self) -> np.ndarray:
         """Material in each pile, m^3 (recomputed only where the heights changed; a view, do not modify)."""
@@ -622,7 +626,7 @@ class BatchedPiles:
         relax_heights(patch, self._limit)
         after = patch.sum(axis=(1, 2))
         self.heights[ids[cut][:, None, None], rows[cut], cols[cut]] = patch
-        self._stale[ids[cut]] = True
+        self._stale[ids[cut]] = self.changed[ids[cut]] = True
         taken = np.zeros(len(ids))
         taken[cut] = (before - after) * self.cell_area
         return taken

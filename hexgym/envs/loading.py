@@ -25,6 +25,7 @@ from hexgym.envs.world import (
     World,
     bed_coordinates,
     build_world_model,
+    fullest_cut_direction,
     sample_layout,
 )
 from hexgym.learned import LearnedModel
@@ -58,12 +59,14 @@ OBSERVATION_NAMES = (
     "boom_load", "stick_load", "bucket_load", "payload",
     "tip_pile_radial", "tip_pile_lateral", "tip_above_pile",
     "tip_truck_along", "tip_truck_across", "tip_above_rim",
-    "bucket_tilt", "truck_fill", "time_left",
+    "bucket_tilt", "truck_fill", "time_left", "swing_to_cut",
 )  # fmt: skip
 # Bounds (observations are clipped to them): angles, rates (rad/s) well beyond the servos' ranges,
 # loads (MN) beyond the reliefs' forces, a bucket's load (t), the site's extent (m)
-_OBS_HIGH = np.array([np.pi] * 5 + [10.0] * 4 + [10.0] * 3 + [5.0] + [30.0] * 6 + [np.pi, 2.0, 1.0], np.float32)
-_OBS_LOW = np.array([-np.pi] * 5 + [-10.0] * 4 + [-10.0] * 3 + [0.0] + [-30.0] * 6 + [0.0, 0.0, 0.0], np.float32)
+_OBS_HIGH = np.array([np.pi] * 5 + [10.0] * 4 + [10.0] * 3 + [5.0] + [30.0] * 6 + [np.pi, 2.0, 1.0, np.pi], np.float32)
+_OBS_LOW = np.array(
+    [-np.pi] * 5 + [-10.0] * 4 + [-10.0] * 3 + [0.0] + [-30.0] * 6 + [0.0, 0.0, 0.0, -np.pi], np.float32
+)
 _CLIP_LOW, _CLIP_HIGH = _OBS_LOW.astype(float), _OBS_HIGH.astype(float)  # the bounds as float64: clip before casting
 
 
@@ -198,7 +201,7 @@ class HexLoadingEnv(gym.Env):
     | 3 | bucket spool (+ curls the bucket closed) | -1 | 1 | × 11 mm |
 
     ## Observation Space
-    ``Box(low, high, (22,), float32)``, clipped to generous bounds (±pi rad, ±10 rad/s, ±10 MN,
+    ``Box(low, high, (23,), float32)``, clipped to generous bounds (±pi rad, ±10 rad/s, ±10 MN,
     0-5 t, ±30 m):
 
     | Num | Observation | Unit |
@@ -216,6 +219,12 @@ class HexLoadingEnv(gym.Env):
     | 19 | bucket mouth's tilt from facing up (> repose angle 0.59 rad: it spills) | rad |
     | 20 | truck fill: delivered / truck capacity | 1 |
     | 21 | time left: fraction of the time budget | 1 |
+    | 22 | swing angle minus the direction of the pile's fullest cut line, wrapped (see below) | rad |
+
+    Entry 22 tells where the material still stands: of nine radial cut lines within ±0.3 rad of the
+    pile's direction, across its flat top (:func:`hexgym.envs.world.fullest_cut_direction`), the one
+    holding the most (ties go to the centre line). It moves as the pile is dug away; the scripted
+    loader cuts along it, and a policy that did not see it could not tell which way to swing.
 
     ## Rewards
     Per step, the sum of the terms below, each in ``info`` as ``reward_<term>``:
@@ -333,6 +342,7 @@ class HexLoadingEnv(gym.Env):
         self.layout, q = sample_start(self.np_random)
         pile = heap_for(self.layout)
         self.earth = Earthwork(pile)
+        self._cut: tuple[int, float] | None = None  # (pile revision, fullest cut direction): fullest_cut_direction
         self.start_machine(q, self.layout)
         self.world.show_pile(pile.heights)
         self._pile_shown = False
@@ -610,12 +620,21 @@ class HexLoadingEnv(gym.Env):
             earth.bucket_kg / 1000.0, c * rel_x + s * rel_y, -s * rel_x + c * rel_y, above_pile,
             *bed_coordinates(tip[0], tip[1], lay), tip[2] - BED_RIM_HEIGHT,
             tilt, earth.truck_kg / self.truck_capacity_kg, max(1.0 - self.elapsed / self.time_limit, 0.0),
+            _wrap(q[0] - self.fullest_cut_direction()),
         ]  # fmt: skip
         obs = np.array(values)
         if not math.isfinite(sum(values)):  # a NaN or an infinity anywhere makes the sum one
             raise RuntimeError(f"the simulation diverged (non-finite observation {obs}) at t = {self.elapsed:.1f} s")
         np.minimum(np.maximum(obs, _CLIP_LOW, out=obs), _CLIP_HIGH, out=obs)
         return obs.astype(np.float32)
+
+    def fullest_cut_direction(self) -> float:
+        """Swing angle (rad) of the pile's cut line with the most material (:func:`world.fullest_cut_direction`),
+        recomputed only when the pile has changed."""
+        pile = self.earth.pile
+        if self._cut is None or self._cut[0] != pile.revision:
+            self._cut = (pile.revision, fullest_cut_direction(pile.height_at, self.layout))
+        return self._cut[1]
 
     def _info(self, terms: dict[str, float]) -> dict[str, Any]:
         earth = self.earth

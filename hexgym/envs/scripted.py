@@ -30,9 +30,9 @@ import numpy as np
 
 from hexgym import machine
 from hexgym import parameters as p
-from hexgym.envs.earthwork import Pile, mouth_normal
+from hexgym.envs.earthwork import mouth_normal
 from hexgym.envs.loading import REWARD_TERMS, HexLoadingEnv
-from hexgym.envs.world import TRUCK_CAB_LENGTH, Layout, World
+from hexgym.envs.world import TRUCK_CAB_LENGTH, Layout, World, entry_radius, inner_radius
 from hexgym.tables import MBLTable
 
 # bucket frame directions (angle from the bucket frame's x axis towards z) of the teeth and mouth
@@ -46,7 +46,6 @@ SWING_GAIN = 4.0  # spool per rad/s of swing-rate error (the valve's dead zone s
 POSITION_GAIN = 1.5  # 1/s: planar velocity per metre (or rad) of error
 MAX_TIP_SPEED = 2.0  # m/s planned (beyond the boom's full-spool speed: it sets the pace)
 DIG_DEPTH = 0.45  # m below the surface during the drag
-DRAG_BEYOND_TOP = 1.3  # m: the drag ends at the latest this far towards the machine from the pile's flat top
 DRAG_FLOOR = 0.3  # m: lowest teeth height in the drag (teeth along it: the bucket's body rides above them)
 DRAG_SPEED = 0.6  # m/s towards the machine
 GROUND_CLEARANCE = 0.5  # m: lowest teeth height while digging (the bucket's heel hangs below the teeth)
@@ -55,7 +54,6 @@ FULL_FRACTION = 0.85  # of the heaped capacity: stop dragging (a fuller bucket s
 CLEARANCE = 1.5  # m: teeth above the bed's rim when swinging over it (the curled bucket hangs below them)
 PILE_CLEARANCE = 0.5  # m: teeth above the pile's surface before the loaded swing starts
 APPROACH_HEIGHT = 0.6  # m above the pile's top: where the empty bucket arrives before it goes in
-ENTRY_BEYOND_CENTRE = 0.8  # m: the teeth enter the pile this far beyond its centre
 REACH_PER_METRE = 2.0  # m: the empty bucket reaches out over the pile this far per metre above its top
 OPEN_WITHIN = 2.0  # m: the empty bucket opens for the dig over this distance to the entry radius
 ENTRY_TOLERANCE = 0.4  # m: radius error within which the teeth are at the entry point
@@ -70,8 +68,6 @@ ARRIVE_HEIGHT = 1.2  # m: teeth above the rim before the loaded bucket swings ov
 LEAVE_HEIGHT = 0.5  # m: teeth (the open bucket's lowest point) above the rim before it swings away
 TRUCK_APPROACH = 0.8  # rad: the loaded swing waits at most this far from the truck until the teeth clear it...
 HOLD_BACK_PER_METRE = 1.0  # rad: ...this much short of it per metre they still have to rise
-DIG_SWING_RANGE = 0.3  # rad either side of the pile's direction where the loader looks for material
-CENTRE_PREFERENCE = 1.0  # m^2 of cut cross-section per rad off the pile's centre line: prefer the centre
 DUMP_WINDOW = 0.25  # rad: the swing this close to the truck's direction: reach out and dump
 
 
@@ -236,7 +232,7 @@ class LoaderState:
         q, tip = ph.joint_positions(), ph.tip_position()
         rotation = ph.data.xmat[ph.model.body("bucket").id].reshape(3, 3)
         surface = env.earth.pile.height_at_point(float(tip[0]), float(tip[1]))
-        dig = dig_direction(env.earth.pile, lay)
+        dig = env.fullest_cut_direction()
         return LoaderState(
             q=q, qd=ph.joint_velocities(), tip=tip, radius=float(np.hypot(*tip[:2])),
             surface=surface, above_pile=float(tip[2] - surface),
@@ -245,30 +241,6 @@ class LoaderState:
             swing_to_pile=_wrap(q[0] - lay.pile_direction), swing_to_truck=_wrap(q[0] - lay.truck_direction),
             dig_direction=dig, swing_to_dig=_wrap(q[0] - dig),
         )  # fmt: skip
-
-
-def entry_radius(layout: Layout) -> float:
-    """Where the teeth enter the pile: beyond its far edge of the flat top, m from the swing axis."""
-    return float(np.hypot(*layout.pile_centre)) + ENTRY_BEYOND_CENTRE
-
-
-def inner_radius(layout: Layout) -> float:
-    """Where a drag ends at the latest: DRAG_BEYOND_TOP inside the pile's near edge of the flat top."""
-    return float(np.hypot(*layout.pile_centre)) - layout.pile_top_radius - DRAG_BEYOND_TOP
-
-
-def dig_direction(pile: Pile, layout: Layout) -> float:
-    """Swing angle of the cut with the most material along its drag (from the entry to the inner radius).
-
-    Cutting the same line every time would leave a trench: the material is where the pile still stands.
-    A small preference for the pile's centre line breaks ties.
-    """
-    offsets = np.linspace(-DIG_SWING_RANGE, DIG_SWING_RANGE, 9)
-    radii = np.arange(inner_radius(layout), entry_radius(layout), 0.25)
-    angles = layout.pile_direction + offsets
-    points = np.stack([np.outer(np.cos(angles), radii), np.outer(np.sin(angles), radii)], axis=-1)
-    material = pile.height_at(points).sum(axis=1) * 0.25  # m^2: the cut line's cross-section
-    return float(angles[np.argmax(material - CENTRE_PREFERENCE * np.abs(offsets))])
 
 
 def infer_phase(s: LoaderState, layout: Layout) -> str:

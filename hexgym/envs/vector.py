@@ -21,6 +21,7 @@ on a scratch :class:`HexLoadingEnv` and copy its state into the site's row.
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import time
@@ -75,6 +76,7 @@ from hexgym.envs.world import (
     Layout,
     bed_frame,
     build_world_model,
+    fullest_cut_direction,
     over_bed,
 )
 from hexgym.physics import payload_inertia
@@ -211,6 +213,7 @@ class HexLoadingVectorEnv(VectorEnv):
         self._pile_centre, self._truck_centre = np.zeros((n, 2)), np.zeros((n, 2))
         self._pile_dir, self._truck_dir = np.zeros(n), np.zeros(n)
         self._pile_cos, self._pile_sin = np.zeros(n), np.zeros(n)
+        self._cut_dir = np.zeros(n)  # each pile's fullest cut line's direction (rad), kept while the pile stands
         self._truck_cos, self._truck_sin = np.zeros(n), np.zeros(n)
         self.bucket_kg, self.truck_kg, self.spilled_kg = np.zeros(n), np.zeros(n), np.zeros(n)
         self._payload_kg = np.zeros(n)
@@ -670,7 +673,7 @@ class HexLoadingVectorEnv(VectorEnv):
 
     # -- observation and info ------------------------------------------------------------------
     def _observations(self, ids: np.ndarray) -> np.ndarray:
-        """HexLoadingEnv._observation of the sites ``ids`` (float32, clipped), (k, 22)."""
+        """HexLoadingEnv._observation of the sites ``ids`` (float32, clipped), (k, 23)."""
         q, qd = self._qpos[ids][:, self._qadr], self._qvel[ids][:, self._dadr]
         arms = np.stack([table.at(q[:, i + 1]) for i, table in enumerate(_moment_arm_tables())], axis=1)
         loads = self._joint_loads[ids][:, 1:] / arms / 1e6
@@ -686,6 +689,7 @@ class HexLoadingVectorEnv(VectorEnv):
             loads[:, 0], loads[:, 1], loads[:, 2], self.bucket_kg[ids] / 1000.0, c * rel_x + s * rel_y,
             -s * rel_x + c * rel_y, above_pile, along, across, tip[:, 2] - BED_RIM_HEIGHT, tilt,
             self.truck_kg[ids] / self.truck_capacity_kg, np.maximum(1.0 - self.elapsed[ids] / self.time_limit, 0.0),
+            wrap_angle(q[:, 0] - self._fullest_cut_directions(ids)),
         ]  # fmt: skip
         obs = np.stack(columns, axis=1)
         finite = np.isfinite(obs).all(axis=1)
@@ -697,6 +701,20 @@ class HexLoadingVectorEnv(VectorEnv):
             )
         np.minimum(np.maximum(obs, _CLIP_LOW, out=obs), _CLIP_HIGH, out=obs)
         return obs.astype(np.float32)
+
+    def _fullest_cut_directions(self, ids: np.ndarray) -> np.ndarray:
+        """HexLoadingEnv.fullest_cut_direction of the sites ``ids``: recomputed, site by site, for the piles that
+        changed (few in a step: those being dug)."""
+        changed = ids[self._piles.changed[ids]]
+        for i in changed.tolist():
+            heights = functools.partial(self._heights_at, i)
+            self._cut_dir[i] = fullest_cut_direction(heights, self.layouts[i])
+        self._piles.changed[changed] = False
+        return self._cut_dir[ids]
+
+    def _heights_at(self, site: int, xy: np.ndarray) -> np.ndarray:
+        """Pile.height_at of site ``site``'s pile at world points ``xy`` (..., 2)."""
+        return self._piles.height_at(site, xy[..., 0], xy[..., 1])
 
     def _infos(
         self, reported: np.ndarray, terms: np.ndarray, step_extras: tuple[np.ndarray, ...] | None

@@ -22,6 +22,7 @@ from __future__ import annotations
 import functools
 import math
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -69,6 +70,40 @@ class Layout:
     def truck_distance(self) -> float:
         """Distance (m) from the swing axis to the bed's centre."""
         return float(np.hypot(*self.truck_centre))
+
+
+# Cut lines: radial lines across the pile's flat top along which a bucket drags material towards the
+# machine. The environment observes the fullest one (the swing angle to it); the scripted loader cuts it.
+ENTRY_BEYOND_CENTRE = 0.8  # m: a cut starts this far beyond the pile's centre (where the teeth enter)
+DRAG_BEYOND_TOP = 1.3  # m: and ends at the latest this far towards the machine from the flat top's near edge
+CUT_SWING_RANGE = 0.3  # rad either side of the pile's direction: where cut lines lie
+CUT_LINES = 9  # evenly over that range
+CUT_SAMPLE_SPACING = 0.25  # m between a line's height samples
+CENTRE_PREFERENCE = 1.0  # m^2 of cut cross-section per rad off the pile's centre line: ties go to the centre
+
+
+def entry_radius(layout: Layout) -> float:
+    """Where a cut starts: beyond the pile's centre, m from the swing axis."""
+    return float(np.hypot(*layout.pile_centre)) + ENTRY_BEYOND_CENTRE
+
+
+def inner_radius(layout: Layout) -> float:
+    """Where a cut ends at the latest: DRAG_BEYOND_TOP inside the pile's near edge of the flat top."""
+    return float(np.hypot(*layout.pile_centre)) - layout.pile_top_radius - DRAG_BEYOND_TOP
+
+
+def fullest_cut_direction(height_at: Callable[[np.ndarray], np.ndarray], layout: Layout) -> float:
+    """Swing angle (rad) of the cut line with the most material along it (from the entry to the inner radius).
+
+    ``height_at``: the pile's surface height (m) at world points (..., 2). Cutting the same line every
+    time would leave a trench: the material is where the pile still stands.
+    """
+    offsets = np.linspace(-CUT_SWING_RANGE, CUT_SWING_RANGE, CUT_LINES)
+    radii = np.arange(inner_radius(layout), entry_radius(layout), CUT_SAMPLE_SPACING)
+    angles = layout.pile_direction + offsets
+    points = np.stack([np.outer(np.cos(angles), radii), np.outer(np.sin(angles), radii)], axis=-1)
+    material = height_at(points).sum(axis=1) * CUT_SAMPLE_SPACING  # m^2: each line's cross-section
+    return float(angles[np.argmax(material - CENTRE_PREFERENCE * np.abs(offsets))])
 
 
 def sample_layout(rng: np.random.Generator) -> Layout:
