@@ -65,7 +65,7 @@ def test_short_ppo_run_saves_reloads_and_resumes(tmp_path, tiny_yaml, capsys):
     assert normalizer_path(checkpoint).is_file()
     policy = load_trained(path)
     assert policy.normalizer is not None and policy.normalizer.obs_rms.count > 256  # it saw the rollouts
-    action = policy.act(np.zeros(22, np.float32), None)
+    action = policy.act(np.zeros(23, np.float32), None)
     assert action.shape == (4,) and np.all(np.abs(action) <= 1.0)
     # the same command with a larger budget continues from the checkpoint
     train("ppo", timesteps=384, seed=0, log_dir=tmp_path, hyperparams=tiny_yaml, n_envs=2,

@@ -92,7 +92,7 @@ class HexLoadingVectorEnv(VectorEnv):
 
     Spaces, rewards, observations and ``info`` keys are the single environment's
     (:class:`hexgym.envs.loading.HexLoadingEnv`), batched: actions ``(num_envs, 4)``, observations
-    ``(num_envs, 22)``, rewards, terminations and truncations ``(num_envs,)``, ``info`` a dict of
+    ``(num_envs, 23)``, rewards, terminations and truncations ``(num_envs,)``, ``info`` a dict of
     arrays with a ``_key`` mask each (Gymnasium's vector convention). Episodes reset automatically
     on the step after they end (``AutoresetMode.NEXT_STEP``, as ``SyncVectorEnv``): that step
     returns the new episode's first observation with reward 0. ``reset(seed=s)`` seeds site ``i``
