@@ -261,6 +261,8 @@ def skip_collisions_if_none_possible(model: mujoco.MjModel) -> bool:
     The machine alone is such a model: its geoms collide only with world geoms (contype 2 /
     conaffinity 1), so the pass finds nothing, yet its broad phase costs ~15 % of a step. Exact:
     nothing it could find is lost. A scene with ground or truck keeps the pass. True when turned off.
+    The flag is set on ``model`` itself: a caller that later makes geoms collidable (``geom_contype``
+    is writable) must clear it.
     """
     types, affinities, bodies = model.geom_contype, model.geom_conaffinity, model.geom_bodyid
     candidates = np.flatnonzero((types != 0) | (affinities != 0))
