@@ -378,7 +378,14 @@ def score_episode(model_path: str, seed: int, env_kwargs: dict | None = None) ->
     return {"delivered_t": summary["delivered_t"], "full_dumps": summary["full_dumps"]}
 
 
-CLONE_LOSSES = ("mse", "l1")
+CLONE_LOSSES = {"mse": 2, "l1": 1}  # the actor's loss: the power of the action error it averages
+
+
+def _loss_power(loss: str) -> int:
+    """The power of ``loss`` (one of CLONE_LOSSES), or a ValueError naming the choices."""
+    if loss not in CLONE_LOSSES:
+        raise ValueError(f"loss must be one of {tuple(CLONE_LOSSES)}, got {loss!r}")
+    return CLONE_LOSSES[loss]
 
 
 def fit_to_demonstrations(
@@ -394,10 +401,8 @@ def fit_to_demonstrations(
     """
     import torch
 
-    if loss not in CLONE_LOSSES:
-        raise ValueError(f"loss must be one of {CLONE_LOSSES}, got {loss!r}")
+    power = _loss_power(loss)
     torch.manual_seed(seed)
-    power = 2 if loss == "mse" else 1
     policy = model.policy
     obs = torch.as_tensor(model.get_vec_normalize_env().normalize_obs(demos.obs), dtype=torch.float32)
     actions = torch.as_tensor(demos.actions, dtype=torch.float32)
@@ -458,8 +463,7 @@ def clone_scripted(
     clone is kept in ``rounds_dir`` (``round<k>.zip``) when given. ``loss``: the actor's fit
     (:func:`fit_to_demonstrations`).
     """
-    if loss not in CLONE_LOSSES:
-        raise ValueError(f"loss must be one of {CLONE_LOSSES}, got {loss!r}")
+    _loss_power(loss)  # a bad loss fails here, before minutes of recording
     if episodes < 1 or dagger_rounds < 0 or epochs < 1 or select_episodes < 0:
         raise ValueError(f"need episodes >= 1, dagger_rounds >= 0, epochs >= 1, select_episodes >= 0; got "
                          f"{episodes}, {dagger_rounds}, {epochs}, {select_episodes}")  # fmt: skip

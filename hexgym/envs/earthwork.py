@@ -323,8 +323,7 @@ class Pile:
         before = float(patch.sum())
         patch -= available * min(1.0, volume / total)
         self._volume = None
-        self.revision += 1
-        self.relax((rows, cols))
+        self.relax((rows, cols))  # (counts the change in ``revision``)
         # the relaxation moves material inside the window only, so the window's loss is the take
         return (before - float(self.heights[rows, cols].sum())) * self.cell_area
 

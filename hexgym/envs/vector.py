@@ -57,7 +57,6 @@ from hexgym.envs.loading import (
     _PILE_MARGIN,
     _TEETH_X,
     _TEETH_Z,
-    EARTHWORK_PERIODS,
     FORCE_PERIODS,
     PAYLOAD_UPDATE_KG,
     REWARD_TERMS,
@@ -105,10 +104,11 @@ class HexLoadingVectorEnv(VectorEnv):
     Args:
         num_envs: number of sites.
         nthread: the batch's threads (default: the CPUs this process may use, at most ``num_envs``).
-        time_limit, truck_capacity_kg, delivery_weight, fill_weight, time_weight, fuel_weight,
-            spill_weight, contact_weight, scene_path, earthwork_periods: as ``HexLoadingEnv``'s.
+        scene_path: as ``HexLoadingEnv``'s (the batch's model is built on it too).
         backend: ``"native"`` or ``"auto"`` (the same here); ``"python"`` raises.
         render_mode: only None.
+        env_kwargs: the other keyword arguments of ``HexLoadingEnv`` (time limit, truck capacity, reward
+            weights, earthwork periods), with its defaults: the single environment takes and checks them.
     """
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": [], "render_fps": round(1 / STEP_PERIOD)}
@@ -116,19 +116,11 @@ class HexLoadingVectorEnv(VectorEnv):
     def __init__(
         self,
         num_envs: int,
-        time_limit: float = 180.0,
-        truck_capacity_kg: float = p.TRUCK_CAPACITY,
-        delivery_weight: float = 1.0,
-        fill_weight: float = 0.0,
-        time_weight: float = 0.02,
-        fuel_weight: float = 0.5,
-        spill_weight: float = 2.0,
-        contact_weight: float = 0.01,
+        nthread: int | None = None,
         scene_path: str | Path | None = None,
         backend: str = "native",
-        earthwork_periods: int = EARTHWORK_PERIODS,
-        nthread: int | None = None,
         render_mode: str | None = None,
+        **env_kwargs: Any,
     ) -> None:
         if isinstance(num_envs, bool) or not isinstance(num_envs, int | np.integer) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
@@ -153,12 +145,7 @@ class HexLoadingVectorEnv(VectorEnv):
                 "gymnasium.make_vec('HexLoading-v0', num_envs, vectorization_mode='sync')"
             )
         # the single environment checks the arguments, resets the sites and holds the spaces
-        self._scratch = HexLoadingEnv(
-            time_limit=time_limit, truck_capacity_kg=truck_capacity_kg, delivery_weight=delivery_weight,
-            fill_weight=fill_weight, time_weight=time_weight, fuel_weight=fuel_weight, spill_weight=spill_weight,
-            contact_weight=contact_weight, scene_path=scene_path, backend="native",
-            earthwork_periods=earthwork_periods,
-        )  # fmt: skip
+        self._scratch = HexLoadingEnv(scene_path=scene_path, backend="native", **env_kwargs)
         scratch = self._scratch
         self.num_envs = int(num_envs)
         self.render_mode = None
