@@ -50,6 +50,7 @@ faster; the swing torque returned is on the swing axis.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -181,7 +182,9 @@ def validate_spools(spools_m: np.ndarray) -> np.ndarray:
     u = np.asarray(spools_m, dtype=float)
     if u.shape != (len(FUNCTIONS),):
         raise ValueError(f"spools must have shape (4,) in the order {FUNCTIONS}, got shape {u.shape}")
-    if np.abs(u).max() <= p.SPOOL_STROKE * (1.0 + 1e-9):  # also False for NaN: the fast path
+    values, limit = u.tolist(), p.SPOOL_STROKE * (1.0 + 1e-9)
+    # the fast path, in plain floats (called every control period): a NaN or inf makes the sum one
+    if math.isfinite(sum(values)) and -limit <= min(values) and max(values) <= limit:
         return u
     for name, value in zip(FUNCTIONS, u, strict=True):
         if not np.isfinite(value):

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import ctypes
 import functools
+import math
 import os
 import time
 import warnings
@@ -31,7 +32,7 @@ from hexgym import machine
 from hexgym.commandlog import CommandLog
 from hexgym.hydraulics import validate_spools
 from hexgym.learned import LearnedModel, trajectory_row
-from hexgym.physics import ExcavatorPhysics
+from hexgym.physics import ExcavatorPhysics, contiguous_index
 from hexgym.resources import AssetError, asset_path
 
 PLUGIN_NAME = "hexgym.mbl"
@@ -175,7 +176,9 @@ class NativeLearnedModel:
         # as the plugin: steps per period rounded to a multiple of 2**-20, so the step counts are exact
         self._steps_per_period = round(period / self.physics.timestep * 2**20) / 2**20
         self._periods = self._steps = 0  # since reset: the plugin queried the tables at steps ceil(k * period / step)
-        self._dofs = np.array([m.joint(n).dofadr[0] for n in machine.JOINTS])
+        self._dofs = contiguous_index(np.array([m.joint(n).dofadr[0] for n in machine.JOINTS]))
+        self._ctrl_index = contiguous_index(self._ctrl)
+        self._load_slots = slice(self._state.start, self._state.start + 4)  # the constraint loads, N m
         self.spools_m = np.zeros(4)
 
     @property
@@ -207,9 +210,9 @@ class NativeLearnedModel:
     def step(self, spools_m: np.ndarray, n: int = 1) -> None:
         """Advance ``n`` control periods with the spools (m; swing, boom, stick, bucket) held."""
         self.spools_m = validate_spools(spools_m).copy()
-        self.physics.data.ctrl[self._ctrl] = self.spools_m * 1e3  # the plugin's ctrl is in mm
+        self.physics.data.ctrl[self._ctrl_index] = self.spools_m * 1e3  # the plugin's ctrl is in mm
         self._periods += n
-        end = int(np.ceil(self._periods * self._steps_per_period - 1e-9))
+        end = math.ceil(self._periods * self._steps_per_period - 1e-9)
         self.physics.step(end - self._steps)
         self._steps = end
 
@@ -219,8 +222,9 @@ class NativeLearnedModel:
         As LearnedModel.joint_loads: the last step's constraint forces without the joint limits'.
         """
         d = self.physics.data
-        tau = d.qfrc_bias - d.qfrc_passive - d.qfrc_applied
-        return tau[self._dofs] - d.plugin_state[self._state][:4]
+        dofs = self._dofs
+        tau = d.qfrc_bias[dofs] - d.qfrc_passive[dofs] - d.qfrc_applied[dofs]
+        return tau - d.plugin_state[self._load_slots]
 
     def cylinder_loads(self, arms: np.ndarray | None = None) -> np.ndarray:
         """[boom, stick, bucket] cylinder force loads, N (+ = the cylinder must push)."""

@@ -289,6 +289,50 @@ def test_clear_periods_follow_the_teeth_height_above_the_pile():
     assert 0 < env._clear_periods() < periods
 
 
+def test_clear_periods_shortcut_agrees_with_the_period_by_period_definition():
+    """The whole-step check taken first changes no answer: m periods are clear when no grid point within half a
+    bucket width plus m periods' travel stands higher than the teeth less that travel."""
+    env = HexLoadingEnv()
+    env.reset(seed=0)
+    pile, periods = env.earth.pile, env._periods
+    site = env.physics.data.site_xpos[env._tip_site]
+    per_period = 0.6 / periods  # loading._PILE_MARGIN spread over the step
+    x0, y0 = env.layout.pile_centre
+    seen = set()
+    for x, y, z in np.random.default_rng(0).uniform([x0 - 5, y0 - 5, -0.5], [x0 + 5, y0 + 5, pile.top + 1.0], (400, 3)):
+        site[:] = [x, y, z]
+        expected = 0
+        while expected < periods:
+            travel = (expected + 1) * per_period
+            if pile.clearance(site, p.BUCKET_WIDTH / 2 + travel) < travel:
+                break
+            expected += 1
+        assert env._clear_periods() == expected, (x, y, z)
+        seen.add(expected)
+    assert {0, periods} <= seen and len(seen) > 2  # the sweep met clear, blocked and partly clear teeth
+
+
+def test_hard_contact_force_sums_only_tool_contacts_as_numpy_would():
+    env = HexLoadingEnv()
+    env.reset(seed=0)
+    d, world = env.physics.data, env.world
+    rng = np.random.default_rng(0)
+    others = pressed = 0
+    for k in range(3000):  # first boom down and stick in (the bucket into the ground), then random spools
+        env.step(np.array([0.0, -1.0, 1.0, 0.0]) if k < 40 else rng.uniform(-1, 1, 4))
+        g1, g2 = d.contact.geom1, d.contact.geom2
+        tool = (world.tool_geoms[g1] & world.obstacle_geoms[g2]) | (world.tool_geoms[g2] & world.obstacle_geoms[g1])
+        depth = -np.minimum(d.contact.dist[tool], 0.0).sum()
+        force = p.CONTACT_STIFFNESS * depth - p.HARD_CONTACT_FORCE
+        expected = min(max(force, 0.0), p.HARD_CONTACT_FORCE_CAP - p.HARD_CONTACT_FORCE) if tool.any() else 0.0
+        assert env._hard_contact_force() == expected
+        others += bool((~tool).any())  # the boom against the truck: not the bucket's or stick's, does not count
+        pressed += expected > 0
+        if others and pressed:
+            break
+    assert others and pressed
+
+
 @pytest.mark.parametrize("periods", [0, 1.5, True])
 def test_bad_earthwork_periods_are_refused(periods):
     with pytest.raises(ValueError, match="earthwork_periods"):

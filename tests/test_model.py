@@ -8,7 +8,7 @@ import pytest
 
 from hexgym import machine, mjcf
 from hexgym import parameters as p
-from hexgym.physics import ExcavatorPhysics, force_actuated_model, skip_collisions_if_none_possible
+from hexgym.physics import ExcavatorPhysics, contiguous_index, force_actuated_model, skip_collisions_if_none_possible
 from hexgym.resources import AssetError, asset_path, assets_dir, load_model
 
 
@@ -192,3 +192,12 @@ def test_collision_pass_is_skipped_only_where_nothing_can_touch():
     lean = load_model(lean=True)
     lean.geom_conaffinity[lean.geom("bucket_collision").id] = 2  # now the bucket could hit the boom
     assert not skip_collisions_if_none_possible(lean) and not lean.opt.disableflags & contact_off
+
+
+def test_contiguous_index_is_a_slice_only_for_consecutive_ids():
+    values = np.arange(10.0) * 1.5
+    assert contiguous_index(np.array([3, 4, 5])) == slice(3, 6)
+    for ids in ([3, 4, 5], [0], [2, 1, 0], [1, 3, 4], [4, 4]):
+        index = contiguous_index(np.array(ids))
+        assert isinstance(index, slice) == (ids in ([3, 4, 5], [0]))
+        assert np.array_equal(values[index], values[ids])
