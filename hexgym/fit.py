@@ -75,12 +75,17 @@ def fit_all(
     """Fit every table from ``data_dir/<name>.npz`` and write ``out_dir/<name>.npz``."""
     written = {}
     for name in names:
-        X, y = load_dataset(Path(data_dir) / f"{name}.npz", name)
-        if len(y) > MAX_POINTS:  # the swing table is sampled along trajectories: many more points
-            keep = np.sort(np.random.default_rng(seed).choice(len(y), MAX_POINTS, replace=False))
-            X, y = X[keep], y[keep]
+        X, y = fitted_points(*load_dataset(Path(data_dir) / f"{name}.npz", name), seed=seed)
         written[name] = fit_table(name, X, y, seed=seed).save(table_path(name, out_dir))
     return written
+
+
+def fitted_points(X: np.ndarray, y: np.ndarray, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """The points a table is fitted from: all of them, or a seeded ``MAX_POINTS`` subsample."""
+    if len(y) <= MAX_POINTS:  # the swing table is sampled along trajectories: many more points
+        return X, y
+    keep = np.sort(np.random.default_rng(seed).choice(len(y), MAX_POINTS, replace=False))
+    return X[keep], y[keep]
 
 
 def load_tables(directory: str | Path | None = None) -> dict[str, MBLTable]:

@@ -57,3 +57,16 @@ def test_wrong_or_missing_data_is_named(data_dir, tmp_path):
         fit.load_dataset(tmp_path / "nothing.npz", "boom")
     with pytest.raises(ValueError, match="swing.npz"):
         fit.load_dataset(data_dir / "swing.npz", "boom")
+
+
+def test_fitted_points_subsample_only_above_the_limit():
+    from hexgym.fit import MAX_POINTS, fitted_points
+
+    X, y = np.arange(20.0).reshape(10, 2), np.arange(10.0)
+    assert fitted_points(X, y)[0] is X
+    X, y = np.arange(2.0 * (MAX_POINTS + 50)).reshape(-1, 2), np.arange(MAX_POINTS + 50.0)
+    Xs, ys = fitted_points(X, y, seed=3)
+    assert len(ys) == MAX_POINTS and np.all(np.diff(ys) > 0)  # distinct rows, in their order
+    np.testing.assert_array_equal(Xs[:, 1], 2 * ys + 1)  # rows stay paired with their outputs
+    np.testing.assert_array_equal(fitted_points(X, y, seed=3)[1], ys)  # seeded
+    assert not np.array_equal(fitted_points(X, y, seed=4)[1], ys)
