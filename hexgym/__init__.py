@@ -1,8 +1,8 @@
 """hexgym: a fast, faithful simulator of a 25-ton hydraulic excavator (Cat 325 class) on MuJoCo.
 
-Modules: :mod:`hexgym.parameters` (every physical number), :mod:`hexgym.machine` (kinematics),
-:mod:`hexgym.physics` (the MuJoCo simulation), :mod:`hexgym.mjcf` and :mod:`hexgym.meshes`
-(generate ``assets/``), :mod:`hexgym.render` (offscreen video), :mod:`hexgym.cli` (``hexgym``).
+Modules: :mod:`hexgym.machine.parameters` (every physical number), :mod:`hexgym.machine.kinematics` (kinematics),
+:mod:`hexgym.machine.physics` (the MuJoCo simulation), :mod:`hexgym.machine.mjcf` and :mod:`hexgym.tools.meshes`
+(generate ``assets/``), :mod:`hexgym.machine.render` (offscreen video), :mod:`hexgym.tools.cli` (``hexgym``).
 """
 
 import os as _os
@@ -18,6 +18,6 @@ __version__ = "0.1.0"
 
 _register_envs()  # `import hexgym` makes gymnasium.make("HexLoading-v0") work
 
-from hexgym.native import load_plugin as _load_plugin  # noqa: E402
+from hexgym.model.native_backend import load_plugin as _load_plugin  # noqa: E402
 
 _load_plugin()  # registers the native hexgym.mbl plugin with MuJoCo when the build compiled it

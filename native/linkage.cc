@@ -1,4 +1,4 @@
-// Closed-form linkage kinematics, mirroring hexgym/machine.py operation for operation.
+// Closed-form linkage kinematics, mirroring hexgym/machine/kinematics.py operation for operation.
 #include "linkage.h"
 
 #include <cmath>

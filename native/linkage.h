@@ -1,5 +1,5 @@
 // The front linkage's cylinder lengths and moment arms dC/dq (the paper's Eqn 5), the same
-// closed forms as hexgym/machine.py, with the geometry passed in from hexgym.parameters.
+// closed forms as hexgym/machine/kinematics.py, with the geometry passed in from hexgym.machine.parameters.
 #ifndef HEXGYM_NATIVE_LINKAGE_H_
 #define HEXGYM_NATIVE_LINKAGE_H_
 

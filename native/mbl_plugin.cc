@@ -2,7 +2,7 @@
 //
 // Four plugin actuators on the joints swing, boom, stick, bucket share one plugin instance;
 // their ctrl is the spool position in mm (+-11). Every step, inside mj_fwdActuation, the
-// instance does what hexgym.learned.LearnedModel._control_period does in Python:
+// instance does what hexgym.model.python_backend.LearnedModel._control_period does in Python:
 //   loads   tau = qfrc_bias - qfrc_passive - qfrc_applied - qfrc_constraint (main dofs),
 //           cylinder forces f = tau / (dC/dq)                               (Eqns 4-5)
 //   spools  stalled functions (stroke end, relief) closed, dead band -> no flow
@@ -50,7 +50,7 @@ constexpr const char* kJoints[4] = {"swing", "boom", "stick", "bucket"};
 // number of steps), the 4 joint-rate targets held until the next query (the swing's unclipped).
 constexpr int kLoad = 0, kAcceleration = 4, kPhase = 5, kTargets = 6, kStateSize = 10;
 
-// Config keys; hexgym/mjcf_native.py writes them from hexgym/parameters.py.
+// Config keys; hexgym/model/plugin_mjcf.py writes them from hexgym/machine/parameters.py.
 constexpr const char* kAttributes[] = {
     "tables",             // directory of boom/bucket/stick/swing.npz (default: mbl_tables next to this library)
     "boom_triangle",      // base x z, rod x z, frame offset, sign
@@ -71,7 +71,7 @@ constexpr const char* kAttributes[] = {
 };
 constexpr int kNumAttributes = sizeof(kAttributes) / sizeof(kAttributes[0]);
 
-// The tables, the inputs each takes, in order, and its output (hexgym.fit.TABLES).
+// The tables, the inputs each takes, in order, and its output (hexgym.mbl.fit.TABLES).
 struct TableSpec {
   const char* name;
   std::vector<std::string> inputs;

@@ -11,7 +11,7 @@
 namespace hexgym {
 namespace {
 
-constexpr double kUniformRtol = 1e-9;  // hexgym.tables._UNIFORM_RTOL
+constexpr double kUniformRtol = 1e-9;  // hexgym.mbl.table._UNIFORM_RTOL
 constexpr int kMaxDims = 8;            // the lookup's corner buffer holds 2^8 values
 
 std::string Join(const std::vector<std::string>& names) {

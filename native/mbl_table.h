@@ -1,4 +1,4 @@
-// An MBL table read from the .npz file hexgym.tables.MBLTable.save writes, and its lookup:
+// An MBL table read from the .npz file hexgym.mbl.table.MBLTable.save writes, and its lookup:
 // multilinear interpolation on the grid with inputs clamped to it, the same arithmetic in the
 // same order as MBLTable._lookup_one (so Python and native give the same numbers).
 #ifndef HEXGYM_NATIVE_MBL_TABLE_H_
@@ -10,7 +10,7 @@
 
 namespace hexgym {
 
-// The table file format this library reads (hexgym.tables.FORMAT_VERSION).
+// The table file format this library reads (hexgym.mbl.table.FORMAT_VERSION).
 constexpr int kTableFormatVersion = 1;
 
 // A table file that cannot be used; what() names the file and the problem.

@@ -8,9 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hexgym import machine
-from hexgym import parameters as p
-from hexgym.collect import (
+from hexgym.hydraulics.reference import ReferenceModel
+from hexgym.machine import kinematics
+from hexgym.machine import parameters as p
+from hexgym.mbl.collect import (
     TABLES,
     CollectConfig,
     _chunk_task,
@@ -25,7 +26,6 @@ from hexgym.collect import (
     run_segment,
     tip_force_world,
 )
-from hexgym.reference import ReferenceModel
 
 # Short segments and episodes: a few seconds per collection, every code path.
 TINY = CollectConfig(segments_per_episode=3, episodes_per_chunk=1, hold_s=(0.7, 0.8), windows_per_segment=1)
@@ -110,9 +110,9 @@ def test_episodes_are_seeded_individually() -> None:
 def test_episode_starts_cover_poses_payloads_and_tip_forces() -> None:
     config = CollectConfig()
     setups = [episode_setup(episode_rng(0, "boom_bucket", e), e, config) for e in range(300)]
-    for i, name in enumerate(machine.FRONT_CYLINDERS):  # uniform over the stroke, clear of the ends
+    for i, name in enumerate(kinematics.FRONT_CYLINDERS):  # uniform over the stroke, clear of the ends
         stroke = p.CYLINDERS[name].stroke
-        ext = np.array([machine.cylinder_length(name, s.q[i + 1]) for s in setups]) - p.CYLINDERS[name].retracted_length
+        ext = np.array([kinematics.cylinder_length(name, s.q[i + 1]) for s in setups]) - p.CYLINDERS[name].retracted_length
         assert config.start_margin_m - 1e-9 < ext.min() < 0.25 * stroke
         assert 0.75 * stroke < ext.max() < stroke - config.start_margin_m + 1e-9
     assert sorted({s.payload_kg for s in setups}) == [0.0, 1000.0, 2000.0]
@@ -126,9 +126,9 @@ def test_episode_starts_cover_poses_payloads_and_tip_forces() -> None:
 def start(sim: ReferenceModel, payload_kg: float) -> None:
     """Mid-stroke cylinders, at rest."""
     q = np.zeros(4)
-    for i, name in enumerate(machine.FRONT_CYLINDERS):
+    for i, name in enumerate(kinematics.FRONT_CYLINDERS):
         cyl = p.CYLINDERS[name]
-        q[i + 1] = machine.joint_angle(name, cyl.retracted_length + 0.5 * cyl.stroke)
+        q[i + 1] = kinematics.joint_angle(name, cyl.retracted_length + 0.5 * cyl.stroke)
     sim.reset(q, payload_kg)
 
 

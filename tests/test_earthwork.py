@@ -3,7 +3,6 @@
 import numpy as np
 import pytest
 
-from hexgym import parameters as p
 from hexgym.envs.earthwork import (
     Earthwork,
     Pile,
@@ -12,6 +11,7 @@ from hexgym.envs.earthwork import (
     mouth_normal,
     retained_volume,
 )
+from hexgym.machine import parameters as p
 
 SPACING = 0.1
 N = 81
@@ -22,7 +22,7 @@ def heap(height=1.5, top=1.2):
 
 
 def test_bucket_constants_match_the_bucket_mesh():
-    from hexgym import meshes
+    from hexgym.tools import meshes
 
     profile = meshes._bucket_profile()
     assert p.BUCKET_STRUCK_CAPACITY == pytest.approx(meshes.bucket_struck_volume(), abs=1e-3)
@@ -162,7 +162,7 @@ def test_point_height_matches_the_vectorised_one():
 
 
 def test_uniform_table_interpolates_like_numpy():
-    from hexgym.envs.earthwork import UniformTable
+    from hexgym.interpolation import UniformTable
 
     x = np.linspace(-1.0, 2.0, 31)
     values = np.sin(3 * x)

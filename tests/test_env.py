@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 import hexgym  # noqa: F401 - registers HexLoading-v0
-from hexgym import parameters as p
+from hexgym.agents.scripted import ScriptedLoader
 from hexgym.envs.loading import OBSERVATION_NAMES, REWARD_TERMS, HexLoadingEnv
-from hexgym.envs.scripted import ScriptedLoader
+from hexgym.machine import parameters as p
 
 
 @pytest.fixture(scope="module")
@@ -248,26 +248,26 @@ def test_spool_scaling():
 
 
 def test_fuel_estimate_tracks_the_reference_circuit():
-    from hexgym.envs.fuel import compare_with_reference
+    from hexgym.tools.fuel_check import compare_with_reference
 
     result = compare_with_reference()
     assert 0.8 < result["ratio"] < 1.25  # measured 1.10 on the loading-like sequence
 
 
 def test_sampled_moment_arms_match_the_linkage():
-    from hexgym import machine
-    from hexgym.envs.loading import moment_arms
+    from hexgym.machine import kinematics
+    from hexgym.machine.kinematics import tabulated_moment_arms
 
     rng = np.random.default_rng(4)
     for _ in range(50):
-        q = np.array([0.0] + [rng.uniform(*machine.joint_range(n)) for n in machine.FRONT_CYLINDERS])
-        exact = [machine.moment_arm(n, q[i + 1]) for i, n in enumerate(machine.FRONT_CYLINDERS)]
-        assert np.allclose(moment_arms(q), exact, atol=5e-6)
+        q = np.array([0.0] + [rng.uniform(*kinematics.joint_range(n)) for n in kinematics.FRONT_CYLINDERS])
+        exact = [kinematics.moment_arm(n, q[i + 1]) for i, n in enumerate(kinematics.FRONT_CYLINDERS)]
+        assert np.allclose(tabulated_moment_arms(q), exact, atol=5e-6)
 
 
 def test_tabulated_fuel_rate_matches_the_bsfc_map():
-    from hexgym.envs.fuel import brake_power, fuel_litres
-    from hexgym.hydraulics import fuel_rate
+    from hexgym.hydraulics.circuit import fuel_rate
+    from hexgym.hydraulics.fuel import brake_power, fuel_litres
 
     for power in np.linspace(0.0, 1.5 * p.ENGINE_POWER, 997):
         exact = fuel_rate(brake_power(power)) * 0.1 / 3600.0
@@ -340,7 +340,7 @@ def test_bad_earthwork_periods_are_refused(periods):
 
 
 def test_digging_once_per_step_fills_and_curls_like_digging_every_period():
-    from hexgym.envs.scripted import FULL_FRACTION, ScriptedLoader
+    from hexgym.agents.scripted import FULL_FRACTION, ScriptedLoader
 
     phases = {}
     for periods in (1, 4):

@@ -5,8 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from hexgym import cli
-from hexgym.evaluate import (
+from hexgym.agents.evaluate import (
     FULL_ENOUGH_KG,
     METRIC_KEYS,
     SHIPPED_POLICY,
@@ -16,6 +15,7 @@ from hexgym.evaluate import (
     load_policy,
     normalizer_path,
 )
+from hexgym.tools import cli
 
 
 def _episode(deliveries: dict[float, float], seconds: float = 60.0, seed: int = 0) -> Episode:
@@ -99,7 +99,7 @@ def test_shipped_policy_loads_and_acts():
 
 
 def test_video_writes_an_mp4_with_overlay(tmp_path):
-    from hexgym.video import overlay_text, record_video
+    from hexgym.agents.video import overlay_text, record_video
 
     frame = np.full((60, 200, 3), 100, np.uint8)
     marked = overlay_text(frame, "t 1.0 s")

@@ -5,8 +5,8 @@
 import numpy as np
 import pytest
 
-from hexgym import fit
-from hexgym.baselines import synthetic_flow_sharing
+from hexgym.mbl import fit
+from hexgym.mbl.baselines import synthetic_flow_sharing
 
 
 @pytest.fixture(scope="module")
@@ -60,7 +60,7 @@ def test_wrong_or_missing_data_is_named(data_dir, tmp_path):
 
 
 def test_fitted_points_subsample_only_above_the_limit():
-    from hexgym.fit import MAX_POINTS, fitted_points
+    from hexgym.mbl.fit import MAX_POINTS, fitted_points
 
     X, y = np.arange(20.0).reshape(10, 2), np.arange(10.0)
     assert fitted_points(X, y)[0] is X

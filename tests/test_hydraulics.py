@@ -12,8 +12,7 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from hexgym import parameters as p
-from hexgym.hydraulics import (
+from hexgym.hydraulics.circuit import (
     CYLINDER_NAMES,
     N_NODES,
     NODES,
@@ -23,6 +22,7 @@ from hexgym.hydraulics import (
     fuel_rate,
     spool_areas,
 )
+from hexgym.machine import parameters as p
 
 MM = 1e-3
 DT = 1e-3

@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
-from hexgym import machine
-from hexgym.commandlog import CommandLog
-from hexgym.learned import LearnedModel
-from hexgym.reference_report import POSE_LOW
-from hexgym.replay import replay
-from hexgym.validate import scenarios, tip_errors
+from hexgym.machine import kinematics
+from hexgym.model.commandlog import CommandLog
+from hexgym.model.python_backend import LearnedModel
+from hexgym.model.replay import replay
+from hexgym.tools.reference_report import POSE_LOW
+from hexgym.tools.validate import scenarios, tip_errors
 
 FULL = 0.011
 
@@ -67,7 +67,7 @@ def test_bad_spools_are_refused(model, spools):
 def test_replay_gives_the_common_columns_and_zero_error_against_itself(model):
     log = CommandLog(np.array([0.0, 0.2, 0.5]), np.array([[0, 0, 0, 0], [8, 5, -5, 3], [0, 0, 0, 0]], float))
     traj = replay(model, log, start=POSE_LOW)
-    for column in ("t", *(f"q_{j}" for j in machine.JOINTS), *(f"qd_{j}" for j in machine.JOINTS), "tip_x"):
+    for column in ("t", *(f"q_{j}" for j in kinematics.JOINTS), *(f"qd_{j}" for j in kinematics.JOINTS), "tip_x"):
         assert column in traj.dtype.names
     errors = tip_errors(traj, traj)
     assert np.all(errors["tip_error"] == 0) and np.all(errors["joint_contribution"] == 0)
@@ -90,7 +90,7 @@ def test_swing_never_outruns_its_table(model):
 
 def test_a_stroke_end_stop_carries_its_load_not_the_oil(model):
     """At a joint limit (the cylinder's end stop) the stop's force is not read as cylinder load."""
-    hi = machine.joint_range("stick")[1]
+    hi = kinematics.joint_range("stick")[1]
     inside, beyond = (np.array([0.0, -0.45, hi + d, -0.9]) for d in (-0.003, 0.003))
     model.reset(inside)
     free = model.cylinder_loads()[1]

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from hexgym import meshes
-from hexgym import parameters as p
+from hexgym.machine import parameters as p
+from hexgym.tools import meshes
 
 TOL = 0.02  # m
 

@@ -6,10 +6,15 @@ import mujoco
 import numpy as np
 import pytest
 
-from hexgym import machine, mjcf
-from hexgym import parameters as p
-from hexgym.physics import ExcavatorPhysics, contiguous_index, force_actuated_model, skip_collisions_if_none_possible
-from hexgym.resources import AssetError, asset_path, assets_dir, load_model
+from hexgym.machine import kinematics, mjcf
+from hexgym.machine import parameters as p
+from hexgym.machine.assets import AssetError, asset_path, assets_dir, load_model
+from hexgym.machine.physics import (
+    ExcavatorPhysics,
+    contiguous_index,
+    force_actuated_model,
+    skip_collisions_if_none_possible,
+)
 
 
 def _warnings(data: mujoco.MjData) -> dict[str, int]:
@@ -34,15 +39,15 @@ def test_generated_scenes_are_the_scene_around_their_machine(scene, machine_file
 
 def test_lean_model_has_the_full_models_mass_and_loads():
     """The lean model lumps cylinders and four-bar into point masses: same mass, loads within 2 % of relief."""
-    from hexgym.learned import LearnedModel
+    from hexgym.model.python_backend import LearnedModel
 
     full, lean = LearnedModel(model=load_model()), LearnedModel(model=load_model(lean=True))
     assert lean.physics.model.nv == 4 and lean.physics.model.neq == 0
     assert full.physics.model.body_subtreemass[1] == pytest.approx(lean.physics.model.body_subtreemass[1], rel=1e-9)
-    relief = np.array([p.LINE_RELIEF[c] * p.CYLINDERS[c].head_area for c in machine.FRONT_CYLINDERS])
+    relief = np.array([p.LINE_RELIEF[c] * p.CYLINDERS[c].head_area for c in kinematics.FRONT_CYLINDERS])
     rng = np.random.default_rng(0)
     for _ in range(20):
-        q = np.array([0.0, *(rng.uniform(*machine.joint_range(j)) for j in machine.JOINTS[1:])])
+        q = np.array([0.0, *(rng.uniform(*kinematics.joint_range(j)) for j in kinematics.JOINTS[1:])])
         full.reset(q, payload_kg=1000.0)
         lean.reset(q, payload_kg=1000.0)
         assert np.all(np.abs(lean.cylinder_loads() - full.cylinder_loads()) < 0.02 * relief)
@@ -58,7 +63,7 @@ def test_compiles_without_warnings(scene, lean, capfd):
     out, err = capfd.readouterr()
     assert out == "" and err == ""
     assert _warnings(data) == {}
-    assert model.nu == 4 and [model.actuator(i).name for i in range(4)] == list(machine.JOINTS)
+    assert model.nu == 4 and [model.actuator(i).name for i in range(4)] == list(kinematics.JOINTS)
 
 
 def test_operating_mass_and_parts():
@@ -78,11 +83,11 @@ def test_operating_mass_and_parts():
 
 def test_joint_ranges_are_the_cylinder_strokes():
     model = load_model()
-    for name in machine.FRONT_CYLINDERS:
+    for name in kinematics.FRONT_CYLINDERS:
         lo, hi = model.joint(name).range
         cyl = p.CYLINDERS[name]
-        assert machine.cylinder_length(name, lo) == pytest.approx(cyl.retracted_length, abs=1e-6)
-        assert machine.cylinder_length(name, hi) == pytest.approx(cyl.extended_length, abs=1e-6)
+        assert kinematics.cylinder_length(name, lo) == pytest.approx(cyl.retracted_length, abs=1e-6)
+        assert kinematics.cylinder_length(name, hi) == pytest.approx(cyl.extended_length, abs=1e-6)
         slide = model.joint(f"{name}_cylinder")
         assert tuple(slide.range) == pytest.approx((0.0, cyl.stroke))
     # plausible 25 t envelope: boom about -50..+52 deg, stick and bucket wide
@@ -137,7 +142,7 @@ def test_ten_seconds_of_random_commands_are_clean():
     equality = data.efc_type == mujoco.mjtConstraint.mjCNSTR_EQUALITY
     assert np.abs(data.efc_pos[equality]).max() < 2e-3  # the cylinders stay on their pins (m)
     q = physics.joint_positions()
-    for k, name in enumerate(machine.FRONT_CYLINDERS, start=1):
+    for k, name in enumerate(kinematics.FRONT_CYLINDERS, start=1):
         lo_q, hi_q = physics.model.joint(name).range
         assert lo_q - 0.02 <= q[k] <= hi_q + 0.02
 

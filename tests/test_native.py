@@ -10,16 +10,17 @@ import numpy as np
 import pytest
 
 import hexgym  # noqa: F401  (loads the plugin)
-from hexgym import machine, native
-from hexgym.fit import packaged_tables_dir
-from hexgym.learned import LearnedModel
-from hexgym.mjcf_native import MBL_FULL_MODEL_FILE, MBL_MODEL_FILE, mbl_model_xml
-from hexgym.replay import replay
-from hexgym.resources import asset_path, assets_dir, load_model
-from hexgym.validate import scenarios
+from hexgym.machine import kinematics
+from hexgym.machine.assets import asset_path, assets_dir, load_model
+from hexgym.mbl.fit import packaged_tables_dir
+from hexgym.model import native_backend
+from hexgym.model.plugin_mjcf import MBL_FULL_MODEL_FILE, MBL_MODEL_FILE, mbl_model_xml
+from hexgym.model.python_backend import LearnedModel
+from hexgym.model.replay import replay
+from hexgym.tools.validate import scenarios
 
 _COMPILER = shutil.which(sysconfig.get_config_var("CXX").split()[0] if sysconfig.get_config_var("CXX") else "c++")
-needs_plugin = pytest.mark.skipif(not native.native_available(), reason=f"native plugin: {native.load_plugin()}")
+needs_plugin = pytest.mark.skipif(not native_backend.native_available(), reason=f"native plugin: {native_backend.load_plugin()}")
 
 
 def _tip(rows: np.ndarray) -> np.ndarray:
@@ -30,15 +31,15 @@ def test_plugin_is_built_wherever_a_compiler_is():
     """A machine with a C++ compiler and zlib's header must have built the plugin (pip install builds it)."""
     if _COMPILER is None or not Path("/usr/include/zlib.h").exists():
         pytest.skip("no C++ compiler or zlib.h here: the Python path is the learned model")
-    assert native.load_plugin() == ""
-    assert native.plugin_library() is not None
+    assert native_backend.load_plugin() == ""
+    assert native_backend.plugin_library() is not None
 
 
 @needs_plugin
 def test_library_matches_the_running_mujoco():
     import ctypes
 
-    lib = ctypes.CDLL(str(native.plugin_library()))
+    lib = ctypes.CDLL(str(native_backend.plugin_library()))
     assert lib.hexgym_mbl_built_mujoco_version() == mujoco.mj_version()
 
 
@@ -90,7 +91,7 @@ def test_full_machine_with_plugin_moves_each_joint_its_way(joint):
         if joint == "swing":  # + turns counter-clockwise seen from above (DESIGN.md)
             assert moves[name][0] > 0.1, name
         else:  # + extends the joint's cylinder
-            assert machine.cylinder_length(joint, d.qpos[main][k]) > machine.cylinder_length(joint, q0[k]) + 0.05, name
+            assert kinematics.cylinder_length(joint, d.qpos[main][k]) > kinematics.cylinder_length(joint, q0[k]) + 0.05, name
         d.ctrl[:] = 0.0  # spools closed: the machine holds (the swing once its brakes stopped it)
         while d.time < 3.0:
             mujoco.mj_step(m, d)
@@ -110,7 +111,7 @@ def test_full_machine_plugin_equals_the_python_learned_model_on_it():
     Python path's: the same trajectory on the full machine (at 50 ms, a whole number of its 2 ms steps)."""
     log, pose = scenarios()["test1"]
     python = replay(LearnedModel(model=load_model(), control_period=0.05), log, start=pose, duration=4.0)
-    full = native.NativeLearnedModel(model=native.load_mbl_model(full=True, control_period=0.05))
+    full = native_backend.NativeLearnedModel(model=native_backend.load_mbl_model(full=True, control_period=0.05))
     native_rows = replay(full, log, start=pose, duration=4.0)
     assert full.physics.model.neq == 4  # the closed chains are there
     np.testing.assert_allclose(_tip(native_rows), _tip(python), atol=1e-9)
@@ -122,8 +123,8 @@ def test_full_machine_follows_the_lean_machine():
     """validate's Test 1 (8 s) on cat325_mbl_full.xml (2 ms steps, queries 12.5 steps apart) and on
     the lean cat325_mbl.xml: the tips differ by what the lumped masses and the full model's servo lag make."""
     log, pose = scenarios()["test1"]
-    lean = replay(native.NativeLearnedModel(), log, start=pose)
-    full_model = native.NativeLearnedModel(model=native.load_mbl_model(full=True))
+    lean = replay(native_backend.NativeLearnedModel(), log, start=pose)
+    full_model = native_backend.NativeLearnedModel(model=native_backend.load_mbl_model(full=True))
     full = replay(full_model, log, start=pose)
     assert full_model.timestep == 0.025 and full_model.physics.timestep == 0.002
     err = np.linalg.norm(_tip(full) - _tip(lean), axis=1)
@@ -139,7 +140,7 @@ def test_native_and_python_give_the_same_trajectory(test):
     """One source of truth: the same tables, loads and logic (validate's command logs, up to 50 s)."""
     log, pose = scenarios()[test]
     python = replay(LearnedModel(), log, start=pose)
-    native_rows = replay(native.NativeLearnedModel(), log, start=pose)
+    native_rows = replay(native_backend.NativeLearnedModel(), log, start=pose)
     err = np.linalg.norm(_tip(python) - _tip(native_rows), axis=1)
     print(f"{test}: {log.duration:g} s, max tip difference {err.max():.3e} m")
     assert err.max() < 1e-3
@@ -150,11 +151,11 @@ def test_native_and_python_give_the_same_trajectory(test):
 def test_native_holds_targets_over_a_longer_control_period():
     log, pose = scenarios()["test1"]
     python = replay(LearnedModel(control_period=0.05), log, start=pose, dt_out=0.1)
-    native_rows = replay(native.NativeLearnedModel(control_period=0.05), log, start=pose, dt_out=0.1)
+    native_rows = replay(native_backend.NativeLearnedModel(control_period=0.05), log, start=pose, dt_out=0.1)
     assert np.linalg.norm(_tip(python) - _tip(native_rows), axis=1).max() < 1e-3
 
 
-def _run_steps(model: native.NativeLearnedModel, log, k0: int, k1: int) -> np.ndarray:
+def _run_steps(model: native_backend.NativeLearnedModel, log, k0: int, k1: int) -> np.ndarray:
     """``mj_step`` k0..k1 with the log's spools as ctrl (mm); qpos after each."""
     m, d, qs = model.physics.model, model.physics.data, []
     for k in range(k0, k1):
@@ -169,7 +170,7 @@ def test_state_round_trip_reproduces_the_trajectory_exactly():
     """mj_getState/mj_setState capture the plugin's state: the swing's rate target (act), the
     targets held within a control period and the step's place in it (plugin state)."""
     log, pose = scenarios()["test3"]
-    model = native.NativeLearnedModel(control_period=0.05)  # two steps per table query
+    model = native_backend.NativeLearnedModel(control_period=0.05)  # two steps per table query
     m, d = model.physics.model, model.physics.data
     model.reset(pose)
     k_save = 301  # mid-period, swinging and lifting (7 mm swing, 9 mm boom)
@@ -208,8 +209,8 @@ def _rewrite_meta(path: Path, **changes: object) -> None:
 @needs_plugin
 def test_other_tables_directory_is_used(tmp_path):
     directory = _copy_tables(tmp_path)
-    model = native.NativeLearnedModel(tables_dir=directory)
-    assert native.plugin_config_values(model.physics.model)["tables"] == str(directory.resolve())
+    model = native_backend.NativeLearnedModel(tables_dir=directory)
+    assert native_backend.plugin_config_values(model.physics.model)["tables"] == str(directory.resolve())
     model.reset()
     model.step(np.array([0.0, 0.008, 0.0, 0.0]), n=10)
     assert model.physics.joint_velocities()[1] > 0.05
@@ -270,7 +271,7 @@ def test_bad_table_file_fails_model_loading_naming_file_and_problem(tmp_path, da
         mujoco.MjModel.from_xml_path(str(xml))
     assert f"MBL table file {path}" in str(info.value) and message in str(info.value), str(info.value)
     with pytest.raises(ValueError, match="MBL table file"):
-        native.load_mbl_model(directory)  # the Python face says the same
+        native_backend.load_mbl_model(directory)  # the Python face says the same
 
 
 @needs_plugin
@@ -289,7 +290,7 @@ def test_randomly_damaged_table_files_fail_cleanly(tmp_path):
             data[i] ^= int(rng.integers(1, 256))
         path.write_bytes(bytes(data))
         try:
-            native.load_mbl_model(directory)
+            native_backend.load_mbl_model(directory)
         except ValueError as exc:
             assert f"MBL table file {path}" in str(exc), str(exc)
             failed += 1
@@ -303,7 +304,7 @@ def test_version_check_names_both_mujoco_versions():
     library loaded into another MuJoCo, is not exercised: only one MuJoCo is installed here.)"""
     import ctypes
 
-    lib = ctypes.CDLL(str(native.plugin_library()))
+    lib = ctypes.CDLL(str(native_backend.plugin_library()))
     buffer = ctypes.create_string_buffer(512)
     lib.hexgym_mbl_version_error.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_char_p, ctypes.c_int]
     assert lib.hexgym_mbl_version_error(3003007, 4000000, buffer, len(buffer)) > 0
@@ -311,12 +312,12 @@ def test_version_check_names_both_mujoco_versions():
     assert "built against MuJoCo 3003007 but is loaded into MuJoCo 4000000" in message and "rebuild" in message
     running = mujoco.mj_version()
     assert lib.hexgym_mbl_version_error(running, running, buffer, len(buffer)) == 0 and buffer.value == b""
-    assert native.load_plugin() == ""  # this build agrees with this MuJoCo: nothing refused
+    assert native_backend.load_plugin() == ""  # this build agrees with this MuJoCo: nothing refused
 
 
 @needs_plugin
 def test_bad_spools_are_refused_before_the_plugin_sees_them():
-    model = native.NativeLearnedModel()
+    model = native_backend.NativeLearnedModel()
     model.reset()
     with pytest.raises(ValueError, match="not a finite number"):
         model.step(np.array([0.0, np.nan, 0.0, 0.0]))
@@ -325,11 +326,11 @@ def test_bad_spools_are_refused_before_the_plugin_sees_them():
 
 
 def test_make_learned_model_backends():
-    assert isinstance(native.make_learned_model("python"), LearnedModel)
+    assert isinstance(native_backend.make_learned_model("python"), LearnedModel)
     with pytest.raises(ValueError, match="backend must be one of"):
-        native.make_learned_model("fortran")
-    auto = native.make_learned_model("auto")
-    expected = native.NativeLearnedModel if native.native_available() else LearnedModel
+        native_backend.make_learned_model("fortran")
+    auto = native_backend.make_learned_model("auto")
+    expected = native_backend.NativeLearnedModel if native_backend.native_available() else LearnedModel
     assert isinstance(auto, expected)
 
 
@@ -340,7 +341,7 @@ def test_both_backends_stall_at_the_ground_alike_without_kicks():
 
     models = {
         "python": LearnedModel(model=build_world_model(asset_path("scene_lean.xml"))),
-        "native": native.NativeLearnedModel(model=build_world_model(None, machine_file=MBL_MODEL_FILE)),
+        "native": native_backend.NativeLearnedModel(model=build_world_model(None, machine_file=MBL_MODEL_FILE)),
     }
     rows = {}
     for name, model in models.items():

@@ -21,7 +21,7 @@ def test_wheel_installs_with_assets(tmp_path):
     for required in ("hexgym/assets/cat325.xml", "hexgym/assets/scene.xml", "hexgym/assets/meshes/bucket.stl"):
         assert required in names
     subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "-t", target, wheel], check=True)
-    code = "import hexgym.physics as h, sys; p = h.ExcavatorPhysics(scene=True); print(h.__file__)"
+    code = "import hexgym.machine.physics as h, sys; p = h.ExcavatorPhysics(scene=True); print(h.__file__)"
     env = {**os.environ, "PYTHONPATH": str(target)}
     out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True)
     assert out.returncode == 0, out.stderr

@@ -8,12 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hexgym import mjcf
-from hexgym import parameters as p
-from hexgym.commandlog import CommandLog, read_command_log, write_trajectory_csv
-from hexgym.physics import force_actuated_model
-from hexgym.reference import TRAJECTORY_COLUMNS, ReferenceModel, simulate_reference
-from hexgym.resources import AssetError, asset_path, assets_dir
+from hexgym.hydraulics.reference import TRAJECTORY_COLUMNS, ReferenceModel
+from hexgym.machine import mjcf
+from hexgym.machine import parameters as p
+from hexgym.machine.assets import AssetError, asset_path, assets_dir
+from hexgym.machine.physics import force_actuated_model
+from hexgym.model.commandlog import CommandLog, read_command_log, write_trajectory_csv
+from hexgym.model.replay import replay
 
 REQUIRED = "t,q_swing,q_boom,q_stick,q_bucket,qd_swing,qd_boom,qd_stick,qd_bucket,tip_x,tip_y,tip_z"
 HYDRAULIC = "pump1_pressure_pa,pump2_pressure_pa,pump1_flow_m3s,pump2_flow_m3s,pump_power_w,fuel_rate_l_per_h"
@@ -42,7 +43,7 @@ def log(rows: list[list[float]]) -> CommandLog:
 
 
 def test_trajectory_columns_and_sampling(reference: ReferenceModel) -> None:
-    traj = simulate_reference(log([[0, 0, 0, 0, 0], [0.2, 0, 11, 0, 0]]), dt_out=0.05, model=reference)
+    traj = replay(reference, log([[0, 0, 0, 0, 0], [0.2, 0, 11, 0, 0]]), dt_out=0.05)
     names = list(traj.dtype.names)
     assert names[:12] == REQUIRED.split(",") and names[12:18] == HYDRAULIC.split(",")
     assert {"boom_head_pressure_pa", "swing_b_pressure_pa", "boom_force_n"} <= set(names)
@@ -52,7 +53,7 @@ def test_trajectory_columns_and_sampling(reference: ReferenceModel) -> None:
 
 
 def test_holds_still_with_neutral_spools(reference: ReferenceModel) -> None:
-    traj = simulate_reference(log([[0, 0, 0, 0, 0]]), duration=1.0, model=reference, payload_kg=2000.0)
+    traj = replay(reference, log([[0, 0, 0, 0, 0]]), duration=1.0, payload_kg=2000.0)
     q = np.column_stack([traj[f"q_{j}"] for j in ("swing", "boom", "stick", "bucket")])
     assert np.abs(q - q[0]).max() < 2e-4  # rad: the start pressures hold the loads, ports closed
     for pump in ("pump1", "pump2"):
@@ -60,14 +61,14 @@ def test_holds_still_with_neutral_spools(reference: ReferenceModel) -> None:
 
 
 def test_payload_loads_the_boom(reference: ReferenceModel) -> None:
-    empty = simulate_reference(log([[0, 0, 0, 0, 0]]), duration=0.1, model=reference)
-    full = simulate_reference(log([[0, 0, 0, 0, 0]]), duration=0.1, model=reference, payload_kg=2000.0)
+    empty = replay(reference, log([[0, 0, 0, 0, 0]]), duration=0.1)
+    full = replay(reference, log([[0, 0, 0, 0, 0]]), duration=0.1, payload_kg=2000.0)
     assert full["boom_head_pressure_pa"][-1] > empty["boom_head_pressure_pa"][-1] + 1e6
 
 
 def test_boom_raises_at_pump_flow(reference: ReferenceModel) -> None:
     """Boom alone at full spool: the cylinder extends at about one pump's flow / head area."""
-    traj = simulate_reference(log([[0, 0, 11, 0, 0], [2.0, 0, 11, 0, 0]]), model=reference)
+    traj = replay(reference, log([[0, 0, 11, 0, 0], [2.0, 0, 11, 0, 0]]))
     late = traj["t"] > 1.0
     speed = traj["boom_velocity_mps"][late].mean()
     assert speed == pytest.approx(p.PUMP_MAX_FLOW / p.BOOM_CYLINDER.head_area, rel=0.1)
@@ -78,7 +79,7 @@ def test_boom_raises_at_pump_flow(reference: ReferenceModel) -> None:
 
 def test_dt_out_must_be_a_multiple_of_the_step(reference: ReferenceModel) -> None:
     with pytest.raises(ValueError, match="dt_out"):
-        simulate_reference(log([[0, 0, 0, 0, 0]]), dt_out=0.0031, model=reference)
+        replay(reference, log([[0, 0, 0, 0, 0]]), dt_out=0.0031)
 
 
 # --------------------------------------------------------------------------------------------

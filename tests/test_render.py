@@ -1,10 +1,10 @@
-"""Drawing the lean simulation with the full machine (hexgym.render.ModelMirror)."""
+"""Drawing the lean simulation with the full machine (hexgym.machine.render.ModelMirror)."""
 
 import mujoco
 import numpy as np
 
-from hexgym.render import ModelMirror
-from hexgym.resources import load_model
+from hexgym.machine.assets import load_model
+from hexgym.machine.render import ModelMirror
 
 
 def test_mirror_poses_the_full_machine_like_the_lean_one():

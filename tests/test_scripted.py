@@ -5,9 +5,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from hexgym import parameters as p
-from hexgym.envs.loading import HexLoadingEnv
-from hexgym.envs.scripted import (
+from hexgym.agents.scripted import (
     CARRY_ANGLE,
     DUMP_ANGLE,
     LoaderState,
@@ -18,6 +16,8 @@ from hexgym.envs.scripted import (
     swing_brake,
     swing_spool,
 )
+from hexgym.envs.loading import HexLoadingEnv
+from hexgym.machine import parameters as p
 
 
 @pytest.fixture(scope="module")
@@ -102,7 +102,7 @@ def test_actions_are_valid_and_the_swing_brakes_towards_its_target():
 
 
 def test_native_backend_loads_the_truck_too():
-    from hexgym.native import native_available
+    from hexgym.model.native_backend import native_available
 
     if not native_available():
         pytest.skip("the native plugin is not built in this environment")

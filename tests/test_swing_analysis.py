@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from hexgym import parameters as p
-from hexgym.hydraulics import HydraulicCircuit
-from hexgym.swing_analysis import OwnPressureCircuit, acceleration_at_rate
+from hexgym.hydraulics.circuit import HydraulicCircuit
+from hexgym.machine import parameters as p
+from hexgym.tools.swing_analysis import OwnPressureCircuit, acceleration_at_rate
 
 FULL = np.ones(2)  # both regulators asking for full displacement
 
@@ -48,8 +48,8 @@ def test_acceleration_at_rate_reads_the_first_crossing():
 
 
 def test_reference_with_own_pressure_pumps_gives_one_pump_more_flow_when_both_work():
-    from hexgym.reference import ReferenceModel
-    from hexgym.validate import POSE_CYCLE
+    from hexgym.hydraulics.reference import ReferenceModel
+    from hexgym.tools.validate import POSE_CYCLE
 
     flows = {}
     for name, circuit in (("real", HydraulicCircuit()), ("own", OwnPressureCircuit())):

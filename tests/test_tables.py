@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from scipy.interpolate import RegularGridInterpolator
 
-from hexgym.baselines import SPOOL_STEP, SYNTH_INPUTS, synthetic_flow_sharing
-from hexgym.lwr import LocallyWeightedRegression, LWRParams, default_scales
-from hexgym.tables import (
+from hexgym.mbl.baselines import SPOOL_STEP, SYNTH_INPUTS, synthetic_flow_sharing
+from hexgym.mbl.lwr import LocallyWeightedRegression, LWRParams, default_scales
+from hexgym.mbl.table import (
     FORMAT_VERSION,
     MBLTable,
     TableFileError,

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import yaml
 
-from hexgym.evaluate import load_trained, normalizer_path
-from hexgym.training import (
+from hexgym.agents.evaluate import load_trained, normalizer_path
+from hexgym.agents.training import (
     HYPERPARAMS_DIR,
     algo_kwargs,
     clone_scripted,
@@ -79,7 +79,7 @@ def test_behaviour_cloning_fits_the_scripted_loader(tmp_path, tiny_yaml):
     out = clone_scripted(tmp_path / "bc.zip", episodes=2, dagger_rounds=1, dagger_episodes=1, epochs=300,
                          hyperparams=tiny_yaml, log=lambda _: None)  # fmt: skip
     policy = load_trained(out)
-    from hexgym.training import record_episode
+    from hexgym.agents.training import record_episode
 
     demos = record_episode(seed=1000, gamma=0.99, env_kwargs={"time_limit": 8.0})  # a training episode
     predicted = np.array([policy.act(o, None) for o in demos.obs])
@@ -88,9 +88,9 @@ def test_behaviour_cloning_fits_the_scripted_loader(tmp_path, tiny_yaml):
 
 
 def test_previous_action_wrapper_appends_the_executed_action():
-    from hexgym.training import make_env
+    from hexgym.agents.training import make_env
 
-    env = make_env("HexLoading-v0", "hexgym.training.PreviousActionWrapper", time_limit=2.0)
+    env = make_env("HexLoading-v0", "hexgym.agents.training.PreviousActionWrapper", time_limit=2.0)
     obs, _ = env.reset(seed=0)
     assert obs.shape == (27,) == env.observation_space.shape and np.all(obs[23:] == 0.0)
     obs, *_ = env.step(np.array([2.0, 0.5, -0.5, 0.0], np.float32))
@@ -101,8 +101,8 @@ def test_previous_action_wrapper_appends_the_executed_action():
 
 
 def test_demonstrations_are_labelled_by_the_state_derived_loader():
-    from hexgym.envs.scripted import ScriptedLoader
-    from hexgym.training import make_env, record_episode
+    from hexgym.agents.scripted import ScriptedLoader
+    from hexgym.agents.training import make_env, record_episode
 
     demos = record_episode(seed=5, gamma=0.99, env_kwargs={"time_limit": 3.0}, noise=0.3)
     assert demos.obs.shape == (30, 23) and demos.actions.shape == (30, 4) and demos.returns.shape == (30,)

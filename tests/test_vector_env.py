@@ -7,14 +7,15 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 import hexgym  # noqa: F401 - registers HexLoading-v0
-from hexgym import parameters as p
-from hexgym.envs import fuel
-from hexgym.envs.earthwork import BatchedPiles, UniformTable
+from hexgym.agents.scripted import ScriptedLoader
+from hexgym.envs.earthwork import BatchedPiles
 from hexgym.envs.loading import HexLoadingEnv, heap_for, sample_start
-from hexgym.envs.scripted import ScriptedLoader
 from hexgym.envs.vector import HexLoadingVectorEnv, vector_steps_per_second
-from hexgym.native import native_available
-from hexgym.physics import payload_inertia
+from hexgym.hydraulics import fuel
+from hexgym.interpolation import UniformTable
+from hexgym.machine import parameters as p
+from hexgym.machine.physics import payload_inertia
+from hexgym.model.native_backend import native_available
 
 needs_plugin = pytest.mark.skipif(not native_available(), reason="the batched environment needs the native plugin")
 
@@ -125,10 +126,10 @@ def test_bad_actions_name_the_environment():
 
 
 def test_without_the_plugin_it_says_to_use_sync(monkeypatch):
-    import hexgym.native
-    from hexgym.native import NativePluginError
+    import hexgym.model.native_backend
+    from hexgym.model.native_backend import NativePluginError
 
-    monkeypatch.setattr(hexgym.native, "load_plugin", lambda: "the native plugin was not built")
+    monkeypatch.setattr(hexgym.model.native_backend, "load_plugin", lambda: "the native plugin was not built")
     with pytest.raises(NativePluginError, match="vectorization_mode='sync'"):
         HexLoadingVectorEnv(2)
 
@@ -170,7 +171,7 @@ def test_vectorised_tables_fuel_and_payload_match_the_scalar_ones():
     assert table.at(x).tolist() == [table(v) for v in x]
     power, seconds = np.linspace(0.0, 400e3, 301), np.full(301, 0.075)
     assert fuel.fuel_litres_many(power, seconds).tolist() == [fuel.fuel_litres(w, 0.075) for w in power]
-    from hexgym.physics import ExcavatorPhysics
+    from hexgym.machine.physics import ExcavatorPhysics
 
     physics = ExcavatorPhysics()
     masses = np.array([0.0, 0.5, 20.0, 1234.5, p.BUCKET_HEAPED_CAPACITY * p.MATERIAL_DENSITY])

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import functools
 import math
 import os
 from pathlib import Path
@@ -13,10 +12,7 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
-from hexgym import machine
-from hexgym import parameters as p
-from hexgym.envs import fuel
-from hexgym.envs.earthwork import Earthwork, Pile, UniformTable, mouth_normal
+from hexgym.envs.earthwork import Earthwork, Pile, mouth_normal
 from hexgym.envs.world import (
     BED_RIM_HEIGHT,
     PILE_GRID_POINTS,
@@ -28,12 +24,15 @@ from hexgym.envs.world import (
     fullest_cut_direction,
     sample_layout,
 )
-from hexgym.learned import LearnedModel
-from hexgym.render import ModelMirror
-from hexgym.resources import SCENE_FILE, asset_path
+from hexgym.hydraulics import fuel
+from hexgym.machine import kinematics
+from hexgym.machine import parameters as p
+from hexgym.machine.assets import SCENE_FILE, asset_path
+from hexgym.machine.render import ModelMirror
+from hexgym.model.python_backend import LearnedModel
 
 if TYPE_CHECKING:
-    from hexgym.native import NativeLearnedModel
+    from hexgym.model.native_backend import NativeLearnedModel
 
 CONTROL_PERIOD = 0.01  # s: the Python machine model's table period (on a model with a shorter step)
 STEP_PERIOD = 0.1  # s: one environment step, 10 Hz, an operator's reaction time scale
@@ -71,20 +70,20 @@ _CLIP_LOW, _CLIP_HIGH = _OBS_LOW.astype(float), _OBS_HIGH.astype(float)  # the b
 
 
 BACKENDS = ("auto", "python", "native")
-PYTHON_SCENE = "scene_lean.xml"  # the learned model's default machine (hexgym.learned)
+PYTHON_SCENE = "scene_lean.xml"  # the learned model's default machine (hexgym.model.python_backend)
 
 
 def make_machine(backend: str = "auto", scene_path: str | Path | None = None) -> LearnedModel | NativeLearnedModel:
     """The machine model that drives the environment, on the loading site (the one place to change backends).
 
-    ``"python"``: :class:`hexgym.learned.LearnedModel` on the lean machine (``scene_lean.xml``:
+    ``"python"``: :class:`hexgym.model.python_backend.LearnedModel` on the lean machine (``scene_lean.xml``:
     no cylinder bodies, 25 ms step); ``"native"``: the ``hexgym.mbl`` MuJoCo plugin on
-    ``cat325_mbl.xml`` (:mod:`hexgym.native`, needs the built plugin). ``scene_path`` overrides
+    ``cat325_mbl.xml`` (:mod:`hexgym.model.native_backend`, needs the built plugin). ``scene_path`` overrides
     the scene (e.g. the full ``scene.xml``). ``"auto"``: native when the plugin is built, else
     Python (saying why once).
     """
     if backend == "auto":
-        from hexgym.native import resolve_backend
+        from hexgym.model.native_backend import resolve_backend
 
         backend = resolve_backend()
     if backend == "python":
@@ -92,31 +91,11 @@ def make_machine(backend: str = "auto", scene_path: str | Path | None = None) ->
         step = model.opt.timestep  # the tables are asked every CONTROL_PERIOD, or every step if longer
         return LearnedModel(model=model, control_period=step * max(1, round(CONTROL_PERIOD / step)))
     if backend == "native":
-        from hexgym.native import NativeLearnedModel, require_plugin
+        from hexgym.model.native_backend import NativeLearnedModel, require_plugin
 
         require_plugin()
         return NativeLearnedModel(model=build_world_model(scene_path, machine_file="cat325_mbl.xml"))
     raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
-
-
-@functools.cache
-def _moment_arm_tables() -> tuple[UniformTable, ...]:
-    """Each front cylinder's moment arm (m/rad) sampled over its joint range every ~1 mrad.
-
-    The arm depends on its own joint angle only; interpolating this is ~50x faster than the
-    four-bar solution of :func:`hexgym.machine.moment_arm` and within 5e-6 m of it (a test).
-    """
-    tables = []
-    for name in machine.FRONT_CYLINDERS:
-        lower, upper = machine.joint_range(name)
-        angles = np.linspace(lower, upper, 2001)
-        tables.append(UniformTable(lower, upper, np.array([machine.moment_arm(name, a) for a in angles])))
-    return tuple(tables)
-
-
-def moment_arms(q: np.ndarray) -> np.ndarray:
-    """[boom, stick, bucket] moment arms (m/rad) at main joint angles ``q``, from the sampled tables."""
-    return np.array([table(float(q[i + 1])) for i, table in enumerate(_moment_arm_tables())])
 
 
 def _display_available() -> bool:
@@ -164,8 +143,8 @@ def sample_start(rng: np.random.Generator) -> tuple[Layout, np.ndarray]:
     q = _HOME.copy()
     q[0] = layout.pile_direction + rng.uniform(0.0, 1.0) * between
     q[1:] += rng.uniform(-START_NOISE, START_NOISE, 3)
-    for i, name in enumerate(machine.JOINTS[1:], start=1):
-        q[i] = np.clip(q[i], *machine.joint_range(name))
+    for i, name in enumerate(kinematics.JOINTS[1:], start=1):
+        q[i] = np.clip(q[i], *kinematics.joint_range(name))
     return layout, q
 
 
@@ -182,7 +161,7 @@ class HexLoadingEnv(gym.Env):
     ## Description
     The paper's motivating task: fill the bucket from a pile, lift and swing to a truck, dump,
     return, quickly and with little fuel. The machine is the learned model of
-    :mod:`hexgym.learned` (MuJoCo linkage + MBL tables of the open-centre hydraulics), so the
+    :mod:`hexgym.model.python_backend` (MuJoCo linkage + MBL tables of the open-centre hydraulics), so the
     functions on one pump share its flow and the engine's power limit shows. The pile is a
     heightmap: the bucket's edge cuts into it, fills at a rate set by depth and attack angle, and
     feels the fundamental earthmoving equation's resistance, which loads the cylinders
@@ -616,7 +595,7 @@ class HexLoadingEnv(gym.Env):
         q, qd = ph.joint_positions().tolist(), ph.joint_velocities().tolist()
         if joint_loads is None:
             joint_loads = self.machine.joint_loads()
-        arms = [table(angle) for table, angle in zip(_moment_arm_tables(), q[1:], strict=True)]
+        arms = [table(angle) for table, angle in zip(kinematics.moment_arm_tables(), q[1:], strict=True)]
         loads = [load / arm / 1e6 for load, arm in zip(joint_loads[1:].tolist(), arms, strict=True)]  # MN
         tip, _, _, tilt = self._bucket_pose()
         pile_dir = lay.pile_direction
@@ -683,7 +662,7 @@ class HexLoadingEnv(gym.Env):
         """The site around the full machine, posed like the simulation: pictures show cylinders and links.
 
         The simulation runs on the lean machine (no cylinder or four-bar bodies); frames are drawn
-        from the full one (``scene.xml``) mirrored to it (:class:`hexgym.render.ModelMirror`).
+        from the full one (``scene.xml``) mirrored to it (:class:`hexgym.machine.render.ModelMirror`).
         """
         if self._view is None:
             model = build_world_model(asset_path(SCENE_FILE))

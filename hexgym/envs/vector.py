@@ -35,9 +35,6 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 from mujoco import batch as mjbatch
 
-from hexgym import machine
-from hexgym import parameters as p
-from hexgym.envs import fuel
 from hexgym.envs.earthwork import (
     EDGE_OFFSETS,
     EDGE_SAMPLES,
@@ -62,7 +59,6 @@ from hexgym.envs.loading import (
     REWARD_TERMS,
     STEP_PERIOD,
     HexLoadingEnv,
-    _moment_arm_tables,
     heap_for,
     sample_start,
     wrap_angle,
@@ -78,7 +74,10 @@ from hexgym.envs.world import (
     fullest_cut_direction,
     over_bed,
 )
-from hexgym.physics import payload_inertia
+from hexgym.hydraulics import fuel
+from hexgym.machine import kinematics
+from hexgym.machine import parameters as p
+from hexgym.machine.physics import payload_inertia
 
 CONTACT_SLOTS = 16  # contacts of the bucket and stick the sensor reports (random actions reach 7 of all kinds)
 _VEL = int(mujoco.mjtStage.mjSTAGE_VEL)  # after a step: positions and velocities current, as mj_step1 leaves them
@@ -136,7 +135,7 @@ class HexLoadingVectorEnv(VectorEnv):
             )
         if FORCE_PERIODS != 1:
             raise NotImplementedError("the batched environment re-aims the digging force every period (FORCE_PERIODS)")
-        from hexgym.native import NativePluginError, load_plugin
+        from hexgym.model.native_backend import NativePluginError, load_plugin
 
         reason = load_plugin()
         if reason:
@@ -181,9 +180,9 @@ class HexLoadingVectorEnv(VectorEnv):
         self._sensordata = b.bind("sensordata")
         self._body_mass, self._body_inertia = b.expand("body_mass"), b.expand("body_inertia")
         m = model
-        self._qadr = np.array([m.jnt_qposadr[m.joint(n).id] for n in machine.JOINTS])
-        self._dadr = np.array([m.jnt_dofadr[m.joint(n).id] for n in machine.JOINTS])
-        self._ctrl_ids = np.array([m.actuator(n).id for n in machine.JOINTS])
+        self._qadr = np.array([m.jnt_qposadr[m.joint(n).id] for n in kinematics.JOINTS])
+        self._dadr = np.array([m.jnt_dofadr[m.joint(n).id] for n in kinematics.JOINTS])
+        self._ctrl_ids = np.array([m.actuator(n).id for n in kinematics.JOINTS])
         self._tip_site, self._bucket, self._payload = m.site("tip").id, m.body("bucket").id, m.body("payload").id
         swing = self._dadr[0]
         self._swing_diag = m.M_rowadr[swing] + m.M_rownnz[swing] - 1
@@ -662,7 +661,7 @@ class HexLoadingVectorEnv(VectorEnv):
     def _observations(self, ids: np.ndarray) -> np.ndarray:
         """HexLoadingEnv._observation of the sites ``ids`` (float32, clipped), (k, 23)."""
         q, qd = self._qpos[ids][:, self._qadr], self._qvel[ids][:, self._dadr]
-        arms = np.stack([table.at(q[:, i + 1]) for i, table in enumerate(_moment_arm_tables())], axis=1)
+        arms = np.stack([table.at(q[:, i + 1]) for i, table in enumerate(kinematics.moment_arm_tables())], axis=1)
         loads = self._joint_loads[ids][:, 1:] / arms / 1e6
         tip, _, _, tilt = self._bucket_pose(ids)
         rel_x, rel_y = tip[:, 0] - self._pile_centre[ids, 0], tip[:, 1] - self._pile_centre[ids, 1]
@@ -781,7 +780,7 @@ def main() -> None:
     """``python -m hexgym.envs.vector [STEPS]``: batched env steps/s at 1, 8, 64 sites against single environments."""
     import sys
 
-    from hexgym.bench import REFERENCE_ENV, steps_per_second
+    from hexgym.tools.bench import REFERENCE_ENV, steps_per_second
 
     steps = int(sys.argv[1]) if len(sys.argv) > 1 else 300
     hopper = steps_per_second(REFERENCE_ENV, 2000)

@@ -29,8 +29,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from hexgym import parameters as p
-from hexgym.resources import SCENE_FILE, AssetError, asset_path
+from hexgym.machine import parameters as p
+from hexgym.machine.assets import SCENE_FILE, AssetError, asset_path
 
 PILE_GRID_POINTS = 81  # per side
 PILE_GRID_SPACING = 0.1  # m: 8 m x 8 m, finer than the bucket's 1.5 m edge by 15x

@@ -1,0 +1,258 @@
+"""``hexgym evaluate``: run a policy on HexLoading-v0 over seeded episodes and measure its loading figures.
+
+A policy is ``"scripted"`` (:class:`hexgym.agents.scripted.ScriptedLoader`), ``"shipped"`` (the
+trained agent packaged in ``hexgym/policies``) or the path of a Stable-Baselines3 ``.zip`` saved by
+``hexgym train`` (its VecNormalize statistics beside it). Every figure comes from the environment's
+``info`` stream (``truck_kg``, ``spilled_kg``, ``fuel_l``, ``pile_kg``), so all policies are measured
+the same way, whatever their internals.
+"""
+
+from __future__ import annotations
+
+import pickle
+import re
+import zipfile
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import gymnasium as gym
+import numpy as np
+
+import hexgym  # noqa: F401 - registers HexLoading-v0
+from hexgym.files import write_json
+from hexgym.machine import parameters as p
+
+ENV_ID = "HexLoading-v0"
+POLICY_DIR = Path(__file__).resolve().parents[1] / "policies"
+SHIPPED_POLICY = POLICY_DIR / "ppo_loading.zip"
+HEAPED_BUCKET_KG = p.BUCKET_HEAPED_CAPACITY * p.MATERIAL_DENSITY
+# A dump counts as a full-enough bucket from half a heaped bucket (~1.07 t): the scripted loader's
+# dumps carry 1.2-1.6 t; dribbles of a few hundred kg are not a loading cycle.
+FULL_ENOUGH_KG = 0.5 * HEAPED_BUCKET_KG
+DUMP_MERGE_GAP_S = 2.0  # s: deliveries closer than this are one dump (the flow pauses as the bucket tilts)
+METRIC_KEYS = (
+    "success_rate", "tonnes_per_hour", "mean_cycle_time_s", "fuel_l_per_tonne",
+    "spilled_fraction", "delivered_t_per_episode",
+)  # fmt: skip
+
+
+class Policy(Protocol):
+    """What :func:`run_episode` drives: an action for the observation (and the unwrapped env, for scripts)."""
+
+    def reset(self) -> None:
+        """Forget the last episode."""
+
+    def act(self, obs: np.ndarray, env: Any) -> np.ndarray:
+        """Four spool fractions in [-1, 1]."""
+
+
+class ScriptedPolicy:
+    """The scripted loader (reads the simulation's state, not the observation)."""
+
+    def __init__(self) -> None:
+        from hexgym.agents.scripted import ScriptedLoader
+
+        self.controller = ScriptedLoader()
+
+    def reset(self) -> None:
+        """Start the state machine over."""
+        self.controller.reset()
+
+    def act(self, obs: np.ndarray, env: Any) -> np.ndarray:
+        """The scripted action for the env's present state."""
+        return self.controller.act(env)
+
+
+class TrainedPolicy:
+    """A Stable-Baselines3 model with the VecNormalize statistics it was trained with (deterministic actions)."""
+
+    def __init__(self, model: Any, normalizer: Any | None) -> None:
+        self.model, self.normalizer = model, normalizer
+        self.n_obs = model.observation_space.shape[0]
+        self.previous = np.zeros(model.action_space.shape[0], np.float32)
+
+    def reset(self) -> None:
+        """Forget the previous action."""
+        self.previous[:] = 0.0
+
+    def act(self, obs: np.ndarray, env: Any) -> np.ndarray:
+        """The model's mean action on the normalised observation.
+
+        A model trained with ``PreviousActionWrapper`` sees the last action after the observation:
+        given the bare environment's observation, the policy appends it itself.
+        """
+        if len(obs) + len(self.previous) == self.n_obs:
+            obs = np.concatenate([obs, self.previous])
+        if self.normalizer is not None:
+            obs = self.normalizer.normalize_obs(obs)
+        action, _ = self.model.predict(obs, deterministic=True)
+        self.previous = np.clip(action, -1.0, 1.0).astype(np.float32)
+        return self.previous.copy()
+
+
+def normalizer_path(model_path: str | Path) -> Path:
+    """Where the VecNormalize statistics of a saved model lie (``<stem>_vecnormalize.pkl``, or a checkpoint's)."""
+    model_path = Path(model_path)
+    match = re.fullmatch(r"(.*)_(\d+)_steps", model_path.stem)  # CheckpointCallback-style names
+    if match:
+        return model_path.with_name(f"{match[1]}_vecnormalize_{match[2]}_steps.pkl")
+    return model_path.with_name(f"{model_path.stem}_vecnormalize.pkl")
+
+
+def _algorithm_of(model_path: Path) -> type:
+    """The SB3 class that saved ``model_path`` (read from the zip's ``data`` record)."""
+    from stable_baselines3 import PPO, SAC
+
+    try:
+        with zipfile.ZipFile(model_path) as archive:
+            data = archive.read("data").decode()
+    except (zipfile.BadZipFile, KeyError) as exc:
+        raise ValueError(f"{model_path} is not a Stable-Baselines3 model zip ({exc})") from exc
+    if "stable_baselines3.sac.policies" in data:
+        return SAC
+    if "stable_baselines3.common.policies" in data:  # ActorCriticPolicy: PPO's
+        return PPO
+    raise ValueError(f"{model_path}: neither a PPO nor a SAC model")
+
+
+def load_trained(model_path: str | Path) -> TrainedPolicy:
+    """Load a model saved by ``hexgym train`` (and its observation statistics, when it has them)."""
+    model_path = Path(model_path)
+    if not model_path.is_file():
+        raise FileNotFoundError(f"no policy file {model_path} (give 'shipped', 'scripted' or a model .zip)")
+    model = _algorithm_of(model_path).load(model_path, device="cpu")
+    stats = normalizer_path(model_path)
+    normalizer = None
+    if stats.is_file():
+        with open(stats, "rb") as f:
+            normalizer = pickle.load(f)  # a VecNormalize without its venv: only its statistics are used
+        normalizer.training = False
+    return TrainedPolicy(model, normalizer)
+
+
+def load_policy(spec: str) -> Policy:
+    """``"scripted"``, ``"shipped"`` or a model path -> a policy."""
+    if spec == "scripted":
+        return ScriptedPolicy()
+    if spec == "shipped":
+        if not SHIPPED_POLICY.is_file():
+            raise FileNotFoundError(f"no shipped policy at {SHIPPED_POLICY}: see README, Training agents")
+        return load_trained(SHIPPED_POLICY)
+    return load_trained(spec)
+
+
+@dataclass
+class Episode:
+    """The per-step trace of one episode that the figures are computed from."""
+
+    seed: int
+    time_s: list[float] = field(default_factory=list)
+    truck_kg: list[float] = field(default_factory=list)
+    spilled_kg: float = 0.0
+    fuel_l: float = 0.0
+    dug_kg: float = 0.0
+    total_return: float = 0.0
+    terminated: bool = False
+
+    def dumps(self) -> list[tuple[float, float]]:
+        """(start time s, delivered kg) of each dump: runs of deliveries with gaps under DUMP_MERGE_GAP_S."""
+        t = np.asarray(self.time_s)
+        delivered = np.diff(np.asarray([0.0, *self.truck_kg]))
+        events: list[list[float]] = []
+        for when, kg in zip(t[delivered > 0], delivered[delivered > 0], strict=True):
+            if events and when - events[-1][2] < DUMP_MERGE_GAP_S:
+                events[-1][1] += kg
+                events[-1][2] = when
+            else:
+                events.append([when, kg, when])
+        return [(start, kg) for start, kg, _ in events]
+
+    def summary(self) -> dict[str, Any]:
+        """This episode's figures."""
+        full = [start for start, kg in self.dumps() if kg >= FULL_ENOUGH_KG]
+        delivered = self.truck_kg[-1] if self.truck_kg else 0.0
+        return {
+            "seed": self.seed,
+            "sim_seconds": self.time_s[-1] if self.time_s else 0.0,
+            "delivered_t": delivered / 1000.0,
+            "spilled_t": self.spilled_kg / 1000.0,
+            "fuel_l": self.fuel_l,
+            "dumps": len(self.dumps()),
+            "full_dumps": len(full),
+            "cycle_intervals_s": [float(dt) for dt in np.diff(full)],
+            "return": self.total_return,
+            "terminated": self.terminated,
+        }
+
+
+StepCallback = Callable[[Any, dict], None]
+
+
+def run_episode(env: gym.Env, policy: Policy, seed: int, on_step: StepCallback | None = None) -> Episode:
+    """Run one episode from ``env.reset(seed=seed)``; ``on_step(env, info)`` after each step (e.g. a renderer)."""
+    obs, info = env.reset(seed=seed)
+    policy.reset()
+    episode = Episode(seed=seed)
+    pile_start = info["pile_kg"]
+    if on_step is not None:
+        on_step(env, info)
+    done = False
+    while not done:
+        obs, reward, terminated, truncated, info = env.step(policy.act(obs, env.unwrapped))
+        episode.time_s.append(info["time_s"])
+        episode.truck_kg.append(info["truck_kg"])
+        episode.total_return += float(reward)
+        done = terminated or truncated
+        episode.terminated = bool(terminated)
+        if on_step is not None:
+            on_step(env, info)
+    episode.spilled_kg, episode.fuel_l = info["spilled_kg"], info["fuel_l"]
+    episode.dug_kg = pile_start - info["pile_kg"]
+    return episode
+
+
+def aggregate(episodes: list[Episode]) -> dict[str, Any]:
+    """The figures over all episodes (totals pooled: t/h is total tonnes over total hours)."""
+    summaries = [e.summary() for e in episodes]
+    delivered_t = sum(s["delivered_t"] for s in summaries)
+    spilled_t = sum(s["spilled_t"] for s in summaries)
+    hours = sum(s["sim_seconds"] for s in summaries) / 3600.0
+    fuel_l = sum(s["fuel_l"] for s in summaries)
+    intervals = [dt for s in summaries for dt in s["cycle_intervals_s"]]
+    return {
+        "episodes": len(episodes),
+        "success_rate": float(np.mean([s["full_dumps"] > 0 for s in summaries])),
+        "tonnes_per_hour": delivered_t / hours if hours > 0 else 0.0,
+        "mean_cycle_time_s": float(np.mean(intervals)) if intervals else None,
+        "fuel_l_per_tonne": fuel_l / delivered_t if delivered_t > 0 else None,
+        "spilled_fraction": spilled_t / (spilled_t + delivered_t) if spilled_t + delivered_t > 0 else 0.0,
+        "delivered_t_per_episode": delivered_t / len(episodes),
+        "mean_return": float(np.mean([s["return"] for s in summaries])),
+        "full_enough_kg": FULL_ENOUGH_KG,
+        "per_episode": summaries,
+    }
+
+
+def evaluate(
+    policy_spec: str, episodes: int = 20, seed: int = 0, env_kwargs: dict | None = None, json_out: str | None = None
+) -> dict[str, Any]:
+    """Run ``episodes`` episodes (seeds ``seed``..``seed+episodes-1``) of a policy; the figures of :func:`aggregate`.
+
+    ``success_rate``: share of episodes with at least one dump of FULL_ENOUGH_KG or more into the
+    bed; ``mean_cycle_time_s``: mean time between the starts of successive full-enough dumps;
+    ``spilled_fraction``: spilled / (spilled + delivered), of the material that left the bucket.
+    """
+    if int(episodes) != episodes or episodes < 1:
+        raise ValueError(f"episodes must be a whole number >= 1, got {episodes}")
+    policy = load_policy(policy_spec)
+    env = gym.make(ENV_ID, **(env_kwargs or {}))
+    try:
+        runs = [run_episode(env, policy, seed + i) for i in range(int(episodes))]
+    finally:
+        env.close()
+    result = {"policy": policy_spec, "env_id": ENV_ID, "seed": seed, **aggregate(runs)}
+    if json_out:
+        write_json(json_out, result)
+    return result

@@ -1,0 +1,519 @@
+"""``hexgym train``: Stable-Baselines3 agents for HexLoading-v0, warm-started from the scripted loader.
+
+Hyperparameters are rl-zoo3 YAML keyed by env id (``training/hyperparams/<algo>.yml``). A run lives
+in ``<logdir>/<algo>_<env id>/``: ``checkpoints/`` (model + VecNormalize statistics, saved atomically),
+``tb/`` (TensorBoard, when installed) and the final ``model.zip`` + ``model_vecnormalize.pkl``.
+Running the same command again resumes from the newest checkpoint.
+
+Reinforcement learning from scratch on a 180 s, 10 Hz loading task is slow on a laptop CPU (the
+delivery reward comes ~200 steps after the dig), so :func:`clone_scripted` first fits the PPO actor
+to the scripted loader by behaviour cloning with DAgger rounds (the scripted loader, whose action
+is a function of the state, labels the states the learner itself visits), and fits the critic to
+the demonstrations' discounted returns; ``hexgym train --init-from`` then fine-tunes that model with PPO.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import re
+import shutil
+import tempfile
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hexgym.agents.evaluate import ENV_ID, load_trained, normalizer_path
+from hexgym.files import atomic_path
+
+HYPERPARAMS_DIR = Path(__file__).resolve().parents[2] / "training" / "hyperparams"
+ALGOS = ("ppo", "sac")
+# rl-zoo3 keys that are not arguments of the algorithm's constructor
+NOISE_HOLD_STEPS = 10  # DART disturbances change once a second: per-step noise would average out in the valves
+_ZOO_KEYS = ("n_envs", "n_timesteps", "policy", "normalize", "env_kwargs", "policy_kwargs", "env_wrapper")
+
+
+# -- hyperparameters ------------------------------------------------------------------------------
+def _parse_kwargs(text: str | dict | bool) -> dict | bool:
+    """An rl-zoo3 keyword string such as ``"dict(norm_obs=True, net_arch=[64, 64])"`` -> a dict."""
+    if not isinstance(text, str):
+        return text
+    import torch
+
+    # rl-zoo3 evaluates these strings too; here only dict() and torch.nn (activation_fn) are in scope
+    try:
+        return eval(text, {"__builtins__": {}}, {"dict": dict, "nn": torch.nn, "True": True, "False": False})
+    except Exception as exc:
+        raise ValueError(f"cannot read the hyperparameter {text!r}: {exc}") from exc
+
+
+def load_hyperparams(algo: str, env_id: str = ENV_ID, path: str | Path | None = None) -> dict[str, Any]:
+    """The rl-zoo3 hyperparameters of ``algo`` for ``env_id`` (``policy_kwargs``/``normalize`` parsed)."""
+    import yaml
+
+    if algo not in ALGOS:
+        raise ValueError(f"algo must be one of {ALGOS}, got {algo!r}")
+    path = Path(path) if path is not None else HYPERPARAMS_DIR / f"{algo}.yml"
+    if not path.is_file():
+        raise FileNotFoundError(f"no hyperparameter file {path} (give one with --hyperparams)")
+    table = yaml.safe_load(path.read_text()) or {}
+    if env_id not in table:
+        raise ValueError(f"{path} has no entry for {env_id!r} (it has {sorted(table)})")
+    hp = dict(table[env_id])
+    hp["policy_kwargs"] = _parse_kwargs(hp.get("policy_kwargs", {}))
+    normalize = _parse_kwargs(hp.get("normalize", False))
+    hp["normalize"] = {"norm_obs": True, "norm_reward": False} if normalize is True else (normalize or {})
+    return hp
+
+
+def algo_kwargs(hp: dict[str, Any]) -> dict[str, Any]:
+    """The constructor arguments of the algorithm (rl-zoo3's own keys removed)."""
+    kwargs = {k: v for k, v in hp.items() if k not in _ZOO_KEYS}
+    return kwargs | {"policy_kwargs": hp.get("policy_kwargs", {})}
+
+
+# -- environments ---------------------------------------------------------------------------------
+class PreviousActionWrapper:
+    """Appends the previous action (4 spools, zeros after a reset) to the observation.
+
+    For policies that need a memory of what they were doing (rl-zoo3: ``env_wrapper:
+    hexgym.agents.training.PreviousActionWrapper``). The shipped PPO settings do not use it: the scripted
+    loader acts on the state alone, and clones given their last action tended to repeat it.
+    """
+
+    def __new__(cls, env: Any) -> Any:  # a gymnasium.Wrapper subclass, made lazily: gymnasium is imported late
+        return _previous_action_class()(env)
+
+
+def _previous_action_class() -> type:
+    import gymnasium as gym
+
+    class PreviousAction(gym.Wrapper):
+        def __init__(self, env: gym.Env) -> None:
+            super().__init__(env)
+            space = env.observation_space
+            n = env.action_space.shape[0]
+            low = np.concatenate([space.low, -np.ones(n, np.float32)])
+            high = np.concatenate([space.high, np.ones(n, np.float32)])
+            self.observation_space = gym.spaces.Box(low, high, dtype=np.float32)
+            self._zeros = np.zeros(n, np.float32)
+
+        def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict]:
+            obs, info = self.env.reset(**kwargs)
+            return np.concatenate([obs, self._zeros]), info
+
+        def step(self, action: np.ndarray) -> tuple:
+            obs, reward, terminated, truncated, info = self.env.step(action)
+            executed = np.clip(np.asarray(action, np.float32), -1.0, 1.0)
+            return np.concatenate([obs, executed]), reward, terminated, truncated, info
+
+    return PreviousAction
+
+
+def _wrapper(path: str | None) -> Any:
+    """The wrapper class named by a dotted path (rl-zoo3's ``env_wrapper``), or None."""
+    if not path:
+        return None
+    import importlib
+
+    module, _, name = path.rpartition(".")
+    try:
+        return getattr(importlib.import_module(module), name)
+    except (ImportError, AttributeError, ValueError) as exc:
+        raise ValueError(f"env_wrapper {path!r} cannot be imported: {exc}") from exc
+
+
+def make_env(env_id: str = ENV_ID, wrapper: str | None = None, **env_kwargs: Any) -> Any:
+    """``gymnasium.make`` after ``import hexgym`` (a subprocess of SubprocVecEnv must register the ids too).
+
+    ``wrapper``: dotted path of a wrapper class applied around the env (rl-zoo3's ``env_wrapper``).
+    """
+    import gymnasium as gym
+
+    import hexgym  # noqa: F401
+
+    env = gym.make(env_id, **env_kwargs)
+    wrapper_class = _wrapper(wrapper)
+    return wrapper_class(env) if wrapper_class is not None else env
+
+
+def make_vec_env(
+    env_id: str, n_envs: int, seed: int, env_kwargs: dict | None = None, wrapper: str | None = None
+) -> Any:
+    """``n_envs`` Monitor-wrapped copies, one process each when more than one (SubprocVecEnv)."""
+    from functools import partial
+
+    from stable_baselines3.common.env_util import make_vec_env as sb3_make_vec_env
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+    if n_envs < 1:
+        raise ValueError(f"n_envs must be >= 1, got {n_envs}")
+    return sb3_make_vec_env(
+        partial(make_env, env_id, wrapper),
+        n_envs=n_envs,
+        seed=seed,
+        env_kwargs=env_kwargs,
+        vec_env_cls=SubprocVecEnv if n_envs > 1 else DummyVecEnv,
+    )
+
+
+# -- saving -----------------------------------------------------------------------------------------
+def save_model(model: Any, path: str | Path) -> Path:
+    """Save an SB3 model and its VecNormalize statistics (``<stem>_vecnormalize.pkl``), each atomically."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        model.save(tmp)
+    venv = model.get_vec_normalize_env()
+    if venv is not None:
+        with atomic_path(normalizer_path(path)) as tmp:
+            venv.save(tmp)
+    return path
+
+
+def _checkpoint_callback(directory: Path, every: int) -> Any:
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class AtomicCheckpoint(BaseCallback):
+        """Every ``every`` environment steps: ``rl_model_<steps>_steps.zip`` + its VecNormalize statistics."""
+
+        def _on_step(self) -> bool:
+            if self.n_calls % max(every // self.training_env.num_envs, 1) == 0:
+                save_model(self.model, directory / f"rl_model_{self.num_timesteps}_steps.zip")
+            return True
+
+    return AtomicCheckpoint()
+
+
+def latest_checkpoint(run_dir: str | Path) -> Path | None:
+    """The checkpoint with the most steps in ``run_dir/checkpoints`` (None when there is none)."""
+    found = []
+    for path in (Path(run_dir) / "checkpoints").glob("rl_model_*_steps.zip"):
+        match = re.fullmatch(r"rl_model_(\d+)_steps", path.stem)
+        if match:
+            found.append((int(match[1]), path))
+    return max(found)[1] if found else None
+
+
+def _load_into(path: Path, algo_class: type, venv: Any, **kwargs: Any) -> Any:
+    """Load a saved model onto ``venv``, wrapped in its saved VecNormalize statistics when it has them."""
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    stats = normalizer_path(path)
+    if stats.is_file():
+        venv = VecNormalize.load(str(stats), venv)
+        venv.training = True
+    return algo_class.load(path, env=venv, device="cpu", **kwargs)
+
+
+# -- training ---------------------------------------------------------------------------------------
+def train(
+    algo: str = "ppo",
+    env_id: str = ENV_ID,
+    timesteps: int | None = None,
+    seed: int = 0,
+    log_dir: str | Path = "logs",
+    hyperparams: str | Path | None = None,
+    n_envs: int | None = None,
+    init_from: str | Path | None = None,
+    checkpoint_every: int = 20_000,
+    progress_bar: bool = True,
+) -> Path:
+    """Train (or resume) ``algo`` on ``env_id`` to ``timesteps`` steps in all; the final model's path.
+
+    Resumes from the newest checkpoint of the run directory when there is one; otherwise starts
+    from ``init_from`` (a model saved by :func:`clone_scripted` or an earlier run), or from scratch.
+    """
+    from stable_baselines3 import PPO, SAC
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    hp = load_hyperparams(algo, env_id, hyperparams)
+    total = int(timesteps if timesteps is not None else hp.get("n_timesteps", 100_000))
+    if total < 1:
+        raise ValueError(f"timesteps must be >= 1, got {total}")
+    algo_class = {"ppo": PPO, "sac": SAC}[algo]
+    run_dir = Path(log_dir) / f"{algo}_{env_id}"
+    tensorboard = str(run_dir / "tb") if importlib.util.find_spec("tensorboard") else None
+    venv = make_vec_env(env_id, n_envs or os.cpu_count() or 1, seed, hp.get("env_kwargs"), hp.get("env_wrapper"))
+    resume = latest_checkpoint(run_dir)
+    start = resume or (Path(init_from) if init_from is not None else None)
+    if start is not None and not start.is_file():
+        raise FileNotFoundError(f"no model to start from at {start}")
+    if start is not None:
+        model = _load_into(start, algo_class, venv, tensorboard_log=tensorboard, seed=seed)
+        print(f"{'resuming' if resume else 'starting'} from {start} ({model.num_timesteps} steps done)")
+    else:
+        if hp["normalize"]:
+            venv = VecNormalize(venv, **hp["normalize"])
+        model = algo_class(hp.get("policy", "MlpPolicy"), venv, seed=seed, tensorboard_log=tensorboard,
+                           device="cpu", **algo_kwargs(hp))  # fmt: skip
+    remaining = total - model.num_timesteps if resume else total
+    if remaining > 0:
+        model.learn(
+            remaining,
+            callback=_checkpoint_callback(run_dir / "checkpoints", checkpoint_every),
+            progress_bar=progress_bar and _progress_bar_available(),
+            reset_num_timesteps=resume is None,
+            tb_log_name=algo,
+        )
+    path = save_model(model, run_dir / "model.zip")
+    venv.close()
+    return path
+
+
+def _progress_bar_available() -> bool:
+    return all(importlib.util.find_spec(name) for name in ("tqdm", "rich"))
+
+
+# -- behaviour cloning from the scripted loader ----------------------------------------------------
+@dataclass
+class Demonstrations:
+    """Observations, the scripted loader's actions there, and the discounted returns that followed."""
+
+    obs: np.ndarray
+    actions: np.ndarray
+    returns: np.ndarray
+
+    @staticmethod
+    def concatenate(parts: list[Demonstrations]) -> Demonstrations:
+        """All parts in one."""
+        return Demonstrations(*(np.concatenate([getattr(d, k) for d in parts]) for k in ("obs", "actions", "returns")))
+
+
+def record_episode(
+    seed: int,
+    gamma: float,
+    learner_path: str | None = None,
+    beta: float = 1.0,
+    env_kwargs: dict | None = None,
+    wrapper: str | None = None,
+    noise: float = 0.0,
+) -> Demonstrations:
+    """One episode labelled by the scripted loader; each step the learner drives with probability ``1 - beta``.
+
+    The labels are :meth:`ScriptedLoader.label`: the loader re-derives its phase from the state
+    every step, so a state gets the same label however it was reached, by the loader or by the
+    learner (DAgger: the learner's own mistakes lead to the states that teach recovery).
+    ``noise`` (DART): the loader's executed action gets Gaussian noise of this standard deviation,
+    held for a second at a time, so even the loader's own episodes show recoveries.
+    """
+    import torch
+
+    from hexgym.agents.scripted import ScriptedLoader
+
+    torch.set_num_threads(1)
+    env = make_env(ENV_ID, wrapper, **(env_kwargs or {}))
+    learner = load_trained(learner_path) if learner_path else None
+    rng = np.random.default_rng(seed + 7919)  # the mixing and noise draws: reproducible per seed
+    obs, _ = env.reset(seed=seed)
+    if learner is not None:
+        learner.reset()
+    observations, labels, rewards = [], [], []
+    done = False
+    while not done:
+        label = ScriptedLoader.label(env.unwrapped)
+        if env.unwrapped.steps % NOISE_HOLD_STEPS == 0:
+            disturbance = rng.normal(0.0, noise, label.shape) if noise > 0 else np.zeros_like(label)
+        learner_action = learner.act(obs, env.unwrapped) if learner is not None else None  # keeps its state
+        action = label + disturbance if learner is None or rng.random() < beta else learner_action
+        observations.append(obs)
+        labels.append(label)
+        obs, reward, terminated, truncated, _ = env.step(action)
+        rewards.append(reward)
+        done = terminated or truncated
+    env.close()
+    returns = np.zeros(len(rewards))
+    running = 0.0
+    for i in range(len(rewards) - 1, -1, -1):
+        running = rewards[i] + gamma * running
+        returns[i] = running
+    return Demonstrations(np.array(observations, np.float32), np.array(labels, np.float32), returns)
+
+
+def record_demonstrations(
+    seeds: list[int],
+    gamma: float,
+    learner_path: str | None = None,
+    beta: float = 1.0,
+    env_kwargs: dict | None = None,
+    wrapper: str | None = None,
+    noise: float = 0.0,
+    workers: int | None = None,
+    pool: ProcessPoolExecutor | None = None,
+) -> Demonstrations:
+    """:func:`record_episode` for each seed, in parallel worker processes (``pool``, or new ones)."""
+    n = len(seeds)
+    parts = _in_workers(pool, workers, record_episode, seeds, [gamma] * n, [learner_path] * n, [beta] * n,
+                        [env_kwargs] * n, [wrapper] * n, [noise] * n)  # fmt: skip
+    return Demonstrations.concatenate(parts)
+
+
+def _worker_pool(workers: int | None = None) -> ProcessPoolExecutor:
+    """Worker processes, one per core (spawned: torch is not fork-safe)."""
+    return ProcessPoolExecutor(max(1, workers or os.cpu_count() or 1), mp_context=get_context("spawn"))
+
+
+def _in_workers(pool: ProcessPoolExecutor | None, workers: int | None, function: Any, *arguments: list) -> list:
+    """``function`` over the argument lists in ``pool`` (or in a new pool of at most ``workers``)."""
+    if pool is not None:
+        return list(pool.map(function, *arguments))
+    with _worker_pool(min(workers or os.cpu_count() or 1, len(arguments[0]))) as new_pool:
+        return list(new_pool.map(function, *arguments))
+
+
+def score_episode(model_path: str, seed: int, env_kwargs: dict | None = None) -> dict[str, float]:
+    """One seeded episode of a saved policy: tonnes delivered and full-enough dumps (to pick a clone by)."""
+    import gymnasium as gym
+    import torch
+
+    from hexgym.agents.evaluate import run_episode
+
+    torch.set_num_threads(1)
+    env = gym.make(ENV_ID, **(env_kwargs or {}))
+    summary = run_episode(env, load_trained(model_path), seed).summary()
+    env.close()
+    return {"delivered_t": summary["delivered_t"], "full_dumps": summary["full_dumps"]}
+
+
+CLONE_LOSSES = {"mse": 2, "l1": 1}  # the actor's loss: the power of the action error it averages
+
+
+def _loss_power(loss: str) -> int:
+    """The power of ``loss`` (one of CLONE_LOSSES), or a ValueError naming the choices."""
+    if loss not in CLONE_LOSSES:
+        raise ValueError(f"loss must be one of {tuple(CLONE_LOSSES)}, got {loss!r}")
+    return CLONE_LOSSES[loss]
+
+
+def fit_to_demonstrations(
+    model: Any, demos: Demonstrations, epochs: int, seed: int, batch: int = 512, loss: str = "mse"
+) -> dict:
+    """Supervised fit of a PPO policy: actor mean to the loader's actions, critic to the returns (MSE).
+
+    ``loss`` of the actor: ``"mse"`` (the mean of the labels a state gets), or ``"l1"`` (their median:
+    where nearby states get different labels, as either side of a phase change, the fit takes one side
+    instead of their average, which can fall in the valves' dead zone and freeze the machine).
+    The observations are normalised with the model's VecNormalize statistics, as PPO will see them.
+    Uses its own optimiser, so the model's (saved with it) stays empty and the file small.
+    """
+    import torch
+
+    power = _loss_power(loss)
+    torch.manual_seed(seed)
+    policy = model.policy
+    obs = torch.as_tensor(model.get_vec_normalize_env().normalize_obs(demos.obs), dtype=torch.float32)
+    actions = torch.as_tensor(demos.actions, dtype=torch.float32)
+    returns = torch.as_tensor(demos.returns, dtype=torch.float32)
+    optimiser = torch.optim.Adam(policy.parameters(), lr=1e-3)
+    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, T_max=epochs)
+    policy.train()
+    for _ in range(epochs):
+        order = torch.randperm(len(obs))
+        for start in range(0, len(obs), batch):
+            idx = order[start : start + batch]
+            features = policy.extract_features(obs[idx])
+            latent_pi, latent_vf = policy.mlp_extractor(features)
+            action_loss = torch.mean(torch.abs(policy.action_net(latent_pi) - actions[idx]) ** power)
+            value_loss = torch.mean((policy.value_net(latent_vf).squeeze(-1) - returns[idx]) ** 2)
+            optimiser.zero_grad()
+            (action_loss + 0.1 * value_loss).backward()
+            optimiser.step()
+        schedule.step()
+    policy.eval()
+    return {"action_loss": action_loss.item(), "value_mse": value_loss.item()}
+
+
+def _new_ppo(hp: dict[str, Any], seed: int) -> Any:
+    """A PPO model with ``hp``'s architecture on one in-process environment (VecNormalize, not updating)."""
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    env_kwargs, wrapper = hp.get("env_kwargs") or {}, hp.get("env_wrapper")
+    venv = VecNormalize(
+        DummyVecEnv([lambda: make_env(ENV_ID, wrapper, **env_kwargs)]), **(hp["normalize"] or {"norm_obs": True})
+    )
+    return PPO(hp.get("policy", "MlpPolicy"), venv, seed=seed, device="cpu", **algo_kwargs(hp))
+
+
+def clone_scripted(
+    out: str | Path,
+    episodes: int = 16,
+    dagger_rounds: int = 2,
+    dagger_episodes: int = 8,
+    noise: float = 0.0,
+    epochs: int = 30,
+    seed: int = 1000,
+    hyperparams: str | Path | None = None,
+    select_episodes: int = 0,
+    rounds_dir: str | Path | None = None,
+    loss: str = "mse",
+    log: Any = print,
+) -> Path:
+    """Behaviour-clone the scripted loader into a PPO model saved at ``out`` (+ VecNormalize statistics).
+
+    Seeds start at ``seed`` (default 1000: away from the evaluation seeds 0..N). Round 0 records
+    ``episodes`` scripted episodes (with DART ``noise``) and fits; DAgger round k records
+    ``dagger_episodes`` more in which the learner of round k-1 drives each step with probability
+    1 - 0.5**k, all labelled by the loader, and refits on everything (warm-started). With
+    ``select_episodes`` > 0 each round's clone is scored on that many further seeded episodes
+    (tonnes delivered) and the best is saved at ``out``; otherwise the last round's. Each round's
+    clone is kept in ``rounds_dir`` (``round<k>.zip``) when given. ``loss``: the actor's fit
+    (:func:`fit_to_demonstrations`).
+    """
+    _loss_power(loss)  # a bad loss fails here, before minutes of recording
+    if episodes < 1 or dagger_rounds < 0 or epochs < 1 or select_episodes < 0:
+        raise ValueError(f"need episodes >= 1, dagger_rounds >= 0, epochs >= 1, select_episodes >= 0; got "
+                         f"{episodes}, {dagger_rounds}, {epochs}, {select_episodes}")  # fmt: skip
+    hp = load_hyperparams("ppo", ENV_ID, hyperparams)
+    with _worker_pool() as pool, tempfile.TemporaryDirectory() as tmp:  # workers start once (torch, MuJoCo: s)
+        rounds = Path(rounds_dir) if rounds_dir is not None else Path(tmp)
+        return _clone_rounds(Path(out), rounds, hp, pool, episodes, dagger_rounds, dagger_episodes, noise, epochs,
+                             seed, select_episodes, loss, log)  # fmt: skip
+
+
+def _clone_rounds(
+    out: Path, rounds: Path, hp: dict[str, Any], pool: ProcessPoolExecutor, episodes: int, dagger_rounds: int,
+    dagger_episodes: int, noise: float, epochs: int, seed: int, select_episodes: int, loss: str, log: Any,
+) -> Path:  # fmt: skip
+    """:func:`clone_scripted`'s rounds, recording and scoring in ``pool``."""
+    gamma = float(hp.get("gamma", 0.99))
+    model = _new_ppo(hp, seed)
+    env_kwargs, wrapper = hp.get("env_kwargs"), hp.get("env_wrapper")
+    next_seed = seed + episodes
+    demos = record_demonstrations(list(range(seed, next_seed)), gamma, env_kwargs=env_kwargs, wrapper=wrapper,
+                                  noise=noise, pool=pool)  # fmt: skip
+    select_seeds = list(range(seed + 100_000, seed + 100_000 + select_episodes))  # never trained on
+    best: tuple[float, Path] | None = None
+    for round_ in range(dagger_rounds + 1):
+        stats = model.get_vec_normalize_env().obs_rms
+        stats.mean, stats.var, stats.count = demos.obs.mean(0), demos.obs.var(0) + 1e-8, len(demos.obs)
+        losses = fit_to_demonstrations(model, demos, epochs, seed + round_, loss=loss)
+        path = save_model(model, rounds / f"round{round_}.zip")  # each round's clone, to compare and select
+        message = (f"round {round_}: {len(demos.obs)} samples, action {loss} {losses['action_loss']:.4f}, "
+                   f"value MSE {losses['value_mse']:.4f}")  # fmt: skip
+        if select_seeds:
+            n = len(select_seeds)
+            scores = _in_workers(pool, None, score_episode, [str(path)] * n, select_seeds, [env_kwargs] * n)
+            delivered = float(np.mean([s["delivered_t"] for s in scores]))
+            message += f", {delivered:.2f} t delivered per selection episode"
+            if best is None or delivered >= best[0]:  # ties: the later round, fitted on more data
+                best = (delivered, path)
+        log(message)
+        if round_ == dagger_rounds:
+            break
+        seeds = list(range(next_seed, next_seed + dagger_episodes))
+        beta = 0.5 ** (round_ + 1)
+        demos = Demonstrations.concatenate(
+            [demos, record_demonstrations(seeds, gamma, str(path), beta, env_kwargs, wrapper, noise, pool=pool)]
+        )
+        next_seed += dagger_episodes
+    if best is None:
+        return save_model(model, out)
+    log(f"selected {best[1].name} ({best[0]:.2f} t per selection episode)")
+    for source, target in ((best[1], out), (normalizer_path(best[1]), normalizer_path(out))):
+        with atomic_path(target) as tmp:
+            shutil.copyfile(source, tmp)
+    return out

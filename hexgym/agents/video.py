@@ -1,0 +1,97 @@
+"""``hexgym video``: offscreen rollouts of a policy on HexLoading-v0 as an MP4, with a small text overlay.
+
+Frames come from the environment's own ``rgb_array`` rendering (chase or cab camera), one per
+10 Hz step; the overlay (time, bucket payload, tonnes delivered) is drawn with matplotlib's Agg
+canvas onto the frame, so no font files or GUI are needed.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from hexgym.agents.evaluate import ENV_ID, load_policy, run_episode
+from hexgym.machine.render import CAMERAS, write_mp4, write_png
+
+OVERLAY_HEIGHT = 28  # px: the text strip at the top of each frame
+
+
+def overlay_text(frame: np.ndarray, text: str) -> np.ndarray:
+    """``frame`` with ``text`` in white on a dark strip across its top (a new uint8 array)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    height, width = frame.shape[:2]
+    strip = min(OVERLAY_HEIGHT, height)
+    fig = Figure(figsize=(width / 100, strip / 100), dpi=100)
+    fig.patch.set_facecolor((0.0, 0.0, 0.0))
+    fig.text(0.01, 0.5, text, color="white", fontsize=11, va="center", family="monospace")
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    text_rgb = np.asarray(canvas.buffer_rgba())[:strip, :width, :3]
+    out = frame.copy()
+    # blend: the strip darkens the scene behind it (60 %) and the text is opaque
+    out[:strip] = (0.4 * out[:strip] + 0.6 * text_rgb).astype(np.uint8)
+    bright = text_rgb.max(axis=2) > 128
+    out[:strip][bright] = text_rgb[bright]
+    return out
+
+
+def _caption(info: dict, episode: int) -> str:
+    return (f"ep {episode}  t {info['time_s']:5.1f} s  bucket {info['bucket_kg'] / 1000:4.2f} t  "
+            f"delivered {info['truck_kg'] / 1000:5.2f} t")  # fmt: skip
+
+
+def _frame_recorder(frames: list[np.ndarray], episode: int) -> Any:
+    """A :func:`run_episode` callback that appends the captioned frame of each step."""
+
+    def on_step(env: Any, info: dict) -> None:
+        frames.append(overlay_text(env.render(), _caption(info, episode)))
+
+    return on_step
+
+
+def record_video(
+    policy_spec: str,
+    out: str | Path,
+    camera: str = "chase",
+    episodes: int = 1,
+    seed: int = 0,
+    seconds: float | None = None,
+    width: int = 640,
+    height: int = 384,
+    snapshot: str | Path | None = None,
+) -> dict[str, Any]:
+    """Render ``episodes`` rollouts of a policy (``"scripted"``, ``"shipped"`` or a model path) to ``out``.
+
+    ``seconds`` shortens each episode (the env's time limit); ``snapshot`` also writes a PNG of a
+    frame from the middle of the first episode. Returns the paths and each episode's figures.
+    """
+    if camera not in CAMERAS:
+        raise ValueError(f"camera must be one of {CAMERAS}, got {camera!r}")
+    if int(episodes) != episodes or episodes < 1:
+        raise ValueError(f"episodes must be a whole number >= 1, got {episodes}")
+    if not str(out).endswith(".mp4"):
+        raise ValueError(f"the video must be an .mp4 file, got {out}")
+    policy = load_policy(policy_spec)
+    kwargs: dict[str, Any] = {"render_mode": "rgb_array", "camera": camera, "width": width, "height": height}
+    if seconds is not None:
+        kwargs["time_limit"] = seconds
+    env = gym.make(ENV_ID, **kwargs)
+    frames: list[np.ndarray] = []
+    summaries = []
+    try:
+        for i in range(int(episodes)):
+            summaries.append(run_episode(env, policy, seed + i, _frame_recorder(frames, i + 1)).summary())
+            if i == 0 and snapshot is not None:
+                write_png(frames[len(frames) // 2], snapshot)
+    finally:
+        env.close()
+    fps = float(env.metadata["render_fps"])
+    result: dict[str, Any] = {"video": write_mp4(frames, out, fps=fps), "frames": len(frames), "episodes": summaries}
+    if snapshot is not None:
+        result["snapshot"] = Path(snapshot)
+    return result

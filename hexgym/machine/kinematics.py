@@ -1,0 +1,274 @@
+"""Machine kinematics: cylinder lengths and moment arms, the bucket four-bar, tip position.
+
+Joint vector ``q = [swing, boom, stick, bucket]`` in rad, signs as in DESIGN.md: a positive
+angle is the direction a positive spool (cylinder extension) moves the joint, so every moment
+arm ``dC/dq`` (the paper's Eqn 5) is positive inside the joint range.
+
+The front linkage moves in the upper structure's x-z plane. Planar points are ``(x, z)`` in
+the upper frame (origin on the swing axis at the top of the swing bearing). The geometry comes
+from :mod:`hexgym.machine.parameters`; ``assets/cat325.xml`` is generated from the same numbers by
+:mod:`hexgym.machine.mjcf`, and the tests check that MuJoCo and this module agree.
+"""
+
+from __future__ import annotations
+
+import functools
+from functools import cache
+
+import numpy as np
+from scipy.optimize import brentq
+
+from hexgym.interpolation import UniformTable
+from hexgym.machine import parameters as p
+
+JOINTS = ("swing", "boom", "stick", "bucket")
+FRONT_CYLINDERS = ("boom", "stick", "bucket")
+
+# Relative in-plane rotation of each link's frame to its parent's at joint angle 0, and the
+# sign of rotation per unit joint angle (+1 counter-clockwise in the x-z plane, seen from +y
+# looking along -y ... i.e. x towards z).
+_STICK_FRAME_OFFSET = -np.pi / 2.0
+_SIGN = {"boom": 1.0, "stick": -1.0, "bucket": -1.0}
+
+
+def rotation(angle: float) -> np.ndarray:
+    """2x2 rotation taking x towards z by ``angle`` (counter-clockwise in the x-z plane)."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s], [s, c]])
+
+
+def _perp(v: np.ndarray) -> np.ndarray:
+    """d/dangle of a vector rotated counter-clockwise: (x, z) -> (-z, x)."""
+    return np.array([-v[1], v[0]])
+
+
+def _circle_intersection(c1: np.ndarray, r1: float, c2: np.ndarray, r2: float, side: float) -> np.ndarray:
+    """The intersection of two circles on the ``side`` (+1 left, -1 right) of c1 -> c2."""
+    d_vec = c2 - c1
+    d = float(np.hypot(*d_vec))
+    a = (r1**2 - r2**2 + d**2) / (2.0 * d)
+    h2 = r1**2 - a**2
+    if h2 < 0.0:
+        raise ValueError(f"linkage cannot close: circles r={r1:.3f}, r={r2:.3f} at distance {d:.3f}")
+    u = d_vec / d
+    return c1 + a * u + side * np.sqrt(h2) * _perp(u)
+
+
+# --------------------------------------------------------------------------------------------
+# The bucket four-bar (stick frame). The guide link pivots on the stick at G, the power link
+# joins the bucket at K; the bucket cylinder's rod end is the joint J of the two links.
+_G = np.array(p.GUIDE_LINK_PIVOT)
+_P_BUCKET = np.array([p.STICK_LENGTH, 0.0])
+_K_BUCKET = np.array(p.BUCKET_LINK_PIN)
+_C_BUCKET = np.array(p.BUCKET_CYLINDER_BASE)
+# J lies on the stick's outer side of the line G -> K (the H-link's assembly mode).
+_J_SIDE = 1.0
+# K lies on this side of the line P -> J when solving the four-bar from the cylinder.
+_K_SIDE = -1.0
+
+
+def bucket_link_points(q_bucket: float) -> tuple[np.ndarray, np.ndarray]:
+    """Return (J, K) in the stick frame: the link joint and the bucket's link pin."""
+    k = _P_BUCKET + rotation(-q_bucket) @ _K_BUCKET
+    j = _circle_intersection(_G, p.GUIDE_LINK_LENGTH, k, p.POWER_LINK_LENGTH, _J_SIDE)
+    return j, k
+
+
+def _bucket_link_velocities(q_bucket: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(J, K, dJ/dq, dK/dq) from the four-bar's velocity equations (exact, no differencing)."""
+    j, k = bucket_link_points(q_bucket)
+    dk = -_perp(k - _P_BUCKET)
+    # |J - G| = const and |J - K| = const  =>  (J-G).dJ = 0 and (J-K).(dJ - dK) = 0
+    a = np.array([j - _G, j - k])
+    b = np.array([0.0, (j - k) @ dk])
+    dj = np.linalg.solve(a, b)
+    return j, k, dj, dk
+
+
+# --------------------------------------------------------------------------------------------
+# Cylinder length C(q) and moment arm dC/dq per front joint.
+def _triangle(name: str) -> tuple[np.ndarray, np.ndarray, float]:
+    """Base pin (parent frame, relative to the joint), rod pin (child frame), frame offset."""
+    if name == "boom":
+        foot = np.array(p.BOOM_FOOT)
+        return np.array(p.BOOM_CYLINDER_BASE) - foot, np.array(p.BOOM_CYLINDER_ROD_PIN), 0.0
+    if name == "stick":
+        stick_pin = np.array([p.BOOM_LENGTH, 0.0])
+        return (
+            np.array(p.STICK_CYLINDER_BASE) - stick_pin,
+            np.array(p.STICK_CYLINDER_ROD_PIN),
+            _STICK_FRAME_OFFSET,
+        )
+    raise KeyError(name)
+
+
+def cylinder_length(name: str, angle: float) -> float:
+    """Pin-to-pin length (m) of cylinder ``name`` at its joint's angle (rad)."""
+    if name == "bucket":
+        j, _ = bucket_link_points(angle)
+        return float(np.hypot(*(j - _C_BUCKET)))
+    base, rod, offset = _triangle(name)
+    rod_parent = rotation(offset + _SIGN[name] * angle) @ rod
+    return float(np.hypot(*(rod_parent - base)))
+
+
+def moment_arm(name: str, angle: float) -> float:
+    """dC/dq (m/rad): cylinder force times this is the joint torque (the paper's Eqn 5)."""
+    if name == "bucket":
+        j, _, dj, _ = _bucket_link_velocities(angle)
+        d = j - _C_BUCKET
+        return float(d @ dj / np.hypot(*d))
+    base, rod, offset = _triangle(name)
+    rod_parent = rotation(offset + _SIGN[name] * angle) @ rod
+    d = rod_parent - base
+    return float(_SIGN[name] * (d @ _perp(rod_parent)) / np.hypot(*d))
+
+
+@cache
+def _monotone_bracket(name: str) -> tuple[float, float]:
+    """The widest interval around 0 on which the cylinder length rises with the angle."""
+    grid = np.linspace(-np.pi, np.pi, 3601)
+    arms = np.array([_safe_arm(name, a) for a in grid])
+    i0 = int(np.argmin(np.abs(grid)))
+    lo = hi = i0
+    while lo > 0 and arms[lo - 1] > 0:
+        lo -= 1
+    while hi < len(grid) - 1 and arms[hi + 1] > 0:
+        hi += 1
+    return float(grid[lo]), float(grid[hi])
+
+
+def _safe_arm(name: str, angle: float) -> float:
+    try:
+        return moment_arm(name, angle)
+    except (ValueError, np.linalg.LinAlgError):
+        return -1.0
+
+
+def joint_angle(name: str, length: float) -> float:
+    """Inverse of :func:`cylinder_length`: the joint angle (rad) at a cylinder length (m)."""
+    lo, hi = _monotone_bracket(name)
+    f_lo, f_hi = cylinder_length(name, lo) - length, cylinder_length(name, hi) - length
+    if f_lo > 0 or f_hi < 0:
+        raise ValueError(f"{name} cylinder length {length:.4f} m is outside the linkage's reach")
+    return float(brentq(lambda a: cylinder_length(name, a) - length, lo, hi, xtol=1e-13))
+
+
+@cache
+def joint_range(name: str) -> tuple[float, float]:
+    """The joint's range (rad) as the cylinder's stroke allows; swing is unlimited."""
+    if name == "swing":
+        return (-np.inf, np.inf)
+    cyl = p.CYLINDERS[name]
+    return joint_angle(name, cyl.retracted_length), joint_angle(name, cyl.extended_length)
+
+
+# --------------------------------------------------------------------------------------------
+# Link poses, tip position and Jacobian.
+def link_angles(q: np.ndarray) -> tuple[float, float, float]:
+    """Absolute in-plane angles of the boom, stick and bucket frames' x axes."""
+    boom = q[1]
+    stick = boom + _STICK_FRAME_OFFSET - q[2]
+    bucket = stick - q[3]
+    return boom, stick, bucket
+
+
+def planar_pins(q: np.ndarray) -> dict[str, np.ndarray]:
+    """All pins and the tip as (x, z) in the upper frame for joint vector ``q``."""
+    boom, stick, _ = link_angles(q)
+    foot = np.array(p.BOOM_FOOT)
+    r_boom, r_stick = rotation(boom), rotation(stick)
+    stick_pin = foot + r_boom @ np.array([p.BOOM_LENGTH, 0.0])
+    j, k = bucket_link_points(q[3])
+    in_stick = lambda v: stick_pin + r_stick @ v  # noqa: E731 - local frame change
+    bucket_rot = rotation(-q[3])
+    return {
+        "boom_foot": foot,
+        "boom_cylinder_base": np.array(p.BOOM_CYLINDER_BASE),
+        "boom_cylinder_rod": foot + r_boom @ np.array(p.BOOM_CYLINDER_ROD_PIN),
+        "stick_cylinder_base": foot + r_boom @ np.array(p.STICK_CYLINDER_BASE),
+        "stick_pin": stick_pin,
+        "stick_cylinder_rod": in_stick(np.array(p.STICK_CYLINDER_ROD_PIN)),
+        "bucket_cylinder_base": in_stick(_C_BUCKET),
+        "guide_link_pivot": in_stick(_G),
+        "bucket_cylinder_rod": in_stick(j),
+        "bucket_link_pin": in_stick(k),
+        "bucket_pin": in_stick(_P_BUCKET),
+        "tip": in_stick(_P_BUCKET + bucket_rot @ np.array(p.BUCKET_TIP)),
+    }
+
+
+def _to_world(planar: np.ndarray, swing: float) -> np.ndarray:
+    x, z = planar
+    c, s = np.cos(swing), np.sin(swing)
+    return np.array([c * x, s * x, z + p.SWING_BEARING_HEIGHT])
+
+
+def tip_position(q: np.ndarray) -> np.ndarray:
+    """Bucket teeth position (m) in the world frame."""
+    q = np.asarray(q, dtype=float)
+    return _to_world(planar_pins(q)["tip"], q[0])
+
+
+def tip_jacobian(q: np.ndarray) -> np.ndarray:
+    """d(tip)/dq, 3x4, world frame."""
+    q = np.asarray(q, dtype=float)
+    pins = planar_pins(q)
+    tip = pins["tip"]
+    planar_cols = [
+        _perp(tip - pins["boom_foot"]),
+        -_perp(tip - pins["stick_pin"]),
+        -_perp(tip - pins["bucket_pin"]),
+    ]
+    c, s = np.cos(q[0]), np.sin(q[0])
+    jac = np.zeros((3, 4))
+    jac[:, 0] = [-s * tip[0], c * tip[0], 0.0]
+    for col, (dx, dz) in enumerate(planar_cols, start=1):
+        jac[:, col] = [c * dx, s * dx, dz]
+    return jac
+
+
+# --------------------------------------------------------------------------------------------
+# Closed-chain assembly: the passive joints of the MJCF model for given main joint angles.
+def passive_joints(q: np.ndarray) -> dict[str, float]:
+    """In-plane angles (rad, counter-clockwise) and cylinder extensions (m) of the passive parts.
+
+    Angles are of each part's axis in its parent link's frame: the cylinder barrels point from
+    base pin to rod pin; the guide link from its pivot to J; the power link from J to K,
+    relative to the guide link. Extensions are measured from fully retracted.
+    """
+    q = np.asarray(q, dtype=float)
+    out: dict[str, float] = {}
+    for name in ("boom", "stick"):
+        base, rod, offset = _triangle(name)
+        d = rotation(offset + _SIGN[name] * q[JOINTS.index(name)]) @ rod - base
+        out[f"{name}_barrel"] = float(np.arctan2(d[1], d[0]))
+        out[f"{name}_extension"] = float(np.hypot(*d)) - p.CYLINDERS[name].retracted_length
+    j, k = bucket_link_points(q[3])
+    d = j - _C_BUCKET
+    out["bucket_barrel"] = float(np.arctan2(d[1], d[0]))
+    out["bucket_extension"] = float(np.hypot(*d)) - p.BUCKET_CYLINDER.retracted_length
+    guide = float(np.arctan2(*(j - _G)[::-1]))
+    out["guide_link"] = guide
+    out["power_link"] = float(np.arctan2(*(k - j)[::-1])) - guide
+    return out
+
+
+@functools.cache
+def moment_arm_tables() -> tuple[UniformTable, ...]:
+    """Each front cylinder's moment arm (m/rad) sampled over its joint range every ~1 mrad.
+
+    The arm depends on its own joint angle only; interpolating this is ~50x faster than the
+    four-bar solution of :func:`moment_arm` and within 5e-6 m of it (a test).
+    """
+    tables = []
+    for name in FRONT_CYLINDERS:
+        lower, upper = joint_range(name)
+        angles = np.linspace(lower, upper, 2001)
+        tables.append(UniformTable(lower, upper, np.array([moment_arm(name, a) for a in angles])))
+    return tuple(tables)
+
+
+def tabulated_moment_arms(q: np.ndarray) -> np.ndarray:
+    """[boom, stick, bucket] moment arms (m/rad) at main joint angles ``q``, from the sampled tables."""
+    return np.array([table(float(q[i + 1])) for i, table in enumerate(moment_arm_tables())])

@@ -1,0 +1,112 @@
+"""Offscreen rendering of a simulation to frames, PNG snapshots and MP4 videos.
+
+Set ``MUJOCO_GL=egl`` (CPU machines here render through Mesa's EGL) before ``mujoco`` is first
+imported; the command line does this itself when nothing else was chosen.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from hexgym.files import atomic_path
+
+CAMERAS = ("chase", "cab")
+
+
+class ModelMirror:
+    """Shows a simulation of the lean machine with the full one: cylinders, rods and bucket links drawn.
+
+    The lean model (``assets/cat325_lean.xml``) has no cylinder or four-bar bodies; for pictures,
+    :meth:`sync` poses the full model (``target``, the same world around the full machine) at the
+    lean simulation's main joint angles with the closed chains assembled (:func:`assembled_state`),
+    and copies what the world shows: mocap bodies, heightfields and the sizes and colours of the
+    geoms both models name alike (e.g. a load drawn in the bucket or the truck). Returns from
+    :meth:`sync` which heightfields changed, so a renderer can re-upload them.
+    """
+
+    def __init__(self, source: mujoco.MjModel, target: mujoco.MjModel) -> None:
+        from hexgym.machine import kinematics
+
+        self.target = target
+        self._source_q = np.array([source.jnt_qposadr[source.joint(n).id] for n in kinematics.JOINTS])
+        if source.nmocap != target.nmocap:
+            raise ValueError(f"models differ in mocap bodies: {source.nmocap} vs {target.nmocap}")
+        self._geoms = [
+            (i, target.geom(source.geom(i).name).id)
+            for i in range(source.ngeom)
+            if source.geom(i).name and mujoco.mj_name2id(target, mujoco.mjtObj.mjOBJ_GEOM, source.geom(i).name) >= 0
+        ]
+        self._hfields = [
+            (source.hfield(i).name, i, target.hfield(source.hfield(i).name).id) for i in range(source.nhfield)
+        ]
+        self._source = source
+
+    def sync(self, source_data: mujoco.MjData, target_data: mujoco.MjData) -> list[int]:
+        """Pose ``target_data`` like ``source_data``; the target heightfield ids whose data changed."""
+        from hexgym.machine.physics import assembled_state
+
+        src, tgt = self._source, self.target
+        qpos, _ = assembled_state(tgt, source_data.qpos[self._source_q])
+        target_data.qpos[:] = qpos
+        target_data.mocap_pos[:], target_data.mocap_quat[:] = source_data.mocap_pos, source_data.mocap_quat
+        target_data.time = source_data.time
+        for i, j in self._geoms:
+            tgt.geom_size[j], tgt.geom_rgba[j] = src.geom_size[i], src.geom_rgba[i]
+        changed = []
+        for _, i, j in self._hfields:
+            a, n = src.hfield_adr[i], src.hfield_nrow[i] * src.hfield_ncol[i]
+            b = tgt.hfield_adr[j]
+            if not np.array_equal(tgt.hfield_data[b : b + n], src.hfield_data[a : a + n]):
+                tgt.hfield_data[b : b + n] = src.hfield_data[a : a + n]
+                changed.append(j)
+        mujoco.mj_forward(tgt, target_data)
+        return changed
+
+
+class FrameRenderer:
+    """Renders RGB frames of ``(model, data)`` from a named camera of the scene."""
+
+    def __init__(self, model: mujoco.MjModel, width: int = 960, height: int = 540, camera: str = "chase") -> None:
+        if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera) < 0:
+            raise ValueError(f"no camera named {camera!r} in the model (have: {_camera_names(model)})")
+        self.camera = camera
+        self._renderer = mujoco.Renderer(model, height=height, width=width)
+
+    def render(self, data: mujoco.MjData) -> np.ndarray:
+        """One RGB frame (height x width x 3, uint8) of the current state."""
+        self._renderer.update_scene(data, camera=self.camera)
+        return self._renderer.render().copy()
+
+    def close(self) -> None:
+        """Release the OpenGL context."""
+        self._renderer.close()
+
+
+def _camera_names(model: mujoco.MjModel) -> list[str]:
+    return [model.camera(i).name for i in range(model.ncam)]
+
+
+def write_png(frame: np.ndarray, path: str | Path) -> Path:
+    """Write one frame as a PNG, atomically (a reader never sees a half-written file)."""
+    import imageio.v3 as iio
+
+    with atomic_path(path) as tmp:
+        iio.imwrite(tmp, frame)
+    return Path(path)
+
+
+def write_mp4(frames: Iterable[np.ndarray], path: str | Path, fps: float) -> Path:
+    """Encode frames (H.264, yuv420p so every player opens it) to an MP4, atomically."""
+    import imageio.v2 as imageio
+
+    with (
+        atomic_path(path) as tmp,
+        imageio.get_writer(tmp, fps=fps, codec="libx264", quality=7, pixelformat="yuv420p", macro_block_size=8) as w,
+    ):
+        for frame in frames:
+            w.append_data(frame)
+    return Path(path)

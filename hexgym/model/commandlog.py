@@ -1,0 +1,136 @@
+"""Replay files: the command log CSV read and checked, the trajectory CSV written.
+
+A command log has the header ``t,swing,boom,stick,bucket``: time in s, ascending from 0, and
+spool positions in mm (within the ±11 mm stroke), each row held until the next. A log that is
+malformed is refused with a ValueError that names the file, the row and the column.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from hexgym.files import atomic_path
+from hexgym.machine import parameters as p
+
+COLUMNS = ("t", "swing", "boom", "stick", "bucket")
+SPOOL_LIMIT_MM = p.SPOOL_STROKE * 1e3
+
+
+@dataclass(frozen=True)
+class CommandLog:
+    """Spool commands held piecewise constant: ``t`` (n,) in s, ``spools_mm`` (n, 4) in mm."""
+
+    t: np.ndarray
+    spools_mm: np.ndarray
+
+    def __post_init__(self) -> None:
+        validate_commands(self.t, self.spools_mm)
+
+    def spools_at(self, time: float) -> np.ndarray:
+        """The spools (mm, order swing, boom, stick, bucket) in force at ``time`` (s)."""
+        i = int(np.searchsorted(self.t, time, side="right")) - 1
+        return self.spools_mm[max(i, 0)].copy()
+
+    @property
+    def duration(self) -> float:
+        """Time of the last row, s."""
+        return float(self.t[-1])
+
+
+def validate_commands(t: np.ndarray, spools_mm: np.ndarray, source: str = "command log") -> None:
+    """Raise ValueError naming the row and column of the first problem in a command table."""
+    t, u = np.asarray(t, dtype=float), np.asarray(spools_mm, dtype=float)
+    if t.ndim != 1 or t.size == 0 or u.shape != (t.size, 4):
+        raise ValueError(f"{source}: need n >= 1 times and an (n, 4) spool table, got {t.shape} and {u.shape}")
+    for row in range(t.size):
+        _check_row(source, row + 1, t[row], u[row], t[row - 1] if row else None)
+
+
+def _check_row(source: str, row: int, t: float, spools: np.ndarray, previous: float | None) -> None:
+    where = f"{source}: row {row}"
+    if not math.isfinite(t):
+        raise ValueError(f"{where}, column 't': {t} is not a finite time")
+    if previous is None and t != 0.0:
+        raise ValueError(f"{where}, column 't': the log must start at t = 0, not {t}")
+    if previous is not None and t <= previous:
+        raise ValueError(f"{where}, column 't': {t} s does not come after {previous} s (times must ascend)")
+    for name, value in zip(COLUMNS[1:], spools, strict=True):
+        if not math.isfinite(value):
+            raise ValueError(f"{where}, column {name!r}: {value} is not a finite spool position")
+        if abs(value) > SPOOL_LIMIT_MM:
+            raise ValueError(
+                f"{where}, column {name!r}: {value} mm is beyond the spool stroke ±{SPOOL_LIMIT_MM:.0f} mm"
+            )
+
+
+def read_command_log(path: str | Path) -> CommandLog:
+    """Read and check a command log CSV (header ``t,swing,boom,stick,bucket``, any column order)."""
+    path = Path(path)
+    with path.open(newline="") as f:
+        reader = csv.reader(f)
+        header = [h.strip() for h in next(reader, [])]
+        index = _column_index(path, header)
+        t, spools = [], []
+        for row_no, fields in enumerate(reader, start=1):
+            if not fields or all(not x.strip() for x in fields):
+                continue  # blank line
+            values = [_number(path, row_no, name, fields, i) for name, i in index.items()]
+            t.append(values[0])
+            spools.append(values[1:])
+    if not t:
+        raise ValueError(f"{path}: the command log has a header but no rows")
+    log_t, log_u = np.array(t), np.array(spools)
+    validate_commands(log_t, log_u, source=str(path))
+    return CommandLog(log_t, log_u)
+
+
+def _column_index(path: Path, header: list[str]) -> dict[str, int]:
+    if not header:
+        raise ValueError(f"{path}: empty file; expected the header {','.join(COLUMNS)}")
+    missing = [c for c in COLUMNS if c not in header]
+    if missing:
+        raise ValueError(f"{path}: missing column(s) {', '.join(missing)}; expected {','.join(COLUMNS)}")
+    extra = [h for h in header if h not in COLUMNS]
+    if extra or len(header) != len(COLUMNS):
+        raise ValueError(f"{path}: unexpected or repeated column(s) {extra or header}; expected {','.join(COLUMNS)}")
+    return {c: header.index(c) for c in COLUMNS}
+
+
+def _number(path: Path, row: int, name: str, fields: list[str], i: int) -> float:
+    if i >= len(fields) or not fields[i].strip():
+        raise ValueError(f"{path}: row {row}, column {name!r}: value missing")
+    try:
+        return float(fields[i])
+    except ValueError:
+        raise ValueError(f"{path}: row {row}, column {name!r}: {fields[i]!r} is not a number") from None
+
+
+def write_command_log(path: str | Path, log: CommandLog) -> None:
+    """Write a command log CSV atomically."""
+    rows = np.column_stack([log.t, log.spools_mm])
+    _write_csv_atomic(Path(path), COLUMNS, rows)
+
+
+def write_trajectory_csv(path: str | Path, trajectory: np.ndarray) -> None:
+    """Write a structured trajectory array (fields = columns) as CSV, atomically.
+
+    The file appears complete or not at all: it is written next to its destination under a
+    temporary name, then renamed over it.
+    """
+    names = trajectory.dtype.names
+    if not names:
+        raise ValueError("trajectory must be a structured array with named fields")
+    rows = np.column_stack([trajectory[n] for n in names]) if len(trajectory) else np.empty((0, len(names)))
+    _write_csv_atomic(Path(path), names, rows)
+
+
+def _write_csv_atomic(path: Path, header: tuple[str, ...], rows: np.ndarray) -> None:
+    with atomic_path(path) as tmp, tmp.open("w", newline="") as f:
+        f.write(",".join(header) + "\n")
+        for row in rows:
+            f.write(",".join(f"{v:.9g}" for v in row) + "\n")

@@ -1,0 +1,257 @@
+"""The learned machine model: MuJoCo's linkage dynamics + the four MBL tables (paper Sec III).
+
+Every control period (default: one 25 ms step of the lean machine), the paper's three steps:
+
+1. **Loads.** The cylinder force loads of the present state from the linkage model: the joint
+   torque that holds the links against gravity, velocity terms, the cylinders' and links' own
+   loads (the full model's closed chains' constraint forces) and any tip force,
+   ``tau = qfrc_bias - qfrc_passive - qfrc_applied - qfrc_constraint`` at the main joints (less the
+   joint limits' share), mapped to cylinder forces by the moment arms (Eqn 5:
+   ``f = tau / (dC/dq)``). The tables are steady-state models, so the links' own acceleration is
+   not part of the load.
+2. **Tables.** Boom, bucket and stick tables turn spools + loads into cylinder velocities; the
+   swing table gives the swing acceleration from the spools, the stick load, the swing inertia
+   (MuJoCo's mass matrix) and the swing rate.
+3. **Integration.** The cylinder velocities become joint-rate targets through the moment arms;
+   the swing's target rate is integrated from the acceleration. The MJCF's stiff velocity servos
+   reach the targets within the step (a zero target holds the joint: no sag) and MuJoCo integrates.
+
+All Python happens in this step loop (see DESIGN.md on ``mjcb_control``).
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from hexgym.hydraulics.circuit import validate_spools
+from hexgym.machine import kinematics
+from hexgym.machine import parameters as p
+from hexgym.machine.assets import load_model
+from hexgym.machine.physics import ExcavatorPhysics
+from hexgym.mbl.fit import load_tables
+from hexgym.mbl.table import MBLTable
+
+END_MARGIN = 0.005  # m from a stroke end: the cylinder is at its stop
+_STROKES = np.array([p.CYLINDERS[n].stroke for n in kinematics.FRONT_CYLINDERS])
+# The most a cylinder can push (head side) or pull (rod side) at its line relief, N
+_PUSH_LIMIT = np.array([p.LINE_RELIEF[n] * p.CYLINDERS[n].head_area for n in kinematics.FRONT_CYLINDERS])
+_PULL_LIMIT = np.array([p.LINE_RELIEF[n] * p.CYLINDERS[n].rod_area for n in kinematics.FRONT_CYLINDERS])
+SWING_REST_RATE = 0.01  # rad/s: below this a swing with its spool closed is at rest
+LEARNED_COLUMNS = (
+    ("t",)
+    + tuple(f"q_{j}" for j in kinematics.JOINTS)
+    + tuple(f"qd_{j}" for j in kinematics.JOINTS)
+    + ("tip_x", "tip_y", "tip_z")
+    + tuple(f"{j}_spool_mm" for j in kinematics.JOINTS)
+    + tuple(f"{c}_extension_m" for c in kinematics.FRONT_CYLINDERS)
+    + tuple(f"{c}_velocity_mps" for c in kinematics.FRONT_CYLINDERS)
+    + tuple(f"{c}_force_n" for c in kinematics.FRONT_CYLINDERS)
+    + ("swing_inertia_kgm2", "swing_acceleration_target")
+)
+LEARNED_DTYPE = np.dtype([(name, np.float64) for name in LEARNED_COLUMNS])
+
+
+class LearnedModel:
+    """MuJoCo linkage driven by the MBL tables.
+
+    Args:
+        tables: the four tables (default: the packaged ones, :func:`hexgym.mbl.fit.load_tables`).
+        model: a compiled machine or scene model with joint-rate servo actuators (default: the lean
+            machine, ``assets/cat325_lean.xml``, whose step is the control period).
+        control_period: seconds between table queries; a multiple of the MuJoCo step (default:
+            one step).
+    """
+
+    def __init__(
+        self,
+        tables: dict[str, MBLTable] | None = None,
+        model: mujoco.MjModel | None = None,
+        control_period: float | None = None,
+    ) -> None:
+        self.physics = ExcavatorPhysics(model if model is not None else load_model(lean=True))
+        if control_period is None:
+            control_period = self.physics.timestep
+        self.tables = tables if tables is not None else load_tables()
+        self._substeps = int(round(control_period / self.physics.timestep))
+        if self._substeps < 1 or abs(self._substeps * self.physics.timestep - control_period) > 1e-9:
+            raise ValueError(f"control_period must be a multiple of the model step, got {control_period}")
+        self._dofs = np.array([self.physics.model.joint(n).dofadr[0] for n in kinematics.JOINTS])
+        self.spools_m = np.zeros(4)
+        self.swing_acceleration = 0.0
+        self._swing_rate_target = 0.0
+        rate_axis = self.tables["swing"].axes[-1]  # the swing table's last input is the swing rate
+        self._slowest_swing, self._fastest_swing = rate_axis[0], rate_axis[-1]
+        self._constraint_load = np.zeros(self.physics.model.nv)  # see _step_physics
+        m = self.physics.model
+        upper = m.body("upper").id  # the swinging structure and all it carries
+        self._machine_body = np.array([upper in _ancestors(m, b) for b in range(m.nbody)])
+        self._jacp = np.zeros((3, m.nv))
+
+    @property
+    def timestep(self) -> float:
+        """One control period, s."""
+        return self._substeps * self.physics.timestep
+
+    def reset(self, start: str | np.ndarray = "home", payload_kg: float = 0.0) -> None:
+        """Start at a keyframe name or joint angles (rad), at rest, spools neutral."""
+        self.physics.start_at(start, payload_kg)
+        self.spools_m = np.zeros(4)
+        self.swing_acceleration = 0.0
+        self._swing_rate_target = 0.0
+        self.physics.set_actuator_targets(np.zeros(4))
+        self._constraint_load[:] = 0.0
+        self._step_physics(1)  # one step so the constraint forces (part of the loads) exist
+        self.physics.data.time = 0.0
+
+    def joint_loads(self) -> np.ndarray:
+        """Torque each main joint's actuator must supply to hold the present motion (N m).
+
+        Joint-limit forces are not part of it: at a stroke end the cylinder's stop carries the
+        load, not its oil.
+        """
+        d = self.physics.data
+        tau = d.qfrc_bias - d.qfrc_passive - d.qfrc_applied - self._constraint_load
+        return tau[self._dofs]
+
+    def _step_physics(self, n: int) -> None:
+        """``physics.step(n)``, keeping each step's constraint load: ``qfrc_constraint`` less its
+        joint-limit share, both from that step's solve. (After ``mj_step1`` the constraint rows
+        already belong to the next state while ``efc_force`` and ``qfrc_constraint`` are the last
+        solve's, so the share cannot be taken then: a limit row that vanished would leave its
+        force, ~1e10 N m against the stiff servos, in the load.)
+        """
+        m, d = self.physics.model, self.physics.data
+        for _ in range(n):
+            mujoco.mj_step2(m, d)
+            self._constraint_load = d.qfrc_constraint - self._limit_forces()
+            mujoco.mj_step1(m, d)
+
+    def _limit_forces(self) -> np.ndarray:
+        """The joint limits' share of ``qfrc_constraint`` (J^T f over the limit rows)."""
+        m, d = self.physics.model, self.physics.data
+        out = np.zeros(m.nv)
+        limit_rows = d.efc_type == mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT
+        if limit_rows.any():
+            mujoco.mj_mulJacTVec(m, d, out, np.where(limit_rows, d.efc_force, 0.0))
+        return out
+
+    def cylinder_loads(self, arms: np.ndarray | None = None) -> np.ndarray:
+        """[boom, stick, bucket] cylinder force loads, N (+ = the cylinder must push).
+
+        ``arms``: the present moment arms, if the caller already has them.
+        """
+        return self.joint_loads()[1:] / (self.physics.moment_arms() if arms is None else arms)
+
+    def step(self, spools_m: np.ndarray, n: int = 1) -> None:
+        """Advance ``n`` control periods with the spools (m; swing, boom, stick, bucket) held."""
+        self.spools_m = validate_spools(spools_m).copy()
+        for _ in range(n):
+            self._control_period()
+
+    def effective_spools(self, loads: np.ndarray | None = None) -> np.ndarray:
+        """The spools as the tables should see them: a stalled function passes no flow.
+
+        A function stalls when a cylinder is driven into its stroke end, or when its load exceeds
+        what its line relief lets it push or pull (a cylinder or the swing against the ground,
+        the truck or a digging force it cannot overcome). The tables were learned away from both
+        (there the stop or the relief, not the valve, sets the speed), so they cannot know it:
+        closing that spool for the lookup says so, and its partner on the same pump then gets the
+        flow (the boom rises once the bucket is fully curled). What it leaves out is the stalled
+        spool's closed centre bypass, which in the circuit sends a little more flow to the partner.
+
+        ``loads``: [swing torque, N m, and boom, stick, bucket cylinder forces, N]; default: the
+        present ones.
+        """
+        if loads is None:
+            loads = np.concatenate([self.joint_loads()[:1], self.cylinder_loads()])
+        spools = self.spools_m.copy()
+        ext = self.physics.cylinder_extensions()
+        extending, retracting = spools[1:] > 0, spools[1:] < 0
+        at_start, at_end = ext <= END_MARGIN, ext >= _STROKES - END_MARGIN
+        stalled = (at_start & retracting) | (at_end & extending)
+        stalled |= (extending & (loads[1:] > _PUSH_LIMIT)) | (retracting & (loads[1:] < -_PULL_LIMIT))
+        spools[1:][stalled] = 0.0
+        if abs(loads[0]) > p.SWING_TORQUE_AT_RELIEF and loads[0] * spools[0] > 0:
+            spools[0] = 0.0
+        return spools
+
+    def _control_period(self) -> None:
+        ph = self.physics
+        arms = ph.moment_arms()  # once per period: the loads and the rate targets both need them
+        tau = self.joint_loads()
+        f_boom, f_stick, f_bucket = tau[1:] / arms
+        u_swing, u_boom, u_stick, u_bucket = self.effective_spools(np.array([tau[0], f_boom, f_stick, f_bucket]))
+        inertia = ph.swing_inertia()
+        t = self.tables
+        closed = np.abs([u_swing, u_boom, u_stick, u_bucket]) < p.SPOOL_DEAD_BAND
+        # a spool in its dead band blocks its cylinder's ports: the cylinder holds (no table noise)
+        v_boom = 0.0 if closed[1] else t["boom"]((u_boom, u_bucket, f_boom, f_bucket))
+        v_bucket = 0.0 if closed[3] else t["bucket"]((u_boom, u_bucket, f_boom, f_bucket))
+        v_stick = 0.0 if closed[2] else t["stick"]((u_swing, u_stick, inertia, f_stick))
+        # Step 3 for the swing: the model integrates its own rate from the table's acceleration
+        # (the table sees that rate); the servo makes the upper structure follow it
+        rate = self._swing_rate_target
+        self.swing_acceleration = t["swing"]((u_swing, u_stick, f_stick, inertia, rate))
+        if not self._slowest_swing < rate < self._fastest_swing and self.swing_acceleration * rate > 0.0:
+            # the table clamps the rate to its grid, the fastest swing in its data: beyond it, it
+            # would keep accelerating the swing at that edge's value; it must not go faster
+            self.swing_acceleration = 0.0
+        new_rate = rate + self.swing_acceleration * self.timestep
+        if closed[0] and (new_rate * rate <= 0.0 or abs(new_rate) < SWING_REST_RATE):
+            new_rate = 0.0  # braked by the crossover reliefs: it stops, it does not turn back
+        targets = np.array([new_rate, v_boom / arms[0], v_stick / arms[1], v_bucket / arms[2]])
+        targets[self.blocked_by_contact(targets)] = 0.0
+        self._swing_rate_target = targets[0]
+        ph.set_actuator_targets(targets)
+        self._step_physics(self._substeps)
+
+    def blocked_by_contact(self, rates: np.ndarray) -> np.ndarray:
+        """Which joints' ``rates`` would drive the machine further into a contact (ground, truck).
+
+        Hydraulics cannot push through the ground or a truck (the reaction exceeds any relief), so
+        a joint whose rate would move a contact point of the machine along the contact normal into
+        the other body stalls. The lean machine's contacts are detected but inactive (hexgym/machine/mjcf.py:
+        solved against its stiff velocity servos they would kick the links), so this stall is what
+        keeps the machine out of the ground and the truck: it stops within one step of touching.
+        """
+        m, d = self.physics.model, self.physics.data
+        blocked = np.zeros(4, dtype=bool)
+        for i in range(d.ncon):
+            c = d.contact[i]
+            if c.dist >= 0.0:
+                continue  # not touching
+            b1, b2 = m.geom_bodyid[c.geom1], m.geom_bodyid[c.geom2]
+            mine1, mine2 = self._machine_body[b1], self._machine_body[b2]
+            if mine1 == mine2:
+                continue
+            body, sign = (b1, 1.0) if mine1 else (b2, -1.0)  # the normal points from geom1 to geom2
+            mujoco.mj_jac(m, d, self._jacp, None, c.pos, body)
+            approach = sign * (c.frame[:3] @ self._jacp[:, self._dofs])  # normal speed per unit joint rate
+            blocked |= approach * rates > 0.0
+        return blocked
+
+    def observe(self) -> np.ndarray:
+        """One trajectory row (``LEARNED_DTYPE``): the common columns, spools, cylinders, loads."""
+        return trajectory_row(self)
+
+
+def _ancestors(model: mujoco.MjModel, body: int) -> set[int]:
+    """``body`` and the bodies it hangs from, up to the world."""
+    out = {body}
+    while body:
+        body = int(model.body_parentid[body])
+        out.add(body)
+    return out
+
+
+def trajectory_row(model: LearnedModel) -> np.ndarray:
+    """One ``LEARNED_DTYPE`` row of a learned model on either backend (it has ``physics``,
+    ``spools_m``, ``cylinder_loads()`` and ``swing_acceleration``)."""
+    ph = model.physics
+    values = (
+        [ph.time, *ph.joint_positions(), *ph.joint_velocities(), *ph.tip_position()]
+        + [*(model.spools_m * 1e3), *ph.cylinder_extensions(), *ph.cylinder_velocities()]
+        + [*model.cylinder_loads(), ph.swing_inertia(), model.swing_acceleration]
+    )
+    return np.array(tuple(values), dtype=LEARNED_DTYPE)

@@ -1,0 +1,351 @@
+"""The ``hexgym`` command line: one subcommand per job, each with ``--help``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from hexgym.agents.demo import run_demo
+
+    result = run_demo(args.out, fps=args.fps, width=args.width, height=args.height, duration=args.seconds)
+    metrics = result.pop("metrics")
+    for kind, path in result.items():
+        print(f"{kind}: {path}")
+    print(f"scripted loader: {metrics['delivered_t']:.2f} t delivered in {metrics['sim_seconds']:g} s, "
+          f"{metrics['dumps']} dumps, {metrics['fuel_l']:.2f} L fuel")  # fmt: skip
+    return 0
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    from hexgym.tools.bench import print_bench, run_bench
+
+    print_bench(run_bench(steps=args.steps, seed=args.seed, seconds=args.seconds), args.json)
+    return 0
+
+
+def _cmd_scripted(args: argparse.Namespace) -> int:
+    from hexgym.agents.scripted import run_scripted
+    from hexgym.envs.loading import HexLoadingEnv
+    from hexgym.files import write_json
+
+    env = HexLoadingEnv(time_limit=args.seconds)
+    runs = [run_scripted(env, seed=args.seed + i) for i in range(args.episodes)]
+    for run in runs:
+        print(json.dumps({k: v for k, v in run.items() if k != "return_terms"}))
+    if args.json:
+        print(f"wrote {write_json(args.json, runs)}")
+    return 0
+
+
+def _cmd_model(args: argparse.Namespace) -> int:
+    from hexgym.tools.model_info import model_summary
+
+    summary = model_summary()
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        for key, value in summary.items():
+            print(f"{key}: {value}")
+    return 0
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    from hexgym.model.commandlog import read_command_log, write_trajectory_csv
+    from hexgym.model.replay import replay
+
+    commands = read_command_log(args.commands)
+    if args.model == "reference":
+        from hexgym.hydraulics.reference import ReferenceModel
+
+        model = ReferenceModel()
+    else:
+        from hexgym.model.native_backend import make_learned_model
+
+        model = make_learned_model(args.backend)
+    trajectory = replay(model, commands, start=args.start, payload_kg=args.payload_kg, dt_out=args.dt_out)
+    write_trajectory_csv(args.out, trajectory)
+    print(f"wrote {args.out}: {len(trajectory)} rows, {commands.duration:g} s simulated")
+    return 0
+
+
+def _cmd_reference_report(args: argparse.Namespace) -> int:
+    from hexgym.tools.reference_report import run_report
+
+    print(json.dumps(run_report(args.out), indent=2))
+    print(f"plots: {Path(args.out) / 'interactions.png'}")
+    return 0
+
+
+def _cmd_fit(args: argparse.Namespace) -> int:
+    from hexgym.mbl.fit import TABLES, fit_all
+
+    names = tuple(args.tables.split(",")) if args.tables else tuple(TABLES)
+    unknown = set(names) - set(TABLES)
+    if unknown:
+        raise ValueError(f"unknown table(s) {sorted(unknown)}; choose from {list(TABLES)}")
+    for name, path in fit_all(args.data, args.out, seed=args.seed, names=names).items():
+        print(f"{name}: {path}")
+    return 0
+
+
+def _cmd_tables(args: argparse.Namespace) -> int:
+    from hexgym.mbl.fit import tables_summary
+
+    summary = tables_summary(args.dir)
+    if args.bench:
+        from hexgym.mbl.fit import lookup_benchmark
+
+        timings = lookup_benchmark(args.bench, args.dir)
+        for item in summary:
+            item["seconds_per_query"] = timings[item["name"]]
+    if args.json:
+        print(json.dumps(summary, indent=2))
+        return 0
+    for t in summary:
+        print(
+            f"{t['name']:7s} {t['n_points']:6d} points  LOO {t['loo_rmse_rel']:.4f}  "
+            f"held-out {t['holdout_rmse_rel']:.4f}  grid {t['grid_rmse_rel']:.4f}  <- {', '.join(t['inputs'])}"
+        )
+    return 0
+
+
+def _cmd_validate(args: argparse.Namespace) -> int:
+    from hexgym.tools.validate import run_validation
+
+    print(json.dumps(run_validation(args.out), indent=2))
+    print(f"plots: {Path(args.out)}/test1.png, test2.png, test3.png")
+    return 0
+
+
+def _cmd_build_assets(args: argparse.Namespace) -> int:
+    from hexgym.files import atomic_path
+    from hexgym.machine import mjcf
+    from hexgym.machine.assets import LEAN_MODEL_FILE, LEAN_SCENE_FILE, SCENE_FILE
+    from hexgym.tools import meshes
+
+    directory = Path(args.dir)
+    for path in meshes.write_meshes(directory / "meshes"):
+        print(f"wrote {path} ({path.stat().st_size} bytes)")
+    for name, lean in (("cat325.xml", False), ("cat325_lean.xml", True)):
+        mjcf.write_model(directory / name, lean=lean)
+        print(f"wrote {directory / name}")
+    from hexgym.model.plugin_mjcf import MBL_FULL_MODEL_FILE, MBL_MODEL_FILE, write_mbl_model
+
+    print(f"wrote {write_mbl_model(directory / MBL_MODEL_FILE)}")
+    print(f"wrote {write_mbl_model(directory / MBL_FULL_MODEL_FILE, full=True)}")
+    with atomic_path(directory / LEAN_SCENE_FILE) as tmp:
+        tmp.write_text(mjcf.scene_xml_around((directory / SCENE_FILE).read_text(), LEAN_MODEL_FILE))
+    print(f"wrote {directory / LEAN_SCENE_FILE}")
+    return 0
+
+
+def _cmd_train(args: argparse.Namespace) -> int:
+    from hexgym.agents.training import train
+
+    path = train(args.algo, args.env, timesteps=args.timesteps, seed=args.seed, log_dir=args.log_dir,
+                 hyperparams=args.hyperparams, n_envs=args.n_envs, init_from=args.init_from,
+                 checkpoint_every=args.checkpoint_every, progress_bar=not args.no_progress)  # fmt: skip
+    print(f"model: {path}")
+    return 0
+
+
+def _cmd_clone(args: argparse.Namespace) -> int:
+    from hexgym.agents.training import clone_scripted
+
+    path = clone_scripted(args.out, episodes=args.episodes, dagger_rounds=args.dagger_rounds,
+                          dagger_episodes=args.dagger_episodes, epochs=args.epochs, seed=args.seed, noise=args.noise,
+                          hyperparams=args.hyperparams, select_episodes=args.select_episodes,
+                          rounds_dir=args.rounds_dir, loss=args.loss)  # fmt: skip
+    print(f"model: {path}")
+    return 0
+
+
+def _cmd_evaluate(args: argparse.Namespace) -> int:
+    from hexgym.agents.evaluate import evaluate
+
+    env_kwargs = {"time_limit": args.seconds} if args.seconds is not None else None
+    result = evaluate(args.policy, episodes=args.episodes, seed=args.seed, env_kwargs=env_kwargs, json_out=args.json)
+    print(json.dumps({k: v for k, v in result.items() if k != "per_episode"}, indent=2))
+    if args.json:
+        print(f"wrote {args.json}")
+    return 0
+
+
+def _cmd_video(args: argparse.Namespace) -> int:
+    from hexgym.agents.video import record_video
+
+    result = record_video(
+        args.policy, args.out, camera=args.camera, episodes=args.episodes, seed=args.seed, seconds=args.seconds,
+        width=args.width, height=args.height, snapshot=args.snapshot,
+    )  # fmt: skip
+    print(f"video: {result['video']} ({result['frames']} frames)")
+    if "snapshot" in result:
+        print(f"snapshot: {result['snapshot']}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser with all subcommands."""
+    from hexgym.mbl.collect import add_collect_parser
+
+    parser = argparse.ArgumentParser(
+        prog="hexgym", description="A hydraulic excavator (Cat 325 class) simulator for robot learning."
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    demo = sub.add_parser("demo", help="the scripted loader on HexLoading-v0, filmed: an MP4 and a PNG")
+    demo.add_argument("--out", default="out", help="output directory (default: out)")
+    demo.add_argument(
+        "--fps", type=float, default=None, help="playback rate; frames are taken at 10 Hz (default: 10, real time)"
+    )
+    demo.add_argument("--seconds", type=float, default=60.0, help="simulated time (default: 60)")
+    demo.add_argument("--width", type=int, default=960, help="frame width in pixels (default: 960)")
+    demo.add_argument("--height", type=int, default=544, help="frame height in pixels (default: 544)")
+    demo.set_defaults(func=_cmd_demo)
+
+    bench = sub.add_parser("bench", help="HexLoading-v0 vs Gymnasium Hopper-v5 steps per second, one process")
+    bench.add_argument("--steps", type=int, default=2000, help="random steps per environment (default: 2000)")
+    bench.add_argument("--seed", type=int, default=0, help="seed of the resets and actions (default: 0)")
+    bench.add_argument("--seconds", type=float, default=2.0, help="wall seconds per real-time factor (default: 2)")
+    bench.add_argument("--json", metavar="OUT", default=None, help="also write the figures to this JSON file")
+    bench.set_defaults(func=_cmd_bench)
+
+    scripted = sub.add_parser("scripted", help="run the scripted loader on HexLoading-v0: cycles, t/h, fuel")
+    scripted.add_argument("--episodes", type=int, default=1, help="episodes, seeds seed..seed+N-1 (default: 1)")
+    scripted.add_argument("--seed", type=int, default=0, help="first seed (default: 0)")
+    scripted.add_argument("--seconds", type=float, default=180.0, help="episode time budget, s (default: 180)")
+    scripted.add_argument("--json", metavar="OUT", default=None, help="also write the runs to this JSON file")
+    scripted.set_defaults(func=_cmd_scripted)
+
+    model = sub.add_parser("model", help="print the machine model's masses, joint ranges and cylinders")
+    model.add_argument("--json", action="store_true", help="print JSON")
+    model.set_defaults(func=_cmd_model)
+
+    simulate = sub.add_parser("simulate", help="replay a spool command log (CSV) and write the trajectory (CSV)")
+    simulate.add_argument(
+        "--model", choices=["reference", "learned"], default="reference", help="machine model (default: reference)"
+    )
+    simulate.add_argument("--commands", required=True, help="command log CSV: t,swing,boom,stick,bucket (s, mm)")
+    simulate.add_argument("--out", required=True, help="trajectory CSV to write")
+    simulate.add_argument("--start", default="home", help="keyframe to start from (default: home)")
+    simulate.add_argument("--payload-kg", type=float, default=0.0, help="material in the bucket, kg (default: 0)")
+    simulate.add_argument("--dt-out", type=float, default=0.05, help="output row interval, s (default: 0.05)")
+    simulate.add_argument(
+        "--backend",
+        choices=("auto", "python", "native"),
+        default="auto",
+        help="learned model: native plugin or Python (default: auto = native when built)",
+    )
+    simulate.set_defaults(func=_cmd_simulate)
+
+    report = sub.add_parser(
+        "reference-report", help="reference model: full-spool speeds, interaction plots (Figs 5-8), speed"
+    )
+    report.add_argument("--out", default="out/reference", help="output directory (default: out/reference)")
+    report.set_defaults(func=_cmd_reference_report)
+
+    add_collect_parser(sub)
+
+    fit = sub.add_parser("fit", help="fit the four MBL tables (LWR + leave-one-out selection) from collected data")
+    fit.add_argument("--data", default="data", help="directory with <table>.npz data sets (default: data)")
+    fit.add_argument("--out", default=None, help="where to write the tables (default: the packaged tables)")
+    fit.add_argument("--seed", type=int, default=0, help="seed of the held-out split and the search (default: 0)")
+    fit.add_argument("--tables", default="", help="comma-separated subset, e.g. boom,stick (default: all)")
+    fit.set_defaults(func=_cmd_fit)
+
+    tables = sub.add_parser("tables", help="the fitted tables: inputs, output, points, parameters, accuracy")
+    tables.add_argument("--json", action="store_true", help="print JSON")
+    tables.add_argument("--dir", default=None, help="table directory (default: the packaged tables)")
+    tables.add_argument("--bench", metavar="DATA", default=None, help="also time lookups vs direct LWR on DATA")
+    tables.set_defaults(func=_cmd_tables)
+
+    validate = sub.add_parser(
+        "validate", help="learned vs reference model on the paper's three tests: plots, tip errors, speed"
+    )
+    validate.add_argument("--out", default="out/validate", help="output directory (default: out/validate)")
+    validate.set_defaults(func=_cmd_validate)
+
+    build = sub.add_parser("build-assets", help="regenerate assets/meshes and assets/cat325.xml (developers)")
+    build.add_argument("--dir", default=str(Path(__file__).resolve().parents[2] / "assets"), help="assets dir")
+    build.set_defaults(func=_cmd_build_assets)
+
+    _add_agent_parsers(sub)
+    return parser
+
+
+def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
+    """``train``, ``clone``, ``evaluate`` and ``video``: agents for HexLoading-v0."""
+    policy_help = "'shipped' (packaged agent), 'scripted' (the scripted loader) or a model .zip"
+    train = sub.add_parser("train", help="train a PPO or SAC agent (rl-zoo3 hyperparameters; resumes checkpoints)")
+    train.add_argument("--algo", choices=("ppo", "sac"), default="ppo", help="algorithm (default: ppo)")
+    train.add_argument("--env", default="HexLoading-v0", help="environment id (default: HexLoading-v0)")
+    train.add_argument("--timesteps", type=int, default=None, help="total steps (default: the YAML's n_timesteps)")
+    train.add_argument("--seed", type=int, default=0, help="seed (default: 0)")
+    train.add_argument("-f", "--log-dir", default="logs", help="run directory root (default: logs)")
+    train.add_argument("--hyperparams", default=None, help="rl-zoo3 YAML (default: training/hyperparams/<algo>.yml)")
+    train.add_argument("--n-envs", type=int, default=None, help="parallel environments (default: one per core)")
+    train.add_argument("--init-from", default=None, help="start from this model .zip, e.g. from `hexgym clone`")
+    train.add_argument("--checkpoint-every", type=int, default=20000, help="steps between checkpoints")
+    train.add_argument("--no-progress", action="store_true", help="no progress bar")
+    train.set_defaults(func=_cmd_train)
+
+    clone = sub.add_parser("clone", help="behaviour-clone the scripted loader (with DAgger) into a PPO model")
+    clone.add_argument("--out", required=True, help="model .zip to write (statistics beside it)")
+    clone.add_argument("--episodes", type=int, default=16, help="scripted episodes (default: 16)")
+    clone.add_argument("--dagger-rounds", type=int, default=4, help="DAgger rounds (default: 4)")
+    clone.add_argument("--dagger-episodes", type=int, default=8, help="episodes per DAgger round (default: 8)")
+    clone.add_argument("--epochs", type=int, default=30, help="fitting epochs per round (default: 30)")
+    clone.add_argument("--noise", type=float, default=0.0, help="DART: spool noise std (default: 0)")
+    clone.add_argument("--seed", type=int, default=1000, help="first episode seed (default: 1000)")
+    clone.add_argument("--select-episodes", type=int, default=0, help="score each round's clone on N more "
+                       "episodes and keep the best (default: 0: the last)")  # fmt: skip
+    clone.add_argument("--rounds-dir", default=None, help="also keep each round's clone here (round<k>.zip)")
+    clone.add_argument("--hyperparams", default=None, help="PPO YAML giving the network (default: ppo.yml)")
+    clone.add_argument(
+        "--loss",
+        choices=("mse", "l1"),
+        default="mse",
+        help="the actor's fit to the labels: mse "
+        "(their mean) or l1 (their median: one side of a phase change, not the average)",
+    )
+    clone.set_defaults(func=_cmd_clone)
+
+    evaluate = sub.add_parser("evaluate", help="measure a policy on HexLoading-v0: success, t/h, cycle, fuel")
+    evaluate.add_argument("--policy", default="shipped", help=policy_help + " (default: shipped)")
+    evaluate.add_argument("--episodes", type=int, default=20, help="episodes, seeds seed..seed+N-1 (default: 20)")
+    evaluate.add_argument("--seed", type=int, default=0, help="first seed (default: 0)")
+    evaluate.add_argument("--seconds", type=float, default=None, help="episode time limit, s (default: the env's)")
+    evaluate.add_argument("--json", metavar="OUT", default=None, help="also write the figures to this JSON file")
+    evaluate.set_defaults(func=_cmd_evaluate)
+
+    video = sub.add_parser("video", help="render rollouts of a policy to an MP4 with a time/payload overlay")
+    video.add_argument("--policy", default="shipped", help=policy_help + " (default: shipped)")
+    video.add_argument("--out", required=True, help="MP4 file to write")
+    video.add_argument("--camera", choices=("chase", "cab"), default="chase", help="camera (default: chase)")
+    video.add_argument("--episodes", type=int, default=1, help="episodes (default: 1)")
+    video.add_argument("--seed", type=int, default=0, help="first seed (default: 0)")
+    video.add_argument("--seconds", type=float, default=None, help="episode length, s (default: the env's 180)")
+    video.add_argument("--width", type=int, default=640, help="frame width (default: 640)")
+    video.add_argument("--height", type=int, default=384, help="frame height (default: 384)")
+    video.add_argument("--snapshot", default=None, help="also write a PNG of a mid-episode frame")
+    video.set_defaults(func=_cmd_video)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``hexgym`` console command."""
+    os.environ.setdefault("MUJOCO_GL", "egl")  # offscreen rendering without a display
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except (ValueError, FileNotFoundError, RuntimeError) as exc:
+        print(f"hexgym {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
