@@ -7,6 +7,7 @@ import pytest
 
 from hexgym.mbl import fit
 from hexgym.mbl.baselines import synthetic_flow_sharing
+from hexgym.mbl.schema import TABLES
 
 
 @pytest.fixture(scope="module")
@@ -14,7 +15,8 @@ def data_dir(tmp_path_factory):
     directory = tmp_path_factory.mktemp("data")
     X, y = synthetic_flow_sharing(700, seed=3)
     rng = np.random.default_rng(4)
-    for name, (inputs, output) in fit.TABLES.items():
+    for name, spec in TABLES.items():
+        inputs, output = spec.inputs, spec.output
         Xn = X if len(inputs) == 4 else np.column_stack([X, rng.uniform(-1, 1, len(y))])
         np.savez(directory / f"{name}.npz", X=Xn, y=y, inputs=np.array(inputs), output=np.array(output))
     return directory
@@ -29,9 +31,9 @@ def fitted(data_dir, tmp_path_factory):
 
 def test_fit_writes_every_table_with_its_metrics(fitted):
     summary = {t["name"]: t for t in fit.tables_summary(fitted)}
-    assert set(summary) == set(fit.TABLES)
+    assert set(summary) == set(TABLES)
     for name, t in summary.items():
-        assert (tuple(t["inputs"]), t["output"]) == fit.TABLES[name]
+        assert (tuple(t["inputs"]), t["output"]) == (TABLES[name].inputs, TABLES[name].output)
         assert t["n_points"] == 700
         assert 0 < t["loo_rmse_rel"] < 0.1 and 0 < t["holdout_rmse_rel"] < 0.1
         assert t["holdout_rmse_rel"] < t["baselines_holdout_rmse_rel"]["global_linear"]
@@ -54,9 +56,9 @@ def test_tables_answer_queries(fitted):
 
 def test_wrong_or_missing_data_is_named(data_dir, tmp_path):
     with pytest.raises(FileNotFoundError, match="nothing.npz"):
-        fit.load_dataset(tmp_path / "nothing.npz", "boom")
+        fit.load_table_data(tmp_path / "nothing.npz", "boom")
     with pytest.raises(ValueError, match="swing.npz"):
-        fit.load_dataset(data_dir / "swing.npz", "boom")
+        fit.load_table_data(data_dir / "swing.npz", "boom")
 
 
 def test_fitted_points_subsample_only_above_the_limit():

@@ -12,7 +12,7 @@ import pytest
 import hexgym  # noqa: F401  (loads the plugin)
 from hexgym.machine import kinematics
 from hexgym.machine.assets import asset_path, assets_dir, load_model
-from hexgym.mbl.fit import packaged_tables_dir
+from hexgym.mbl.table import packaged_tables_dir
 from hexgym.model import native_backend
 from hexgym.model.plugin_mjcf import MBL_FULL_MODEL_FILE, MBL_MODEL_FILE, mbl_model_xml
 from hexgym.model.python_backend import LearnedModel

@@ -11,17 +11,9 @@ import pytest
 from scipy.interpolate import RegularGridInterpolator
 
 from hexgym.mbl.baselines import SPOOL_STEP, SYNTH_INPUTS, synthetic_flow_sharing
+from hexgym.mbl.grid import benchmark_lookup, build_table, suggest_axes
 from hexgym.mbl.lwr import LocallyWeightedRegression, LWRParams, default_scales
-from hexgym.mbl.table import (
-    FORMAT_VERSION,
-    MBLTable,
-    TableFileError,
-    benchmark_lookup,
-    build_table,
-    dataset_hash,
-    load_table,
-    suggest_axes,
-)
+from hexgym.mbl.table import FORMAT_VERSION, MBLTable, TableFileError, dataset_hash, load_table
 
 STEPS = (SPOOL_STEP, SPOOL_STEP, None, None)
 

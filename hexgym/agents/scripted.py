@@ -150,7 +150,7 @@ def _joint_rates(q: np.ndarray, target: np.ndarray, feed: np.ndarray | None) -> 
 
 @functools.cache
 def _packaged_tables() -> dict[str, MBLTable]:
-    from hexgym.mbl.fit import load_tables
+    from hexgym.mbl.table import load_tables
 
     return load_tables()
 

@@ -78,6 +78,7 @@ import numpy as np
 from hexgym.files import atomic_path
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
+from hexgym.mbl.schema import TABLES
 
 GENERATOR_VERSION = 1
 DEFAULT_SAMPLES = 6400  # per group: the paper had 5500 (boom/bucket) and 6400 (stick/swing) points
@@ -91,31 +92,6 @@ _SPEED_OUT = np.array([2.0 * p.PUMP_MAX_FLOW / p.CYLINDERS[n].head_area for n in
 _SPEED_IN = np.array([1.6 * p.PUMP_MAX_FLOW / p.CYLINDERS[n].rod_area for n in kinematics.FRONT_CYLINDERS])
 
 
-@dataclass(frozen=True)
-class TableSpec:
-    """One MBL table's data set: its episode group, input names (column order) and output name."""
-
-    group: str
-    inputs: tuple[str, ...]
-    output: str
-
-
-TABLES: dict[str, TableSpec] = {
-    "boom": TableSpec(
-        "boom_bucket", ("boom_spool_m", "bucket_spool_m", "boom_force_n", "bucket_force_n"), "boom_velocity_mps"
-    ),
-    "bucket": TableSpec(
-        "boom_bucket", ("boom_spool_m", "bucket_spool_m", "boom_force_n", "bucket_force_n"), "bucket_velocity_mps"
-    ),
-    "stick": TableSpec(
-        "stick_swing", ("swing_spool_m", "stick_spool_m", "swing_inertia_kgm2", "stick_force_n"), "stick_velocity_mps"
-    ),
-    "swing": TableSpec(
-        "stick_swing",
-        ("swing_spool_m", "stick_spool_m", "stick_force_n", "swing_inertia_kgm2", "swing_rate_radps"),
-        "swing_acceleration_radps2",
-    ),
-}
 # group -> (moving spools, tables; the first table's samples count towards samples_per_group)
 GROUPS: dict[str, tuple[tuple[str, str], tuple[str, ...]]] = {
     "boom_bucket": (("boom", "bucket"), ("boom", "bucket")),

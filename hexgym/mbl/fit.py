@@ -2,7 +2,7 @@
 
 Per table (paper Sec III): split off a seeded held-out set; choose the LWR's kernel width,
 per-input scales and ridge by exact leave-one-out on the rest (:func:`hexgym.mbl.lwr.select_params`);
-evaluate the LWR on a grid and store it (:func:`hexgym.mbl.table.build_table`), recording the exact
+evaluate the LWR on a grid and store it (:func:`hexgym.mbl.grid.build_table`), recording the exact
 LOO error, the held-out error of the LWR fitted without the held-out points, the grid's
 interpolation loss and the same split's baselines (global linear, k nearest neighbours, cubic
 ridge). The shipped table is built from all points. Deterministic for a given data set and seed.
@@ -12,18 +12,16 @@ ridge). The shipped table is built from all points. Deterministic for a given da
 
 from __future__ import annotations
 
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
 from hexgym.mbl.baselines import compare_baselines
-from hexgym.mbl.collect import TABLES as DATA_TABLES
+from hexgym.mbl.grid import build_table, suggest_axes
 from hexgym.mbl.lwr import holdout_split, select_params
-from hexgym.mbl.table import MBLTable, build_table, load_table, suggest_axes
+from hexgym.mbl.schema import TABLES, check_table_schema
+from hexgym.mbl.table import MBLTable, load_tables, table_path
 
-# name -> (inputs, output), as the data sets name them (hexgym.mbl.collect): SI units in the names.
-TABLES: dict[str, tuple[tuple[str, ...], str]] = {name: (t.inputs, t.output) for name, t in DATA_TABLES.items()}
 SPOOL_STEP = 0.001  # m: the data's spool levels (1 mm, as the paper sampled)
 HOLDOUT_FRACTION = 0.2
 # Grid nodes per table: spool axes at 1 mm take 23 x 23 nodes; the rest share what is left.
@@ -32,17 +30,11 @@ MAX_GRID_NODES = {"boom": 60_000, "bucket": 60_000, "stick": 60_000, "swing": 20
 MAX_POINTS = 12_000  # a seeded subsample above this: LOO selection and the grid stay minutes, not hours
 
 
-def packaged_tables_dir() -> Path:
-    """Where the fitted tables ship inside the package."""
-    return Path(str(resources.files("hexgym") / "mbl_tables"))
 
 
-def table_path(name: str, directory: str | Path | None = None) -> Path:
-    """The file of table ``name`` (in ``directory``, default the packaged tables)."""
-    return Path(directory or packaged_tables_dir()) / f"{name}.npz"
 
 
-def load_dataset(path: str | Path, name: str) -> tuple[np.ndarray, np.ndarray]:
+def load_table_data(path: str | Path, name: str) -> tuple[np.ndarray, np.ndarray]:
     """(X, y) of a collected data set, checked against the table's expected inputs and output."""
     path = Path(path)
     if not path.is_file():
@@ -50,14 +42,13 @@ def load_dataset(path: str | Path, name: str) -> tuple[np.ndarray, np.ndarray]:
     with np.load(path, allow_pickle=False) as data:
         inputs, output = tuple(str(s) for s in data["inputs"]), str(data["output"])
         X, y = np.asarray(data["X"], dtype=float), np.asarray(data["y"], dtype=float)
-    if (inputs, output) != TABLES[name]:
-        raise ValueError(f"{path}: inputs/output {inputs} -> {output} are not table {name!r}'s {TABLES[name]}")
+    check_table_schema(str(path), name, inputs, output)
     return X, y
 
 
 def fit_table(name: str, X: np.ndarray, y: np.ndarray, seed: int = 0) -> MBLTable:
     """Select parameters by LOO on the training split, build the table, measure it."""
-    inputs, output = TABLES[name]
+    inputs, output = TABLES[name].inputs, TABLES[name].output
     train, _ = holdout_split(len(y), HOLDOUT_FRACTION, seed)
     params, _ = select_params(X[train], y[train], seed=seed)
     steps = tuple(SPOOL_STEP if n.endswith("_spool_m") else None for n in inputs)
@@ -75,7 +66,7 @@ def fit_all(
     """Fit every table from ``data_dir/<name>.npz`` and write ``out_dir/<name>.npz``."""
     written = {}
     for name in names:
-        X, y = fitted_points(*load_dataset(Path(data_dir) / f"{name}.npz", name), seed=seed)
+        X, y = fitted_points(*load_table_data(Path(data_dir) / f"{name}.npz", name), seed=seed)
         written[name] = fit_table(name, X, y, seed=seed).save(table_path(name, out_dir))
     return written
 
@@ -88,13 +79,6 @@ def fitted_points(X: np.ndarray, y: np.ndarray, seed: int = 0) -> tuple[np.ndarr
     return X[keep], y[keep]
 
 
-def load_tables(directory: str | Path | None = None) -> dict[str, MBLTable]:
-    """All four tables (default: the packaged ones), each checked by :func:`hexgym.mbl.table.load_table`."""
-    tables = {name: load_table(table_path(name, directory)) for name in TABLES}
-    for name, table in tables.items():
-        if (table.inputs, table.output) != TABLES[name]:
-            raise ValueError(f"{table_path(name, directory)}: not the {name!r} table's inputs/output")
-    return tables
 
 
 def tables_summary(directory: str | Path | None = None) -> list[dict[str, object]]:
@@ -126,12 +110,12 @@ def tables_summary(directory: str | Path | None = None) -> list[dict[str, object
 
 def lookup_benchmark(data_dir: str | Path, directory: str | Path | None = None, seed: int = 0) -> dict[str, dict]:
     """Seconds per query of each table against its direct LWR, at held-out data points."""
+    from hexgym.mbl.grid import benchmark_lookup
     from hexgym.mbl.lwr import LocallyWeightedRegression
-    from hexgym.mbl.table import benchmark_lookup
 
     out = {}
     for name, table in load_tables(directory).items():
-        X, y = load_dataset(Path(data_dir) / f"{name}.npz", name)
+        X, y = load_table_data(Path(data_dir) / f"{name}.npz", name)
         train, test = holdout_split(len(y), HOLDOUT_FRACTION, seed)
         lwr = LocallyWeightedRegression(table.params).fit(X[train][:MAX_POINTS], y[train][:MAX_POINTS])
         out[name] = benchmark_lookup(table, lwr, X[test][:200], repeats=3)

@@ -263,7 +263,7 @@ def make_learned_model(
         backend = resolve_backend()
     if backend == "native":
         return NativeLearnedModel(tables_dir=tables_dir, control_period=control_period)
-    from hexgym.mbl.fit import load_tables
+    from hexgym.mbl.table import load_tables
 
     tables = load_tables(tables_dir) if tables_dir is not None else None
     return LearnedModel(tables=tables, control_period=control_period)

@@ -29,8 +29,7 @@ from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.machine.assets import load_model
 from hexgym.machine.physics import ExcavatorPhysics
-from hexgym.mbl.fit import load_tables
-from hexgym.mbl.table import MBLTable
+from hexgym.mbl.table import MBLTable, load_tables
 
 END_MARGIN = 0.005  # m from a stroke end: the cylinder is at its stop
 _STROKES = np.array([p.CYLINDERS[n].stroke for n in kinematics.FRONT_CYLINDERS])
@@ -56,7 +55,7 @@ class LearnedModel:
     """MuJoCo linkage driven by the MBL tables.
 
     Args:
-        tables: the four tables (default: the packaged ones, :func:`hexgym.mbl.fit.load_tables`).
+        tables: the four tables (default: the packaged ones, :func:`hexgym.mbl.table.load_tables`).
         model: a compiled machine or scene model with joint-rate servo actuators (default: the lean
             machine, ``assets/cat325_lean.xml``, whose step is the control period).
         control_period: seconds between table queries; a multiple of the MuJoCo step (default:

@@ -82,7 +82,8 @@ def _cmd_reference_report(args: argparse.Namespace) -> int:
 
 
 def _cmd_fit(args: argparse.Namespace) -> int:
-    from hexgym.mbl.fit import TABLES, fit_all
+    from hexgym.mbl.fit import fit_all
+    from hexgym.mbl.schema import TABLES
 
     names = tuple(args.tables.split(",")) if args.tables else tuple(TABLES)
     unknown = set(names) - set(TABLES)

@@ -27,8 +27,9 @@ from hexgym.hydraulics.circuit import HydraulicCircuit
 from hexgym.hydraulics.reference import ReferenceModel
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
-from hexgym.mbl.fit import fitted_points, load_dataset, load_tables
+from hexgym.mbl.fit import fitted_points, load_table_data
 from hexgym.mbl.lwr import LocallyWeightedRegression
+from hexgym.mbl.table import load_tables
 from hexgym.model.commandlog import CommandLog
 from hexgym.model.replay import replay
 from hexgym.tools.validate import DT_OUT as VALIDATE_DT_OUT
@@ -77,7 +78,7 @@ def grid_bias_figures(
 ) -> dict[str, float]:
     """Mean swing-table error (rad/s^2) on the collected swing data at one spool (stick spool
     closed, ``0 < rate < below_rate``): of the packaged grid and of the LWR it was built from."""
-    inputs, y = load_dataset(Path(data_dir) / "swing.npz", "swing")
+    inputs, y = load_table_data(Path(data_dir) / "swing.npz", "swing")
     near = (np.abs(inputs[:, 0] - spool_mm * 1e-3) < 6e-4) & (np.abs(inputs[:, 1]) < 6e-4)
     near &= (inputs[:, 4] > 0.0) & (inputs[:, 4] < below_rate)
     table = load_tables()["swing"]
