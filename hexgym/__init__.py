@@ -1,23 +1,26 @@
 """hexgym: a fast, faithful simulator of a 25-ton hydraulic excavator (Cat 325 class) on MuJoCo.
 
-Modules: :mod:`hexgym.machine.parameters` (every physical number), :mod:`hexgym.machine.kinematics` (kinematics),
-:mod:`hexgym.machine.physics` (the MuJoCo simulation), :mod:`hexgym.machine.mjcf` and :mod:`hexgym.tools.meshes`
-(generate ``assets/``), :mod:`hexgym.machine.render` (offscreen video), :mod:`hexgym.tools.cli` (``hexgym``).
+The subpackages follow the data flow, each importing only those before it: :mod:`hexgym.machine`
+(parameters, kinematics, the MuJoCo linkage, assets) -> :mod:`hexgym.hydraulics` (the analytical
+circuit, fuel, the reference model) -> :mod:`hexgym.mbl` (table schema, collection, LWR, fitting,
+tables) -> :mod:`hexgym.model` (the learned model on the Python or native backend, command logs,
+replay) -> :mod:`hexgym.envs` (``HexLoading-v0``) -> :mod:`hexgym.agents` (scripted loader, training,
+evaluation, video) -> :mod:`hexgym.tools` (the ``hexgym`` command line, benchmarks, validation).
+
+``import hexgym`` registers the environments and nothing more: the native plugin library is loaded
+when a native model is first built.
 """
 
 import os as _os
 
-# Offscreen rendering needs its GL backend chosen before mujoco is first imported (below): without
-# a display, Mesa's EGL (works on CPU-only machines); with one, MuJoCo's default (GLFW windows).
+# Offscreen rendering needs its GL backend chosen before mujoco is first imported: without a
+# display, Mesa's EGL (works on CPU-only machines); with one, MuJoCo's default (GLFW windows).
 if "MUJOCO_GL" not in _os.environ and not _os.environ.get("DISPLAY"):
     _os.environ["MUJOCO_GL"] = "egl"
 
-from hexgym.envs import register_envs as _register_envs  # noqa: E402
+from hexgym.envs import ENV_ID, register_envs  # noqa: E402
 
 __version__ = "0.1.0"
+__all__ = ["ENV_ID", "register_envs"]
 
-_register_envs()  # `import hexgym` makes gymnasium.make("HexLoading-v0") work
-
-from hexgym.model.native_backend import load_plugin as _load_plugin  # noqa: E402
-
-_load_plugin()  # registers the native hexgym.mbl plugin with MuJoCo when the build compiled it
+register_envs()  # `import hexgym` makes gymnasium.make("HexLoading-v0") work

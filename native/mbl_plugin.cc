@@ -39,54 +39,13 @@
 
 #include "linkage.h"
 #include "mbl_table.h"
+#include "plugin_interface.h"
 
 namespace hexgym {
 namespace {
 
-constexpr char kPluginName[] = "hexgym.mbl";
-constexpr const char* kJoints[4] = {"swing", "boom", "stick", "bucket"};
-// Plugin state: constraint load at the 4 dofs (previous step), swing acceleration, steps since
-// the last table query (less whole control periods: fractional when the period is not a whole
-// number of steps), the 4 joint-rate targets held until the next query (the swing's unclipped).
-constexpr int kLoad = 0, kAcceleration = 4, kPhase = 5, kTargets = 6, kStateSize = 10;
-
-// Config keys; hexgym/model/plugin_mjcf.py writes them from hexgym/machine/parameters.py.
-constexpr const char* kAttributes[] = {
-    "tables",             // directory of boom/bucket/stick/swing.npz (default: mbl_tables next to this library)
-    "boom_triangle",      // base x z, rod x z, frame offset, sign
-    "stick_triangle",     // same
-    "bucket_four_bar",    // guide pivot x z, bucket pin x z, link pin x z, cylinder base x z, guide, power, side
-    "retracted_length",   // boom stick bucket, m
-    "stroke",             // boom stick bucket, m
-    "end_margin",         // m from a stroke end: at the stop
-    "push_limit",         // boom stick bucket, N (line relief x head area)
-    "pull_limit",         // boom stick bucket, N (line relief x rod area)
-    "swing_torque_limit", // N m (crossover relief)
-    "dead_band",          // m of spool
-    "swing_rest_rate",    // rad/s
-    "rate_range",         // lo hi per joint, rad/s (the Python path's servo ctrlrange)
-    "control_period",     // s between table queries, >= one step (default: one step); when it is no
-                          // whole number of steps, queries fall on the first step at or after each
-                          // period boundary (e.g. 25 ms at 2 ms steps: 13, 12, 13, ... steps)
-};
-constexpr int kNumAttributes = sizeof(kAttributes) / sizeof(kAttributes[0]);
-
-// The tables, the inputs each takes, in order, and its output (hexgym.mbl.fit.TABLES).
-struct TableSpec {
-  const char* name;
-  std::vector<std::string> inputs;
-  const char* output;
-};
-const TableSpec kTables[4] = {
-    {"boom", {"boom_spool_m", "bucket_spool_m", "boom_force_n", "bucket_force_n"}, "boom_velocity_mps"},
-    {"bucket", {"boom_spool_m", "bucket_spool_m", "boom_force_n", "bucket_force_n"}, "bucket_velocity_mps"},
-    {"stick", {"swing_spool_m", "stick_spool_m", "swing_inertia_kgm2", "stick_force_n"}, "stick_velocity_mps"},
-    {"swing", {"swing_spool_m", "stick_spool_m", "stick_force_n", "swing_inertia_kgm2", "swing_rate_radps"},
-     "swing_acceleration_radps2"},
-};
-
 struct TableSet {
-  std::vector<MblTable> tables;  // boom, bucket, stick, swing
+  std::vector<MblTable> tables;  // in kTables' order
 };
 
 // Failure to set up an instance; the message goes to mju_warning (MuJoCo's load error).
@@ -113,7 +72,7 @@ std::shared_ptr<const TableSet> LoadTables(const std::string& directory) {
   static std::mutex mutex;
   static std::map<std::string, std::shared_ptr<const TableSet>> cache;
   std::string key = directory;
-  for (const TableSpec& spec : kTables) {
+  for (const TableSchema& spec : kTables) {
     struct stat st;
     std::string path = directory + "/" + spec.name + ".npz";
     if (stat(path.c_str(), &st) != 0) throw SetupError("MBL table file " + path + " does not exist");
@@ -124,9 +83,11 @@ std::shared_ptr<const TableSet> LoadTables(const std::string& directory) {
   auto it = cache.find(key);
   if (it != cache.end()) return it->second;
   auto set = std::make_shared<TableSet>();
-  for (const TableSpec& spec : kTables) {
+  for (const TableSchema& spec : kTables) {
+    std::vector<std::string> inputs;
+    for (int j = 0; j < spec.num_inputs; ++j) inputs.push_back(kQuantityNames[spec.inputs[j]]);
     try {
-      set->tables.emplace_back(directory + "/" + spec.name + ".npz", spec.name, spec.inputs, spec.output);
+      set->tables.emplace_back(directory + "/" + spec.name + ".npz", spec.name, inputs, spec.output);
     } catch (const TableError& e) {
       throw SetupError(e.what());
     }
@@ -204,7 +165,7 @@ struct Instance {
     swing_torque_limit = Number(m, instance, "swing_torque_limit");
     dead_band = Number(m, instance, "dead_band");
     swing_rest_rate = Number(m, instance, "swing_rest_rate");
-    const MblTable& swing = tables->tables[3];
+    const MblTable& swing = tables->tables[kTableSwing];
     slowest_swing = swing.axis_lo(swing.dims() - 1);
     fastest_swing = swing.axis_hi(swing.dims() - 1);
     const char* period_text = mj_getPluginConfig(m, instance, "control_period");
@@ -316,7 +277,7 @@ struct Instance {
       int v = dadr[k];
       tau[k] = d->qfrc_bias[v] - d->qfrc_passive[v] - d->qfrc_applied[v] - constraint[k];
       double mm = d->ctrl[m->actuator_ctrladr[actuator[k]]];
-      u[k] = std::isfinite(mm) ? mm / 1000.0 : 0.0;
+      u[k] = std::isfinite(mm) ? mm / kCtrlPerSpoolMetre : 0.0;
     }
     for (int c = 0; c < 3; ++c) {
       double length;
@@ -333,15 +294,15 @@ struct Instance {
     double inertia = d->M[swing_diag];
     bool closed[4];
     for (int k = 0; k < 4; ++k) closed[k] = std::fabs(u[k]) < dead_band;
-    const std::vector<MblTable>& t = tables->tables;
-    double boom_in[4] = {u[1], u[3], f[0], f[2]};
-    double stick_in[4] = {u[0], u[2], inertia, f[1]};
-    double v_boom = closed[1] ? 0.0 : t[0](boom_in);
-    double v_bucket = closed[3] ? 0.0 : t[1](boom_in);
-    double v_stick = closed[2] ? 0.0 : t[2](stick_in);
     double rate = integrated ? d->plugin_state[stateadr + kTargets] : d->act[swing_actadr];
-    double swing_in[5] = {u[0], u[2], f[1], inertia, rate};
-    swing_acceleration = t[3](swing_in);
+    double q[kNumQuantities];
+    q[kQSwingSpoolM] = u[0], q[kQBoomSpoolM] = u[1], q[kQStickSpoolM] = u[2], q[kQBucketSpoolM] = u[3];
+    q[kQBoomForceN] = f[0], q[kQStickForceN] = f[1], q[kQBucketForceN] = f[2];
+    q[kQSwingInertiaKgm2] = inertia, q[kQSwingRateRadps] = rate;
+    double v_boom = closed[1] ? 0.0 : Lookup(kTableBoom, q);
+    double v_bucket = closed[3] ? 0.0 : Lookup(kTableBucket, q);
+    double v_stick = closed[2] ? 0.0 : Lookup(kTableStick, q);
+    swing_acceleration = Lookup(kTableSwing, q);
     if (!(slowest_swing < rate && rate < fastest_swing) && swing_acceleration * rate > 0.0) {
       // the table clamps the rate to its grid (the fastest swing in its data): beyond it, it
       // would keep accelerating at that edge's value; it must not go faster
@@ -357,6 +318,14 @@ struct Instance {
     next_rate = wanted[0];
     if (!integrated) d->act_dot[swing_actadr] = (next_rate - rate) / m->opt.timestep;
     for (int k = 0; k < 4; ++k) target[k] = std::fmin(std::fmax(wanted[k], rate_lo[k]), rate_hi[k]);
+  }
+
+  // Table `table` at the quantities q, its inputs gathered in the schema's order.
+  double Lookup(int table, const double* q) const {
+    const TableSchema& spec = kTables[table];
+    double x[kMaxTableInputs];
+    for (int j = 0; j < spec.num_inputs; ++j) x[j] = q[spec.inputs[j]];
+    return tables->tables[table](x);
   }
 
   // LearnedModel.blocked_by_contact: a joint whose rate would move a contact point of the machine
@@ -497,6 +466,10 @@ __attribute__((visibility("default"))) int hexgym_mbl_version_error(int built, i
   if (out && size > 0) std::snprintf(out, static_cast<size_t>(size), "%s", message.c_str());
   return static_cast<int>(message.size());
 }
+
+// The interface (plugin name, config keys, state slots, tables, ctrl unit) this library was built
+// with, as JSON; hexgym.model.plugin compares it with its own before registering the plugin.
+__attribute__((visibility("default"))) const char* hexgym_mbl_interface(void) { return hexgym::kInterfaceJson; }
 
 // The MuJoCo version (mjVERSION_HEADER) this library was built against.
 __attribute__((visibility("default"))) int hexgym_mbl_built_mujoco_version(void) { return mjVERSION_HEADER; }

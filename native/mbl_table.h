@@ -8,10 +8,9 @@
 #include <string>
 #include <vector>
 
-namespace hexgym {
+#include "plugin_interface.h"  // kTableFormatVersion
 
-// The table file format this library reads (hexgym.mbl.table.FORMAT_VERSION).
-constexpr int kTableFormatVersion = 1;
+namespace hexgym {
 
 // A table file that cannot be used; what() names the file and the problem.
 class TableError : public std::runtime_error {

@@ -4,7 +4,8 @@ import json
 
 import pytest
 
-from hexgym.model import native_backend
+from hexgym.model.plugin import native_available
+from hexgym.tools import bench
 from hexgym.tools.bench import interleaved_steps_per_second, steps_per_second, vector_steps_per_second
 from hexgym.tools.cli import main
 
@@ -24,14 +25,14 @@ def test_bench_command_prints_and_writes_consistent_json(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "HexLoading-v0" in printed and "Hopper-v5" in printed and "ratio" in printed and "vector" in printed
     data = json.loads(out.read_text())
-    keys = ISSUE_KEYS if native_backend.native_available() else ISSUE_KEYS[:1] + ISSUE_KEYS[3:]
+    keys = ISSUE_KEYS if native_available() else ISSUE_KEYS[:1] + ISSUE_KEYS[3:]
     assert all(data[k] > 0 for k in keys), {k: data.get(k) for k in keys}
     assert data["steps"] == 30 and data["vector_envs"] == 64
     assert data["ratio"] == pytest.approx(data["hexloading_steps_per_s"] / data["hopper_steps_per_s"])
     assert data["vector_ratio"] == pytest.approx(data["vector_steps_per_s"] / data["hopper_steps_per_s"])
     if data["vector_env"] == "HexLoadingVectorEnv":
         assert data["vector_physics_bound_steps_per_s"] > 0
-    if native_backend.native_available():
+    if native_available():
         assert 0 < data["batch_cores_used"] <= data["batch_threads"] + 0.1
         assert data["batch_realtime_factor_per_core"] == pytest.approx(
             data["batch_realtime_factor_native"] / data["batch_cores_used"]
@@ -44,11 +45,11 @@ def test_vector_rate_works_with_whatever_vector_env_is_registered():
     assert rate > 0 and kind.endswith("VectorEnv")
 
 
-@pytest.mark.skipif(not native_backend.native_available(), reason="needs the native plugin")
+@pytest.mark.skipif(not native_available(), reason="needs the native plugin")
 def test_batch_rollouts_are_timed_and_checked():
-    assert native_backend.batch_realtime_factor_native(nbatch=2, nthread=1, seconds=0.01) > 0
+    assert bench.batch_realtime_factor_native(nbatch=2, nthread=1, seconds=0.01) > 0
     with pytest.raises(ValueError, match="nbatch"):
-        native_backend.batch_realtime_factor_native(nbatch=0)
+        bench.batch_realtime_factor_native(nbatch=0)
 
 
 def test_interleaved_rates_time_every_env_in_blocks(monkeypatch):

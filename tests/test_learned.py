@@ -20,7 +20,7 @@ def model() -> LearnedModel:
 
 def periods(model: LearnedModel, seconds: float) -> int:
     """Control periods in ``seconds``."""
-    return int(round(seconds / model.timestep))
+    return int(round(seconds / model.control_period))
 
 
 def test_closed_spools_hold_a_full_bucket(model):

@@ -13,14 +13,14 @@ import hexgym  # noqa: F401  (loads the plugin)
 from hexgym.machine import kinematics
 from hexgym.machine.assets import asset_path, assets_dir, load_model
 from hexgym.mbl.table import packaged_tables_dir
-from hexgym.model import native_backend
+from hexgym.model import backend, native_backend, plugin
 from hexgym.model.plugin_mjcf import MBL_FULL_MODEL_FILE, MBL_MODEL_FILE, mbl_model_xml
 from hexgym.model.python_backend import LearnedModel
 from hexgym.model.replay import replay
 from hexgym.tools.validate import scenarios
 
 _COMPILER = shutil.which(sysconfig.get_config_var("CXX").split()[0] if sysconfig.get_config_var("CXX") else "c++")
-needs_plugin = pytest.mark.skipif(not native_backend.native_available(), reason=f"native plugin: {native_backend.load_plugin()}")
+needs_plugin = pytest.mark.skipif(not plugin.native_available(), reason=f"native plugin: {plugin.load_plugin()}")
 
 
 def _tip(rows: np.ndarray) -> np.ndarray:
@@ -31,15 +31,15 @@ def test_plugin_is_built_wherever_a_compiler_is():
     """A machine with a C++ compiler and zlib's header must have built the plugin (pip install builds it)."""
     if _COMPILER is None or not Path("/usr/include/zlib.h").exists():
         pytest.skip("no C++ compiler or zlib.h here: the Python path is the learned model")
-    assert native_backend.load_plugin() == ""
-    assert native_backend.plugin_library() is not None
+    assert plugin.load_plugin() == ""
+    assert plugin.plugin_library() is not None
 
 
 @needs_plugin
 def test_library_matches_the_running_mujoco():
     import ctypes
 
-    lib = ctypes.CDLL(str(native_backend.plugin_library()))
+    lib = ctypes.CDLL(str(plugin.plugin_library()))
     assert lib.hexgym_mbl_built_mujoco_version() == mujoco.mj_version()
 
 
@@ -126,7 +126,7 @@ def test_full_machine_follows_the_lean_machine():
     lean = replay(native_backend.NativeLearnedModel(), log, start=pose)
     full_model = native_backend.NativeLearnedModel(model=native_backend.load_mbl_model(full=True))
     full = replay(full_model, log, start=pose)
-    assert full_model.timestep == 0.025 and full_model.physics.timestep == 0.002
+    assert full_model.control_period == 0.025 and full_model.physics.timestep == 0.002
     err = np.linalg.norm(_tip(full) - _tip(lean), axis=1)
     print(f"full vs lean machine, Test 1: max tip difference {err.max():.3f} m, rms {np.sqrt(np.mean(err**2)):.3f} m")
     assert full["t"][-1] == pytest.approx(8.0)
@@ -210,7 +210,7 @@ def _rewrite_meta(path: Path, **changes: object) -> None:
 def test_other_tables_directory_is_used(tmp_path):
     directory = _copy_tables(tmp_path)
     model = native_backend.NativeLearnedModel(tables_dir=directory)
-    assert native_backend.plugin_config_values(model.physics.model)["tables"] == str(directory.resolve())
+    assert plugin.plugin_config_values(model.physics.model)["tables"] == str(directory.resolve())
     model.reset()
     model.step(np.array([0.0, 0.008, 0.0, 0.0]), n=10)
     assert model.physics.joint_velocities()[1] > 0.05
@@ -304,7 +304,7 @@ def test_version_check_names_both_mujoco_versions():
     library loaded into another MuJoCo, is not exercised: only one MuJoCo is installed here.)"""
     import ctypes
 
-    lib = ctypes.CDLL(str(native_backend.plugin_library()))
+    lib = ctypes.CDLL(str(plugin.plugin_library()))
     buffer = ctypes.create_string_buffer(512)
     lib.hexgym_mbl_version_error.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_char_p, ctypes.c_int]
     assert lib.hexgym_mbl_version_error(3003007, 4000000, buffer, len(buffer)) > 0
@@ -312,7 +312,7 @@ def test_version_check_names_both_mujoco_versions():
     assert "built against MuJoCo 3003007 but is loaded into MuJoCo 4000000" in message and "rebuild" in message
     running = mujoco.mj_version()
     assert lib.hexgym_mbl_version_error(running, running, buffer, len(buffer)) == 0 and buffer.value == b""
-    assert native_backend.load_plugin() == ""  # this build agrees with this MuJoCo: nothing refused
+    assert plugin.load_plugin() == ""  # this build agrees with this MuJoCo: nothing refused
 
 
 @needs_plugin
@@ -326,11 +326,11 @@ def test_bad_spools_are_refused_before_the_plugin_sees_them():
 
 
 def test_make_learned_model_backends():
-    assert isinstance(native_backend.make_learned_model("python"), LearnedModel)
+    assert isinstance(backend.make_learned_model("python"), LearnedModel)
     with pytest.raises(ValueError, match="backend must be one of"):
-        native_backend.make_learned_model("fortran")
-    auto = native_backend.make_learned_model("auto")
-    expected = native_backend.NativeLearnedModel if native_backend.native_available() else LearnedModel
+        backend.make_learned_model("fortran")
+    auto = backend.make_learned_model("auto")
+    expected = native_backend.NativeLearnedModel if plugin.native_available() else LearnedModel
     assert isinstance(auto, expected)
 
 

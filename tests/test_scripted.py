@@ -102,7 +102,7 @@ def test_actions_are_valid_and_the_swing_brakes_towards_its_target():
 
 
 def test_native_backend_loads_the_truck_too():
-    from hexgym.model.native_backend import native_available
+    from hexgym.model.plugin import native_available
 
     if not native_available():
         pytest.skip("the native plugin is not built in this environment")

@@ -10,12 +10,13 @@ import hexgym  # noqa: F401 - registers HexLoading-v0
 from hexgym.agents.scripted import ScriptedLoader
 from hexgym.envs.earthwork import BatchedPiles
 from hexgym.envs.loading import HexLoadingEnv, heap_for, sample_start
-from hexgym.envs.vector import HexLoadingVectorEnv, vector_steps_per_second
+from hexgym.envs.vector import HexLoadingVectorEnv
 from hexgym.hydraulics import fuel
 from hexgym.interpolation import UniformTable
 from hexgym.machine import parameters as p
 from hexgym.machine.physics import payload_inertia
-from hexgym.model.native_backend import native_available
+from hexgym.model.plugin import native_available
+from hexgym.tools.bench import vector_steps_per_second
 
 needs_plugin = pytest.mark.skipif(not native_available(), reason="the batched environment needs the native plugin")
 
@@ -126,10 +127,10 @@ def test_bad_actions_name_the_environment():
 
 
 def test_without_the_plugin_it_says_to_use_sync(monkeypatch):
-    import hexgym.model.native_backend
-    from hexgym.model.native_backend import NativePluginError
+    import hexgym.model.plugin
+    from hexgym.model.plugin import NativePluginError
 
-    monkeypatch.setattr(hexgym.model.native_backend, "load_plugin", lambda: "the native plugin was not built")
+    monkeypatch.setattr(hexgym.model.plugin, "load_plugin", lambda: "the native plugin was not built")
     with pytest.raises(NativePluginError, match="vectorization_mode='sync'"):
         HexLoadingVectorEnv(2)
 
@@ -183,7 +184,7 @@ def test_vectorised_tables_fuel_and_payload_match_the_scalar_ones():
 
 @needs_plugin
 def test_benchmark_function_reports_env_steps_per_second():
-    assert vector_steps_per_second(num_envs=2, steps=3, seed=0) > 0
+    assert vector_steps_per_second(num_envs=2, vector_steps=3, seed=0)[0] > 0
 
 
 @needs_plugin

@@ -1,5 +1,6 @@
-"""Gymnasium environments: ``HexLoading-v0`` (:class:`hexgym.envs.loading.HexLoadingEnv`; batched,
-:class:`hexgym.envs.vector.HexLoadingVectorEnv`).
+"""The loading task as Gymnasium environments: ``HexLoading-v0`` (:class:`hexgym.envs.loading.HexLoadingEnv`;
+batched, :class:`hexgym.envs.vector.HexLoadingVectorEnv`), the site's world (:mod:`.world`: pile,
+truck, layout) and its earthwork (:mod:`.earthwork`: digging, payload, spill).
 
 ``import hexgym`` registers them; this package imports MuJoCo and the machine model only when an
 environment is made.
@@ -9,15 +10,15 @@ from __future__ import annotations
 
 import gymnasium
 
-ENV_IDS = ("HexLoading-v0",)
+ENV_ID = "HexLoading-v0"
 
 
 def register_envs() -> None:
     """Register the environments with Gymnasium (idempotent)."""
-    if "HexLoading-v0" not in gymnasium.registry:
+    if ENV_ID not in gymnasium.registry:
         gymnasium.register(
-            id="HexLoading-v0",
+            id=ENV_ID,
             entry_point="hexgym.envs.loading:HexLoadingEnv",
-            # gymnasium.make_vec("HexLoading-v0", num_envs=N): the batched environment (needs the native plugin)
+            # gymnasium.make_vec(ENV_ID, num_envs=N): the batched environment (needs the native plugin)
             vector_entry_point="hexgym.envs.vector:make_vector_env",
         )

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import gymnasium as gym
 import mujoco
@@ -29,12 +29,13 @@ from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.machine.assets import SCENE_FILE, asset_path
 from hexgym.machine.render import ModelMirror
+from hexgym.model.backend import resolve_backend
+from hexgym.model.base import LearnedModelBase
 from hexgym.model.python_backend import LearnedModel
 
-if TYPE_CHECKING:
-    from hexgym.model.native_backend import NativeLearnedModel
-
-CONTROL_PERIOD = 0.01  # s: the Python machine model's table period (on a model with a shorter step)
+# s: the Python backend's table period on a scene whose step is finer than the lean machine's 25 ms (e.g. the
+# full scene.xml at 2 ms); on the lean machine the tables are asked every step
+PYTHON_CONTROL_PERIOD = 0.01
 STEP_PERIOD = 0.1  # s: one environment step, 10 Hz, an operator's reaction time scale
 # Control periods per dig (fill, pile cut and relaxation, spill) while the teeth may be in the pile: 4 = once
 # per 0.1 s step (fast; the digging force still follows the motion every period; `hexgym scripted` results
@@ -69,33 +70,25 @@ _OBS_LOW = np.array(
 _CLIP_LOW, _CLIP_HIGH = _OBS_LOW.astype(float), _OBS_HIGH.astype(float)  # the bounds as float64: clip before casting
 
 
-BACKENDS = ("auto", "python", "native")
 PYTHON_SCENE = "scene_lean.xml"  # the learned model's default machine (hexgym.model.python_backend)
 
 
-def make_machine(backend: str = "auto", scene_path: str | Path | None = None) -> LearnedModel | NativeLearnedModel:
-    """The machine model that drives the environment, on the loading site (the one place to change backends).
+def make_machine(backend: str = "auto", scene_path: str | Path | None = None) -> LearnedModelBase:
+    """The machine model that drives the environment, on the loading site.
 
     ``"python"``: :class:`hexgym.model.python_backend.LearnedModel` on the lean machine (``scene_lean.xml``:
     no cylinder bodies, 25 ms step); ``"native"``: the ``hexgym.mbl`` MuJoCo plugin on
     ``cat325_mbl.xml`` (:mod:`hexgym.model.native_backend`, needs the built plugin). ``scene_path`` overrides
-    the scene (e.g. the full ``scene.xml``). ``"auto"``: native when the plugin is built, else
-    Python (saying why once).
+    the scene (e.g. the full ``scene.xml``). ``"auto"``: :func:`hexgym.model.backend.resolve_backend`.
     """
-    if backend == "auto":
-        from hexgym.model.native_backend import resolve_backend
-
-        backend = resolve_backend()
-    if backend == "python":
-        model = build_world_model(scene_path if scene_path is not None else asset_path(PYTHON_SCENE))
-        step = model.opt.timestep  # the tables are asked every CONTROL_PERIOD, or every step if longer
-        return LearnedModel(model=model, control_period=step * max(1, round(CONTROL_PERIOD / step)))
+    backend = resolve_backend(backend)
     if backend == "native":
-        from hexgym.model.native_backend import NativeLearnedModel, require_plugin
+        from hexgym.model.native_backend import NativeLearnedModel
 
-        require_plugin()
         return NativeLearnedModel(model=build_world_model(scene_path, machine_file="cat325_mbl.xml"))
-    raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    model = build_world_model(scene_path if scene_path is not None else asset_path(PYTHON_SCENE))
+    step = model.opt.timestep  # on a finer model than the lean machine's, the tables are asked every 10 ms
+    return LearnedModel(model=model, control_period=step * max(1, round(PYTHON_CONTROL_PERIOD / step)))
 
 
 def _display_available() -> bool:
@@ -302,7 +295,7 @@ class HexLoadingEnv(gym.Env):
         self.machine = make_machine(self._backend, self._scene_path)
         self.physics = self.machine.physics
         model = self.physics.model
-        self._period = self.machine.timestep  # s, one control period of the machine model
+        self._period = self.machine.control_period  # s, one control period of the machine model
         self._periods = int(round(STEP_PERIOD / self._period))
         if abs(self._periods * self._period - STEP_PERIOD) > 1e-9:
             raise ValueError(f"the machine's control period {self._period} s does not divide the step {STEP_PERIOD} s")

@@ -135,7 +135,7 @@ class HexLoadingVectorEnv(VectorEnv):
             )
         if FORCE_PERIODS != 1:
             raise NotImplementedError("the batched environment re-aims the digging force every period (FORCE_PERIODS)")
-        from hexgym.model.native_backend import NativePluginError, load_plugin
+        from hexgym.model.plugin import NativePluginError, load_plugin
 
         reason = load_plugin()
         if reason:
@@ -304,6 +304,15 @@ class HexLoadingVectorEnv(VectorEnv):
         infos = self._infos(np.ones(n, bool), terms, (stepped, fuel_step, contact_step))
         self._autoreset = terminated | truncated
         return self._obs.copy(), rewards, terminated, truncated, infos
+
+    def step_physics_only(self, spools_mm: np.ndarray) -> float:
+        """Step every site's physics one environment step with ``spools_mm`` ((num_envs, 4), the plugin's ctrl)
+        and no task logic; returns the wall seconds of the batch's step. The physics' share of a step: what
+        benchmarks compare the full step with (the site states are left inconsistent with the task: reset after)."""
+        self._ctrl[:, self._ctrl_ids] = spools_mm
+        start = time.perf_counter()
+        self._batch.step(np.arange(self.num_envs), nstep=self._periods, stage=_VEL)
+        return time.perf_counter() - start
 
     def close_extras(self, **kwargs: Any) -> None:
         """Stop the batch's threads."""
@@ -725,109 +734,3 @@ def make_vector_env(num_envs: int, **kwargs: Any) -> HexLoadingVectorEnv:
     """``HexLoading-v0``'s ``vector_entry_point`` (``gymnasium.make_vec`` passes ``num_envs`` and the env kwargs)."""
     kwargs.pop("max_episode_steps", None)  # the environment truncates itself (time_limit)
     return HexLoadingVectorEnv(num_envs, **kwargs)
-
-
-def vector_steps_per_second(num_envs: int = 64, steps: int = 300, seed: int = 0, **kwargs: Any) -> float:
-    """Environment steps per second (``num_envs`` x vector steps / s) of ``make_vec("HexLoading-v0", num_envs)``
-    under seeded random actions; only ``step`` calls are timed (``reset`` is not; autoresets within steps are)."""
-    return _timed_random_steps(num_envs, steps, seed, **kwargs)[0]
-
-
-def physics_bound_steps_per_second(num_envs: int = 64, vector_steps: int = 100, seed: int = 0) -> float:
-    """Environment steps per second that the batch's physics alone allows: ``num_envs`` sites stepped a whole
-    0.1 s step (its control periods in one ``Batch.step``) under random spools, no task logic. The vector env
-    cannot beat this on the same cores: it is the physics' share of the speed target."""
-    if num_envs < 1 or vector_steps < 1:
-        raise ValueError(f"num_envs and vector_steps must be >= 1, got {num_envs} and {vector_steps}")
-    envs = HexLoadingVectorEnv(num_envs)
-    try:
-        envs.reset(seed=seed)
-        rng = np.random.default_rng(seed)
-        ids = np.arange(num_envs)
-        spools = rng.uniform(-1.0, 1.0, (vector_steps, num_envs, 4)) * p.SPOOL_STROKE * 1e3  # the plugin's mm
-        elapsed = 0.0
-        for row in spools:
-            envs._ctrl[:, envs._ctrl_ids] = row
-            start = time.perf_counter()
-            envs._batch.step(ids, nstep=envs._periods, stage=_VEL)
-            elapsed += time.perf_counter() - start
-        return num_envs * vector_steps / elapsed
-    finally:
-        envs.close()
-
-
-def _timed_random_steps(num_envs: int, steps: int, seed: int, **kwargs: Any) -> tuple[float, float, float]:
-    """(env steps per second, share of the step time in the batch's physics, wall seconds per MuJoCo step of one
-    site in it) under seeded random actions."""
-    if steps < 1 or num_envs < 1:
-        raise ValueError(f"steps and num_envs must be >= 1, got {steps}, {num_envs}")
-    envs = gym.make_vec("HexLoading-v0", num_envs=num_envs, **kwargs)
-    envs.reset(seed=seed)
-    envs.action_space.seed(seed)
-    actions = [envs.action_space.sample() for _ in range(steps)]
-    envs.unwrapped.physics_seconds, envs.unwrapped.physics_steps = 0.0, 0
-    elapsed = 0.0
-    for action in actions:
-        start = time.perf_counter()
-        envs.step(action)
-        elapsed += time.perf_counter() - start
-    physics, mj_steps = envs.unwrapped.physics_seconds, envs.unwrapped.physics_steps
-    envs.close()
-    return num_envs * steps / elapsed, physics / elapsed, physics / mj_steps
-
-
-def main() -> None:
-    """``python -m hexgym.envs.vector [STEPS]``: batched env steps/s at 1, 8, 64 sites against single environments."""
-    import sys
-
-    from hexgym.tools.bench import REFERENCE_ENV, steps_per_second
-
-    steps = int(sys.argv[1]) if len(sys.argv) > 1 else 300
-    hopper = steps_per_second(REFERENCE_ENV, 2000)
-    single = steps_per_second("HexLoading-v0", 2000)
-    print(f"{REFERENCE_ENV}: {hopper:.0f} steps/s; HexLoading-v0 (one env): {single:.0f} steps/s")
-    for num_envs in (1, 8, 64):
-        rate, physics, per_step = _timed_random_steps(num_envs, max(steps, 4800 // num_envs), 0)
-        print(
-            f"make_vec('HexLoading-v0', num_envs={num_envs}): {rate:.0f} env steps/s ({rate / hopper:.2f}x "
-            f"{REFERENCE_ENV}, {rate / single:.2f}x one env; {physics:.0%} of it in the batch's physics, "
-            f"{per_step * 1e6:.1f} us per MuJoCo step of one site)"
-        )
-    bound = physics_bound_steps_per_second(64)
-    print(
-        f"  physics alone (64 sites, whole steps in one Batch.step, no task logic): {bound:.0f} env steps/s "
-        f"({bound / hopper:.2f}x {REFERENCE_ENV})"
-    )
-    profile = mujoco_step_profile()
-    print(
-        f"one mj_step of the plugin's model (MuJoCo's timers, one env): {profile['step_s'] * 1e6:.1f} us, "
-        f"{profile['actuation_share']:.0%} in the plugin's actuation, {profile['collision_share']:.0%} in collisions"
-    )
-    rate, physics, per_step = _timed_random_steps(64, steps, 0, nthread=1)
-    print(
-        f"  num_envs=64, nthread=1: {rate:.0f} env steps/s ({physics:.0%} physics, {per_step * 1e6:.1f} us per "
-        "MuJoCo step)"
-    )
-
-
-def mujoco_step_profile(steps: int = 500, seed: int = 0) -> dict[str, float]:
-    """MuJoCo's timers over ``steps`` random steps of one native HexLoadingEnv: wall s per ``mj_step`` and the
-    shares of the plugin's actuation (its table lookups) and of collision detection in it."""
-    env = HexLoadingEnv(backend="native")
-    env.reset(seed=seed)
-    rng = np.random.default_rng(seed)
-    for _ in range(steps):
-        _, _, terminated, truncated, _ = env.step(rng.uniform(-1.0, 1.0, 4))
-        if terminated or truncated:
-            env.reset()
-    timer, kind = env.physics.data.timer, mujoco.mjtTimer
-    step = timer[kind.mjTIMER_STEP]
-    return {
-        "step_s": step.duration / max(step.number, 1),
-        "actuation_share": timer[kind.mjTIMER_ACTUATION].duration / step.duration,
-        "collision_share": timer[kind.mjTIMER_POS_COLLISION].duration / step.duration,
-    }
-
-
-if __name__ == "__main__":
-    main()

@@ -93,6 +93,11 @@ class ReferenceModel:
         """The common MuJoCo / hydraulics step, s."""
         return self.physics.timestep
 
+    @property
+    def control_period(self) -> float:
+        """Seconds one :meth:`step` advances: one MuJoCo / hydraulics step."""
+        return self.physics.timestep
+
     def reset(self, start: str | np.ndarray = "home", payload_kg: float = 0.0) -> None:
         """Start at a keyframe name or joint angles (rad), at rest, loads held, spools neutral."""
         self.physics.start_at(start, payload_kg)

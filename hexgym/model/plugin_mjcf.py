@@ -34,13 +34,13 @@ from hexgym.files import atomic_path
 from hexgym.machine import kinematics, mjcf
 from hexgym.machine import parameters as p
 from hexgym.machine.assets import assets_dir
-from hexgym.model import python_backend
+from hexgym.model.base import END_MARGIN, PULL_LIMIT, PUSH_LIMIT, STROKES, SWING_REST_RATE
+from hexgym.model.plugin import CONFIG_KEYS, CTRL_PER_SPOOL_M, PLUGIN_NAME
 
 MBL_MODEL_FILE = "cat325_mbl.xml"
 MBL_FULL_MODEL_FILE = "cat325_mbl_full.xml"
-PLUGIN_NAME = "hexgym.mbl"
 INSTANCE = "mbl"
-SPOOL_RANGE_MM = p.SPOOL_STROKE * 1e3
+SPOOL_RANGE_MM = p.SPOOL_STROKE * CTRL_PER_SPOOL_M  # the plugin actuators' ctrlrange
 
 
 def _numbers(*values: float) -> str:
@@ -60,13 +60,13 @@ def plugin_config(lean: bool = True) -> dict[str, str]:
         **triangles,
         "bucket_four_bar": _numbers(*four_bar, p.GUIDE_LINK_LENGTH, p.POWER_LINK_LENGTH, kinematics._J_SIDE),
         "retracted_length": _numbers(*(p.CYLINDERS[n].retracted_length for n in kinematics.FRONT_CYLINDERS)),
-        "stroke": _numbers(*python_backend._STROKES),
-        "end_margin": _numbers(python_backend.END_MARGIN),
-        "push_limit": _numbers(*python_backend._PUSH_LIMIT),
-        "pull_limit": _numbers(*python_backend._PULL_LIMIT),
+        "stroke": _numbers(*STROKES),
+        "end_margin": _numbers(END_MARGIN),
+        "push_limit": _numbers(*PUSH_LIMIT),
+        "pull_limit": _numbers(*PULL_LIMIT),
         "swing_torque_limit": _numbers(p.SWING_TORQUE_AT_RELIEF),
         "dead_band": _numbers(p.SPOOL_DEAD_BAND),
-        "swing_rest_rate": _numbers(python_backend.SWING_REST_RATE),
+        "swing_rest_rate": _numbers(SWING_REST_RATE),
         "rate_range": _numbers(*np.concatenate([s["ctrlrange"] for s in servos.values()])),
     }
 
@@ -132,6 +132,9 @@ def _extension(tables_dir: str | Path | None, control_period: float | None, lean
         config = {"tables": str(Path(tables_dir).resolve()), **config}
     if control_period is not None:
         config["control_period"] = _numbers(control_period)
+    unknown = set(config) - set(CONFIG_KEYS)
+    if unknown:
+        raise ValueError(f"config keys {sorted(unknown)} are not the plugin's (hexgym.model.plugin.CONFIG_KEYS)")
     keys = "\n".join(f'        <config key="{k}" value="{v}"/>' for k, v in config.items())
     return (
         f'  <extension>\n    <plugin plugin="{PLUGIN_NAME}">\n      <instance name="{INSTANCE}">\n{keys}\n'

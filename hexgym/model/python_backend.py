@@ -29,30 +29,13 @@ from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.machine.assets import load_model
 from hexgym.machine.physics import ExcavatorPhysics
+from hexgym.mbl.schema import TABLES
 from hexgym.mbl.table import MBLTable, load_tables
-
-END_MARGIN = 0.005  # m from a stroke end: the cylinder is at its stop
-_STROKES = np.array([p.CYLINDERS[n].stroke for n in kinematics.FRONT_CYLINDERS])
-# The most a cylinder can push (head side) or pull (rod side) at its line relief, N
-_PUSH_LIMIT = np.array([p.LINE_RELIEF[n] * p.CYLINDERS[n].head_area for n in kinematics.FRONT_CYLINDERS])
-_PULL_LIMIT = np.array([p.LINE_RELIEF[n] * p.CYLINDERS[n].rod_area for n in kinematics.FRONT_CYLINDERS])
-SWING_REST_RATE = 0.01  # rad/s: below this a swing with its spool closed is at rest
-LEARNED_COLUMNS = (
-    ("t",)
-    + tuple(f"q_{j}" for j in kinematics.JOINTS)
-    + tuple(f"qd_{j}" for j in kinematics.JOINTS)
-    + ("tip_x", "tip_y", "tip_z")
-    + tuple(f"{j}_spool_mm" for j in kinematics.JOINTS)
-    + tuple(f"{c}_extension_m" for c in kinematics.FRONT_CYLINDERS)
-    + tuple(f"{c}_velocity_mps" for c in kinematics.FRONT_CYLINDERS)
-    + tuple(f"{c}_force_n" for c in kinematics.FRONT_CYLINDERS)
-    + ("swing_inertia_kgm2", "swing_acceleration_target")
-)
-LEARNED_DTYPE = np.dtype([(name, np.float64) for name in LEARNED_COLUMNS])
+from hexgym.model.base import END_MARGIN, PULL_LIMIT, PUSH_LIMIT, STROKES, SWING_REST_RATE, LearnedModelBase
 
 
-class LearnedModel:
-    """MuJoCo linkage driven by the MBL tables.
+class LearnedModel(LearnedModelBase):
+    """MuJoCo linkage driven by the MBL tables, in Python.
 
     Args:
         tables: the four tables (default: the packaged ones, :func:`hexgym.mbl.table.load_tables`).
@@ -77,7 +60,7 @@ class LearnedModel:
             raise ValueError(f"control_period must be a multiple of the model step, got {control_period}")
         self._dofs = np.array([self.physics.model.joint(n).dofadr[0] for n in kinematics.JOINTS])
         self.spools_m = np.zeros(4)
-        self.swing_acceleration = 0.0
+        self._swing_acceleration = 0.0
         self._swing_rate_target = 0.0
         rate_axis = self.tables["swing"].axes[-1]  # the swing table's last input is the swing rate
         self._slowest_swing, self._fastest_swing = rate_axis[0], rate_axis[-1]
@@ -88,15 +71,20 @@ class LearnedModel:
         self._jacp = np.zeros((3, m.nv))
 
     @property
-    def timestep(self) -> float:
-        """One control period, s."""
+    def control_period(self) -> float:
+        """Seconds between table queries (one :meth:`step`)."""
         return self._substeps * self.physics.timestep
+
+    @property
+    def swing_acceleration(self) -> float:
+        """The swing table's last acceleration, rad/s^2."""
+        return self._swing_acceleration
 
     def reset(self, start: str | np.ndarray = "home", payload_kg: float = 0.0) -> None:
         """Start at a keyframe name or joint angles (rad), at rest, spools neutral."""
         self.physics.start_at(start, payload_kg)
         self.spools_m = np.zeros(4)
-        self.swing_acceleration = 0.0
+        self._swing_acceleration = 0.0
         self._swing_rate_target = 0.0
         self.physics.set_actuator_targets(np.zeros(4))
         self._constraint_load[:] = 0.0
@@ -135,12 +123,6 @@ class LearnedModel:
             mujoco.mj_mulJacTVec(m, d, out, np.where(limit_rows, d.efc_force, 0.0))
         return out
 
-    def cylinder_loads(self, arms: np.ndarray | None = None) -> np.ndarray:
-        """[boom, stick, bucket] cylinder force loads, N (+ = the cylinder must push).
-
-        ``arms``: the present moment arms, if the caller already has them.
-        """
-        return self.joint_loads()[1:] / (self.physics.moment_arms() if arms is None else arms)
 
     def step(self, spools_m: np.ndarray, n: int = 1) -> None:
         """Advance ``n`` control periods with the spools (m; swing, boom, stick, bucket) held."""
@@ -167,9 +149,9 @@ class LearnedModel:
         spools = self.spools_m.copy()
         ext = self.physics.cylinder_extensions()
         extending, retracting = spools[1:] > 0, spools[1:] < 0
-        at_start, at_end = ext <= END_MARGIN, ext >= _STROKES - END_MARGIN
+        at_start, at_end = ext <= END_MARGIN, ext >= STROKES - END_MARGIN
         stalled = (at_start & retracting) | (at_end & extending)
-        stalled |= (extending & (loads[1:] > _PUSH_LIMIT)) | (retracting & (loads[1:] < -_PULL_LIMIT))
+        stalled |= (extending & (loads[1:] > PUSH_LIMIT)) | (retracting & (loads[1:] < -PULL_LIMIT))
         spools[1:][stalled] = 0.0
         if abs(loads[0]) > p.SWING_TORQUE_AT_RELIEF and loads[0] * spools[0] > 0:
             spools[0] = 0.0
@@ -182,21 +164,29 @@ class LearnedModel:
         f_boom, f_stick, f_bucket = tau[1:] / arms
         u_swing, u_boom, u_stick, u_bucket = self.effective_spools(np.array([tau[0], f_boom, f_stick, f_bucket]))
         inertia = ph.swing_inertia()
-        t = self.tables
         closed = np.abs([u_swing, u_boom, u_stick, u_bucket]) < p.SPOOL_DEAD_BAND
-        # a spool in its dead band blocks its cylinder's ports: the cylinder holds (no table noise)
-        v_boom = 0.0 if closed[1] else t["boom"]((u_boom, u_bucket, f_boom, f_bucket))
-        v_bucket = 0.0 if closed[3] else t["bucket"]((u_boom, u_bucket, f_boom, f_bucket))
-        v_stick = 0.0 if closed[2] else t["stick"]((u_swing, u_stick, inertia, f_stick))
         # Step 3 for the swing: the model integrates its own rate from the table's acceleration
         # (the table sees that rate); the servo makes the upper structure follow it
         rate = self._swing_rate_target
-        self.swing_acceleration = t["swing"]((u_swing, u_stick, f_stick, inertia, rate))
+        q = {
+            "swing_spool_m": u_swing, "boom_spool_m": u_boom, "stick_spool_m": u_stick, "bucket_spool_m": u_bucket,
+            "boom_force_n": f_boom, "stick_force_n": f_stick, "bucket_force_n": f_bucket,
+            "swing_inertia_kgm2": inertia, "swing_rate_radps": rate,
+        }  # fmt: skip
+
+        def table(name: str) -> float:  # the table at its schema inputs
+            return self.tables[name](tuple(q[i] for i in TABLES[name].inputs))
+
+        # a spool in its dead band blocks its cylinder's ports: the cylinder holds (no table noise)
+        v_boom = 0.0 if closed[1] else table("boom")
+        v_bucket = 0.0 if closed[3] else table("bucket")
+        v_stick = 0.0 if closed[2] else table("stick")
+        self._swing_acceleration = table("swing")
         if not self._slowest_swing < rate < self._fastest_swing and self.swing_acceleration * rate > 0.0:
             # the table clamps the rate to its grid, the fastest swing in its data: beyond it, it
             # would keep accelerating the swing at that edge's value; it must not go faster
-            self.swing_acceleration = 0.0
-        new_rate = rate + self.swing_acceleration * self.timestep
+            self._swing_acceleration = 0.0
+        new_rate = rate + self._swing_acceleration * self.control_period
         if closed[0] and (new_rate * rate <= 0.0 or abs(new_rate) < SWING_REST_RATE):
             new_rate = 0.0  # braked by the crossover reliefs: it stops, it does not turn back
         targets = np.array([new_rate, v_boom / arms[0], v_stick / arms[1], v_bucket / arms[2]])
@@ -230,9 +220,6 @@ class LearnedModel:
             blocked |= approach * rates > 0.0
         return blocked
 
-    def observe(self) -> np.ndarray:
-        """One trajectory row (``LEARNED_DTYPE``): the common columns, spools, cylinders, loads."""
-        return trajectory_row(self)
 
 
 def _ancestors(model: mujoco.MjModel, body: int) -> set[int]:
@@ -243,14 +230,3 @@ def _ancestors(model: mujoco.MjModel, body: int) -> set[int]:
         out.add(body)
     return out
 
-
-def trajectory_row(model: LearnedModel) -> np.ndarray:
-    """One ``LEARNED_DTYPE`` row of a learned model on either backend (it has ``physics``,
-    ``spools_m``, ``cylinder_loads()`` and ``swing_acceleration``)."""
-    ph = model.physics
-    values = (
-        [ph.time, *ph.joint_positions(), *ph.joint_velocities(), *ph.tip_position()]
-        + [*(model.spools_m * 1e3), *ph.cylinder_extensions(), *ph.cylinder_velocities()]
-        + [*model.cylinder_loads(), ph.swing_inertia(), model.swing_acceleration]
-    )
-    return np.array(tuple(values), dtype=LEARNED_DTYPE)

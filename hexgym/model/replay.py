@@ -1,33 +1,15 @@
-"""Replaying a command log on a machine model, sampled at a fixed output interval.
+"""Replaying a command log on any machine model, sampled at a fixed output interval.
 
-Both machine models (:class:`hexgym.hydraulics.reference.ReferenceModel`, :class:`hexgym.model.python_backend.LearnedModel`)
-follow the same small protocol: ``timestep`` (s), ``spools_m`` (the spools in force),
-``reset(start, payload_kg)``, ``step(spools_m)`` (one step with the spools held) and ``observe()``
-(one structured trajectory row).
+The machine models (:class:`hexgym.hydraulics.reference.ReferenceModel` and the learned model on
+either backend) follow :class:`hexgym.model.base.MachineModel`.
 """
 
 from __future__ import annotations
 
-from typing import Protocol
-
 import numpy as np
 
+from hexgym.model.base import MachineModel
 from hexgym.model.commandlog import CommandLog
-
-
-class MachineModel(Protocol):
-    """What :func:`replay` needs of a model."""
-
-    spools_m: np.ndarray
-
-    @property
-    def timestep(self) -> float: ...  # noqa: D102
-
-    def reset(self, start: str | np.ndarray = "home", payload_kg: float = 0.0) -> None: ...  # noqa: D102
-
-    def step(self, spools_m: np.ndarray, n: int = 1) -> None: ...  # noqa: D102
-
-    def observe(self) -> np.ndarray: ...  # noqa: D102
 
 
 def replay(
@@ -43,10 +25,10 @@ def replay(
     ``dt_out`` must be a multiple of the model's step; ``duration`` defaults to the log's last
     time stamp (its last row closes the log).
     """
-    dt = model.timestep
+    dt = model.control_period
     steps_per_row = int(round(dt_out / dt))
     if not np.isfinite(dt_out) or steps_per_row < 1 or abs(steps_per_row * dt - dt_out) > 1e-9:
-        raise ValueError(f"dt_out must be a positive multiple of the model step {dt} s, got {dt_out}")
+        raise ValueError(f"dt_out must be a positive multiple of the model's control period {dt} s, got {dt_out}")
     end = float(commands.t[-1]) if duration is None else float(duration)
     if not np.isfinite(end) or end < 0.0:
         raise ValueError(f"duration must be a finite time >= 0 s, got {duration}")

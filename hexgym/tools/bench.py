@@ -1,4 +1,4 @@
-"""``hexgym bench``: the speed figures of issue 8 in one process.
+"""``hexgym bench``: the speed figures in one process.
 
 - ``hexloading_steps_per_s`` / ``hopper_steps_per_s``: HexLoading-v0 (default backend: the native
   plugin when built) against Gymnasium's Hopper-v5, both made with ``gymnasium.make`` (so both carry
@@ -11,7 +11,7 @@
   entry point when there is one, else Gymnasium's ``SyncVectorEnv`` (``vector_env`` names which ran).
 - ``learned_realtime_factor_python`` / ``_native`` (one thread) and ``batch_realtime_factor_native``
   (64 rollouts on every core): simulated seconds per wall second of the learned machine model
-  alone, from :mod:`hexgym.model.native_backend` (targets: native >= 5,000x, batch >= 10,000x on 2 cores).
+  alone (targets: native >= 5,000x, batch >= 10,000x on 2 cores).
 """
 
 from __future__ import annotations
@@ -19,14 +19,23 @@ from __future__ import annotations
 import os
 import platform
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 
 import hexgym  # noqa: F401 - registers HexLoading-v0
 from hexgym.files import write_json
-from hexgym.model.native_backend import batch_benchmark, native_available, native_benchmark
+from hexgym.machine import kinematics
+from hexgym.machine import parameters as p
+from hexgym.model.base import LearnedModelBase
+from hexgym.model.commandlog import CommandLog
+from hexgym.model.native_backend import NativeLearnedModel
+from hexgym.model.plugin import CTRL_PER_SPOOL_M, native_available
+from hexgym.model.python_backend import LearnedModel
+from hexgym.tools.scenarios import scenarios
 
 REFERENCE_ENV = "Hopper-v5"
 ENV_ID = "HexLoading-v0"
@@ -98,10 +107,44 @@ def vector_steps_per_second(
         envs.close()
 
 
-def _physics_bound(vector_steps: int, seed: int) -> float:
-    from hexgym.envs.vector import physics_bound_steps_per_second
+def physics_bound_steps_per_second(num_envs: int = VECTOR_ENVS, vector_steps: int = 100, seed: int = 0) -> float:
+    """Environment steps per second that the batch's physics alone allows: ``num_envs`` sites stepped a whole
+    0.1 s step (its control periods in one ``Batch.step``) under random spools, no task logic. The vector env
+    cannot beat this on the same cores: it is the physics' share of the speed target."""
+    from hexgym.envs.vector import HexLoadingVectorEnv
 
-    return physics_bound_steps_per_second(VECTOR_ENVS, vector_steps, seed)
+    if num_envs < 1 or vector_steps < 1:
+        raise ValueError(f"num_envs and vector_steps must be >= 1, got {num_envs} and {vector_steps}")
+    envs = HexLoadingVectorEnv(num_envs)
+    try:
+        envs.reset(seed=seed)
+        rng = np.random.default_rng(seed)
+        spools = rng.uniform(-1.0, 1.0, (vector_steps, num_envs, 4)) * p.SPOOL_STROKE * CTRL_PER_SPOOL_M
+        elapsed = sum(envs.step_physics_only(row) for row in spools)
+        return num_envs * vector_steps / elapsed
+    finally:
+        envs.close()
+
+
+def mujoco_step_profile(steps: int = 500, seed: int = 0) -> dict[str, float]:
+    """MuJoCo's timers over ``steps`` random steps of one native HexLoadingEnv: wall s per ``mj_step`` and the
+    shares of the plugin's actuation (its table lookups) and of collision detection in it."""
+    from hexgym.envs.loading import HexLoadingEnv
+
+    env = HexLoadingEnv(backend="native")
+    env.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    for _ in range(steps):
+        _, _, terminated, truncated, _ = env.step(rng.uniform(-1.0, 1.0, 4))
+        if terminated or truncated:
+            env.reset()
+    timer, kind = env.physics.data.timer, mujoco.mjtTimer
+    step = timer[kind.mjTIMER_STEP]
+    return {
+        "step_s": step.duration / max(step.number, 1),
+        "actuation_share": timer[kind.mjTIMER_ACTUATION].duration / step.duration,
+        "collision_share": timer[kind.mjTIMER_POS_COLLISION].duration / step.duration,
+    }
 
 
 def run_bench(steps: int = 2000, seed: int = 0, seconds: float = 2.0) -> dict:
@@ -115,7 +158,8 @@ def run_bench(steps: int = 2000, seed: int = 0, seconds: float = 2.0) -> dict:
     )  # fmt: skip
     loading, hopper, python = rates["loading"], rates["hopper"], rates["python"]
     vector, vector_env = vector_steps_per_second(vector_steps=max(1, steps // VECTOR_ENVS), seed=seed)
-    bound = _physics_bound(max(1, steps // VECTOR_ENVS), seed) if vector_env == "HexLoadingVectorEnv" else None
+    batched = vector_env == "HexLoadingVectorEnv"
+    bound = physics_bound_steps_per_second(VECTOR_ENVS, max(1, steps // VECTOR_ENVS), seed) if batched else None
     result = {
         "steps": steps,
         "hexloading_steps_per_s": loading,
@@ -137,6 +181,8 @@ def run_bench(steps: int = 2000, seed: int = 0, seconds: float = 2.0) -> dict:
         result.update(batch_benchmark(BATCH_ROLLOUTS, seconds=seconds), batch_rollouts=BATCH_ROLLOUTS)
         # what the batch made of each core it got: with other processes on the cores it got fewer
         result["batch_realtime_factor_per_core"] = result["batch_realtime_factor_native"] / result["batch_cores_used"]
+        # where one native mj_step of the loading site spends its time (MuJoCo's timers)
+        result["native_step_profile"] = mujoco_step_profile(seed=seed)
     result.update(
         machine=platform.processor() or platform.machine(),
         cpus=os.cpu_count(),
@@ -171,3 +217,139 @@ def print_bench(result: dict, json_path: str | Path | None = None) -> None:
         )
     if json_path is not None:
         print(f"wrote {write_json(json_path, result)}")
+
+
+def _timed_with_cores(run: Callable[[], float], seconds: float) -> tuple[float, float]:
+    """Simulated seconds per wall second of ``run`` (which returns the seconds it simulated), repeated
+    for at least ``seconds`` of wall time, and the cores the process got meanwhile (CPU / wall seconds)."""
+    simulated, wall, cpu = 0.0, 0.0, 0.0
+    while wall < seconds:
+        t0, c0 = time.perf_counter(), time.process_time()
+        simulated += run()
+        wall += time.perf_counter() - t0
+        cpu += time.process_time() - c0
+    return simulated / wall, cpu / wall
+
+
+def _timed(run: Callable[[], float], seconds: float) -> float:
+    """Simulated seconds per wall second of ``run`` (see :func:`_timed_with_cores`)."""
+    return _timed_with_cores(run, seconds)[0]
+
+
+def _test3() -> tuple[CommandLog, np.ndarray]:
+    return scenarios()["test3"]
+
+
+def _test3_controls(model: LearnedModelBase) -> np.ndarray:
+    """Test 3's spools (mm), one row per control period of ``model`` (one step of the lean machine)."""
+    log, _ = _test3()
+    n = int(round(log.duration / model.control_period))
+    return np.array([log.spools_at((k + 1e-9) * model.control_period) for k in range(n)])
+
+
+def native_rollout_realtime_factor(seconds: float = 3.0) -> float:
+    """The native model's own speed: ``hexgym validate``'s Test 3 spools as ``mujoco.rollout``'s
+    open-loop controls, one thread, in simulated seconds per wall second (needs the plugin)."""
+    from mujoco import rollout
+
+    _, pose = _test3()
+    native = NativeLearnedModel()
+    m, d = native.physics.model, native.physics.data
+    control = _test3_controls(native)[None]  # mm
+    n = control.shape[1]
+    state_kind = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    native.reset(pose)
+    x0 = np.empty(mujoco.mj_stateSize(m, state_kind))
+    mujoco.mj_getState(m, d, x0, state_kind)
+    states = np.empty((1, n, x0.size))
+    rollout_data = mujoco.MjData(m)
+
+    def run_rollout() -> float:
+        rollout.rollout(m, rollout_data, x0[None], control, initial_warmstart=None, state=states)
+        return n * native.control_period
+
+    return _timed(run_rollout, seconds)
+
+
+def batch_realtime_factor_native(
+    nbatch: int = 64, nthread: int | None = None, seconds: float = 3.0, seed: int = 0
+) -> float:
+    """Simulated seconds of ``nbatch`` native rollouts per wall second, ``nthread`` threads (default:
+    every core) of ``mujoco.rollout`` (needs the plugin); see :func:`batch_benchmark`."""
+    return batch_benchmark(nbatch, nthread, seconds, seed)["batch_realtime_factor_native"]
+
+
+def batch_benchmark(nbatch: int = 64, nthread: int | None = None, seconds: float = 3.0, seed: int = 0) -> dict:
+    """``batch_realtime_factor_native``: simulated seconds of ``nbatch`` native rollouts per wall
+    second on ``nthread`` threads (default: every core) of ``mujoco.rollout`` (needs the plugin);
+    ``batch_cores_used``: the cores the process got meanwhile (CPU / wall seconds: below ``nthread``
+    when other processes share the cores, and the first figure is then that much short).
+
+    Each rollout is the whole of ``hexgym validate``'s Test 3 spools (48 s), started at a different point of the
+    log (a seeded cyclic shift) from Test 3's start pose moved by up to ±0.1 rad per joint, so the
+    rollouts differ (as a batch of environments would) but have the same length.
+    """
+    from mujoco import rollout
+
+    if nbatch < 1:
+        raise ValueError(f"nbatch must be >= 1, got {nbatch}")
+    nthread = (os.cpu_count() or 1) if nthread is None else nthread
+    if nthread < 1:
+        raise ValueError(f"nthread must be >= 1, got {nthread}")
+    _, pose = _test3()
+    native = NativeLearnedModel()
+    m, d = native.physics.model, native.physics.data
+    control = _test3_controls(native)
+    rng = np.random.default_rng(seed)
+    state_kind = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    x0 = np.empty((nbatch, mujoco.mj_stateSize(m, state_kind)))
+    controls = np.empty((nbatch, *control.shape))
+    ranges = np.array([kinematics.joint_range(n) if n != "swing" else (-np.inf, np.inf) for n in kinematics.JOINTS])
+    for b in range(nbatch):
+        native.reset(np.clip(pose + rng.uniform(-0.1, 0.1, 4), ranges[:, 0] + 0.02, ranges[:, 1] - 0.02))
+        mujoco.mj_getState(m, d, x0[b], state_kind)
+        controls[b] = np.roll(control, -int(rng.integers(len(control))), axis=0)
+    states = np.empty((nbatch, len(control), x0.shape[1]))
+    datas = [mujoco.MjData(m) for _ in range(nthread)]
+    simulated = nbatch * len(control) * native.control_period
+    with rollout.Rollout(nthread=nthread) as pool:
+
+        def run_batch() -> float:
+            pool.rollout(m, datas, x0, controls, initial_warmstart=None, state=states)
+            return simulated
+
+        factor, cores = _timed_with_cores(run_batch, seconds)
+    return {"batch_realtime_factor_native": factor, "batch_cores_used": cores, "batch_threads": nthread}
+
+
+def native_benchmark(seconds: float = 3.0) -> dict[str, float]:
+    """Real-time factors of the learned model on one thread: simulated time / wall time.
+
+    All replay the 50 s loading-cycle command log of ``hexgym validate`` (test3) from its start
+    pose, repeated for at least ``seconds`` of wall time each:
+
+    - ``learned_realtime_factor_python``: :class:`LearnedModel`, one ``step`` per control period;
+    - ``learned_realtime_factor_native``: :func:`native_rollout_realtime_factor`, the native
+      model's own speed;
+    - ``learned_realtime_factor_native_python_loop``: :class:`NativeLearnedModel`, one ``step``
+      per control period from Python (what an environment stepping every period gets).
+    """
+    _, pose = _test3()
+
+    def per_period(model: LearnedModelBase) -> Callable[[], float]:
+        spools = _test3_controls(model) * 1e-3
+
+        def run() -> float:
+            model.reset(pose)
+            for u in spools:
+                model.step(u)
+            return len(spools) * model.control_period
+
+        return run
+
+    out = {"learned_realtime_factor_python": _timed(per_period(LearnedModel()), seconds)}
+    if not native_available():
+        return out
+    out["learned_realtime_factor_native"] = native_rollout_realtime_factor(seconds)
+    out["learned_realtime_factor_native_python_loop"] = _timed(per_period(NativeLearnedModel()), seconds)
+    return out

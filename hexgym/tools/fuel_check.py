@@ -40,7 +40,7 @@ def compare_with_reference(duration: float = 16.0, payload_kg: float = 1000.0) -
         learned.step(commands.spools_at(learned.physics.time) * 1e-3)
         loads, rates = learned.joint_loads(), learned.physics.joint_velocities()
         swing_torque = learned.physics.swing_inertia() * learned.swing_acceleration
-        estimate_l += fuel_litres(actuator_power(loads[1:], rates[1:], swing_torque, rates[0]), learned.timestep)
+        estimate_l += fuel_litres(actuator_power(loads[1:], rates[1:], swing_torque, rates[0]), learned.control_period)
     return {"reference_l": reference_l, "estimate_l": estimate_l, "ratio": estimate_l / reference_l}
 
 

@@ -17,12 +17,11 @@ from hexgym.files import save_figure, write_json
 from hexgym.hydraulics.reference import ReferenceModel
 from hexgym.model.commandlog import CommandLog
 from hexgym.model.replay import replay
+from hexgym.tools.scenarios import POSE_LOW, POSE_SWING
 
 FULL = 11.0  # mm
 # Start poses (swing, boom, stick, bucket; rad) that leave the tested strokes room to run.
-POSE_LOW = np.array([0.0, -0.45, 0.0, -0.9])  # boom low, bucket open
 POSE_HIGH = np.array([0.0, 0.6, -0.4, 0.9])  # boom high, stick out, bucket curled
-POSE_SWING = np.array([0.0, 0.3, 0.3, 0.5])
 
 
 def _log(rows: list[tuple[float, float, float, float, float]]) -> CommandLog:

@@ -1,0 +1,68 @@
+"""Choosing the learned model's backend: the one place that decides between Python and native.
+
+``"native"`` is the ``hexgym.mbl`` plugin (:mod:`hexgym.model.native_backend`), ``"python"`` the
+readable Python step loop (:mod:`hexgym.model.python_backend`), and ``"auto"`` native when the
+plugin library is built and loads, else Python (saying why once per process). Setting the
+environment variable ``HEXGYM_BACKEND=python`` makes ``"auto"`` pick Python even where the plugin is
+built (CI runs the model and environment tests once more this way).
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from pathlib import Path
+
+from hexgym.model.base import LearnedModelBase
+
+BACKENDS = ("auto", "python", "native")
+BACKEND_VARIABLE = "HEXGYM_BACKEND"
+_fallback_said = False
+
+
+def check_backend(backend: str) -> None:
+    """Raise ValueError naming ``backend`` unless it is one of :data:`BACKENDS`."""
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+
+
+def resolve_backend(backend: str = "auto") -> str:
+    """``backend`` with "auto" resolved: "python" when ``HEXGYM_BACKEND=python`` is set or the plugin
+    cannot be loaded (saying why, once per process), else "native"."""
+    check_backend(backend)
+    if backend != "auto":
+        return backend
+    forced = os.environ.get(BACKEND_VARIABLE, "")
+    if forced not in ("", "auto", "python", "native"):
+        raise ValueError(f"environment variable {BACKEND_VARIABLE}={forced!r}: use python, native or auto")
+    if forced in ("python", "native"):
+        return forced
+    from hexgym.model.plugin import load_plugin
+
+    global _fallback_said
+    reason = load_plugin()
+    if reason and not _fallback_said:
+        _fallback_said = True
+        warnings.warn(f"hexgym: {reason}; the learned model runs in Python", RuntimeWarning, stacklevel=2)
+    return "python" if reason else "native"
+
+
+def make_learned_model(
+    backend: str = "auto",
+    tables_dir: str | Path | None = None,
+    control_period: float | None = None,
+) -> LearnedModelBase:
+    """The learned model on ``backend`` ("native", "python" or "auto"), on the lean machine.
+
+    ``tables_dir``: other tables than the packaged ones (both backends read the same files).
+    """
+    backend = resolve_backend(backend)
+    if backend == "native":
+        from hexgym.model.native_backend import NativeLearnedModel
+
+        return NativeLearnedModel(tables_dir=tables_dir, control_period=control_period)
+    from hexgym.mbl.table import load_tables
+    from hexgym.model.python_backend import LearnedModel
+
+    tables = load_tables(tables_dir) if tables_dir is not None else None
+    return LearnedModel(tables=tables, control_period=control_period)

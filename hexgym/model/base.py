@@ -1,0 +1,108 @@
+"""What the learned model's two backends share, and the protocol every machine model follows.
+
+:class:`MachineModel` is what replay, the environment and the planner ask of a machine model (the
+reference model, :class:`hexgym.hydraulics.reference.ReferenceModel`, follows it too).
+:class:`LearnedModelBase` holds what the Python backend (:mod:`hexgym.model.python_backend`) and the
+native one (:mod:`hexgym.model.native_backend`) have in common: the limits both apply (the plugin gets
+them through its config, :mod:`hexgym.model.plugin_mjcf`), the cylinder loads from the joint loads
+(the paper's Eqn 5) and the trajectory row.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+
+from hexgym.machine import kinematics
+from hexgym.machine import parameters as p
+from hexgym.machine.physics import ExcavatorPhysics
+
+END_MARGIN = 0.005  # m from a stroke end: the cylinder is at its stop
+STROKES = np.array([p.CYLINDERS[n].stroke for n in kinematics.FRONT_CYLINDERS])
+# The most a cylinder can push (head side) or pull (rod side) at its line relief, N
+PUSH_LIMIT = np.array([p.LINE_RELIEF[n] * p.CYLINDERS[n].head_area for n in kinematics.FRONT_CYLINDERS])
+PULL_LIMIT = np.array([p.LINE_RELIEF[n] * p.CYLINDERS[n].rod_area for n in kinematics.FRONT_CYLINDERS])
+SWING_REST_RATE = 0.01  # rad/s: below this a swing with its spool closed is at rest
+LEARNED_COLUMNS = (
+    ("t",)
+    + tuple(f"q_{j}" for j in kinematics.JOINTS)
+    + tuple(f"qd_{j}" for j in kinematics.JOINTS)
+    + ("tip_x", "tip_y", "tip_z")
+    + tuple(f"{j}_spool_mm" for j in kinematics.JOINTS)
+    + tuple(f"{c}_extension_m" for c in kinematics.FRONT_CYLINDERS)
+    + tuple(f"{c}_velocity_mps" for c in kinematics.FRONT_CYLINDERS)
+    + tuple(f"{c}_force_n" for c in kinematics.FRONT_CYLINDERS)
+    + ("swing_inertia_kgm2", "swing_acceleration_target")
+)
+LEARNED_DTYPE = np.dtype([(name, np.float64) for name in LEARNED_COLUMNS])
+
+
+class MachineModel(Protocol):
+    """What replay, the environment and the planner need of a machine model."""
+
+    spools_m: np.ndarray  # the spools in force (swing, boom, stick, bucket), m
+
+    @property
+    def control_period(self) -> float:
+        """Seconds one :meth:`step` advances."""
+        ...
+
+    def reset(self, start: str | np.ndarray = "home", payload_kg: float = 0.0) -> None:
+        """Start at a keyframe name or joint angles (rad), at rest, spools neutral."""
+        ...
+
+    def step(self, spools_m: np.ndarray, n: int = 1) -> None:
+        """Advance ``n`` control periods with the spools held."""
+        ...
+
+    def observe(self) -> np.ndarray:
+        """One structured trajectory row."""
+        ...
+
+    def joint_loads(self) -> np.ndarray:
+        """Torque each main joint's actuator must supply to hold the present motion, N m."""
+        ...
+
+
+class LearnedModelBase:
+    """The learned model on either backend: MuJoCo's linkage (``physics``) driven by the tables.
+
+    Subclasses set ``physics`` and ``spools_m`` and provide :attr:`control_period`,
+    :attr:`swing_acceleration`, :meth:`reset`, :meth:`step` and :meth:`joint_loads`.
+    """
+
+    physics: ExcavatorPhysics
+    spools_m: np.ndarray
+
+    @property
+    def control_period(self) -> float:
+        """Seconds between table queries (one :meth:`step`)."""
+        raise NotImplementedError
+
+    @property
+    def swing_acceleration(self) -> float:
+        """The swing table's last acceleration, rad/s^2."""
+        raise NotImplementedError
+
+    def joint_loads(self) -> np.ndarray:
+        """Torque each main joint's actuator must supply to hold the present motion (N m); joint-limit
+        forces are not part of it: at a stroke end the cylinder's stop carries the load, not its oil."""
+        raise NotImplementedError
+
+    def cylinder_loads(self, arms: np.ndarray | None = None) -> np.ndarray:
+        """[boom, stick, bucket] cylinder force loads, N (+ = the cylinder must push; paper Eqn 5).
+
+        ``arms``: the present moment arms, if the caller already has them.
+        """
+        return self.joint_loads()[1:] / (self.physics.moment_arms() if arms is None else arms)
+
+    def observe(self) -> np.ndarray:
+        """One trajectory row (``LEARNED_DTYPE``): the common columns, spools, cylinders, loads."""
+        ph = self.physics
+        values = (
+            [ph.time, *ph.joint_positions(), *ph.joint_velocities(), *ph.tip_position()]
+            + [*(self.spools_m * 1e3), *ph.cylinder_extensions(), *ph.cylinder_velocities()]
+            + [*self.cylinder_loads(), ph.swing_inertia(), self.swing_acceleration]
+        )
+        return np.array(tuple(values), dtype=LEARNED_DTYPE)
