@@ -7,7 +7,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.hexgym-installed
 export MUJOCO_GL ?= egl
 
-.PHONY: demo test test-slow lint setup clean
+.PHONY: demo test test-python test-slow lint ci setup clean
 
 setup: $(STAMP)
 
@@ -27,12 +27,19 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
+# the learned-model and environment tests once more on the Python backend, where the plugin is built too
+test-python: $(STAMP)
+	HEXGYM_BACKEND=python $(BIN)/python -m pytest -q tests/test_learned.py tests/test_env.py tests/test_scripted.py
+
 test-slow: $(STAMP)
 	$(BIN)/python -m pytest -q -m slow
 
 lint: $(STAMP)
-	$(BIN)/ruff check hexgym tests training assets
-	$(BIN)/ruff format --check hexgym tests training assets
+	$(BIN)/ruff check hexgym tests training assets setup.py
+	$(BIN)/ruff format --check hexgym tests training assets setup.py
+
+# what CI runs: the README's test command, the linter, the Python backend's run
+ci: test lint test-python
 
 clean:
 	rm -rf $(VENV) out build *.egg-info

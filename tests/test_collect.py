@@ -112,7 +112,10 @@ def test_episode_starts_cover_poses_payloads_and_tip_forces() -> None:
     setups = [episode_setup(episode_rng(0, "boom_bucket", e), e, config) for e in range(300)]
     for i, name in enumerate(kinematics.FRONT_CYLINDERS):  # uniform over the stroke, clear of the ends
         stroke = p.CYLINDERS[name].stroke
-        ext = np.array([kinematics.cylinder_length(name, s.q[i + 1]) for s in setups]) - p.CYLINDERS[name].retracted_length
+        ext = (
+            np.array([kinematics.cylinder_length(name, s.q[i + 1]) for s in setups])
+            - p.CYLINDERS[name].retracted_length
+        )
         assert config.start_margin_m - 1e-9 < ext.min() < 0.25 * stroke
         assert 0.75 * stroke < ext.max() < stroke - config.start_margin_m + 1e-9
     assert sorted({s.payload_kg for s in setups}) == [0.0, 1000.0, 2000.0]

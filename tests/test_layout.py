@@ -123,3 +123,16 @@ def test_schema_check_names_missing_extra_and_output():
 
 def test_interface_json_round_trips():
     assert json.loads(plugin.interface_json()) == plugin.interface()
+
+
+def test_the_backend_variable_makes_auto_pick_python(monkeypatch):
+    from hexgym.model.backend import resolve_backend
+
+    monkeypatch.setenv("HEXGYM_BACKEND", "python")
+    assert resolve_backend("auto") == "python"
+    assert resolve_backend("native") == "native"  # an explicit choice stands
+    monkeypatch.setenv("HEXGYM_BACKEND", "fortran")
+    with pytest.raises(ValueError, match="HEXGYM_BACKEND='fortran'"):
+        resolve_backend("auto")
+    with pytest.raises(ValueError, match="backend must be one of"):
+        resolve_backend("cuda")

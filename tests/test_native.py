@@ -88,10 +88,12 @@ def test_full_machine_with_plugin_moves_each_joint_its_way(joint):
             mujoco.mj_step(m, d)
         moves[name] = d.qpos[main] - q0
         k = _JOINT_FOR_SPOOL[joint]
-        if joint == "swing":  # + turns counter-clockwise seen from above (DESIGN.md)
+        if joint == "swing":  # + turns counter-clockwise seen from above
             assert moves[name][0] > 0.1, name
         else:  # + extends the joint's cylinder
-            assert kinematics.cylinder_length(joint, d.qpos[main][k]) > kinematics.cylinder_length(joint, q0[k]) + 0.05, name
+            assert (
+                kinematics.cylinder_length(joint, d.qpos[main][k]) > kinematics.cylinder_length(joint, q0[k]) + 0.05
+            ), name
         d.ctrl[:] = 0.0  # spools closed: the machine holds (the swing once its brakes stopped it)
         while d.time < 3.0:
             mujoco.mj_step(m, d)

@@ -20,11 +20,10 @@ from typing import Any, Protocol
 import gymnasium as gym
 import numpy as np
 
-import hexgym  # noqa: F401 - registers HexLoading-v0
+from hexgym.envs import ENV_ID  # importing hexgym registers it
 from hexgym.files import write_json
 from hexgym.machine import parameters as p
 
-ENV_ID = "HexLoading-v0"
 POLICY_DIR = Path(__file__).resolve().parents[1] / "policies"
 SHIPPED_POLICY = POLICY_DIR / "ppo_loading.zip"
 HEAPED_BUCKET_KG = p.BUCKET_HEAPED_CAPACITY * p.MATERIAL_DENSITY

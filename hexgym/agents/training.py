@@ -27,7 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from hexgym.agents.evaluate import ENV_ID, load_trained, normalizer_path
+from hexgym.agents.evaluate import load_trained, normalizer_path
+from hexgym.envs import ENV_ID
 from hexgym.files import atomic_path
 
 HYPERPARAMS_DIR = Path(__file__).resolve().parents[2] / "training" / "hyperparams"

@@ -13,7 +13,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from hexgym.agents.evaluate import ENV_ID, load_policy, run_episode
+from hexgym.agents.evaluate import load_policy, run_episode
+from hexgym.envs import ENV_ID
 from hexgym.machine.render import CAMERAS, write_mp4, write_png
 
 OVERLAY_HEIGHT = 28  # px: the text strip at the top of each frame

@@ -129,11 +129,6 @@ def compliance(pressure: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return c, np.where(floor, 0.0, dc)
 
 
-def bulk_modulus(pressure: np.ndarray | float) -> np.ndarray:
-    """Effective bulk modulus (Pa) at gauge ``pressure`` (Pa)."""
-    return 1.0 / compliance(np.asarray(pressure, dtype=float))[0]
-
-
 # --------------------------------------------------------------------------------------------
 # The valve: spool position -> passage areas.
 @dataclass(frozen=True)

@@ -63,7 +63,8 @@ def fuel_litres_many(actuator_power_w: np.ndarray, seconds: np.ndarray) -> np.nd
 
 @functools.cache
 def _fuel_rate_table() -> UniformTable:
-    """:func:`hexgym.hydraulics.circuit.fuel_rate` (L/h) tabulated over brake power 0 W to rated (within 1e-5 of it: a test)."""
+    """:func:`hexgym.hydraulics.circuit.fuel_rate` (L/h) tabulated over brake power 0 W to rated
+    (within 1e-5 of it: a test)."""
     powers = np.linspace(0.0, p.ENGINE_POWER, _FUEL_TABLE_POINTS)
     return UniformTable(0.0, p.ENGINE_POWER, np.array([fuel_rate(w) for w in powers]))
 

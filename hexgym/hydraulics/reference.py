@@ -171,4 +171,3 @@ class ReferenceModel:
             + [ph.swing_inertia(), out["brake_power_w"]]
         )
         return np.array(tuple(values), dtype=TRAJECTORY_DTYPE)
-

@@ -1,6 +1,6 @@
 """Machine kinematics: cylinder lengths and moment arms, the bucket four-bar, tip position.
 
-Joint vector ``q = [swing, boom, stick, bucket]`` in rad, signs as in DESIGN.md: a positive
+Joint vector ``q = [swing, boom, stick, bucket]`` in rad, signs as everywhere in hexgym: a positive
 angle is the direction a positive spool (cylinder extension) moves the joint, so every moment
 arm ``dC/dq`` (the paper's Eqn 5) is positive inside the joint range.
 
@@ -63,8 +63,6 @@ _K_BUCKET = np.array(p.BUCKET_LINK_PIN)
 _C_BUCKET = np.array(p.BUCKET_CYLINDER_BASE)
 # J lies on the stick's outer side of the line G -> K (the H-link's assembly mode).
 _J_SIDE = 1.0
-# K lies on this side of the line P -> J when solving the four-bar from the cylinder.
-_K_SIDE = -1.0
 
 
 def bucket_link_points(q_bucket: float) -> tuple[np.ndarray, np.ndarray]:

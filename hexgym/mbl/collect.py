@@ -365,7 +365,7 @@ class EpisodeResult:
     sim_seconds: float = 0.0
 
 
-def run_episode(sim: Any, group: str, episode: int, seed: int, config: CollectConfig) -> EpisodeResult:
+def collect_episode(sim: Any, group: str, episode: int, seed: int, config: CollectConfig) -> EpisodeResult:
     """One episode of ``group`` on ``sim`` (a ReferenceModel): reset at a random start, run segments."""
     rng = episode_rng(seed, group, episode)
     setup = episode_setup(rng, episode, config)
@@ -498,7 +498,9 @@ def _chunk_task(task: tuple[str, str, int, int, str, str]) -> tuple[str, int, in
     sim = _simulator()
     t0 = time.perf_counter()
     first = index * config.episodes_per_chunk
-    episodes = [(e, run_episode(sim, group, e, seed, config)) for e in range(first, first + config.episodes_per_chunk)]
+    episodes = [
+        (e, collect_episode(sim, group, e, seed, config)) for e in range(first, first + config.episodes_per_chunk)
+    ]
     wall = time.perf_counter() - t0
     arrays = _chunk_arrays(group, episodes)
     meta = _chunk_meta(group, index, seed, config, fingerprint) | {

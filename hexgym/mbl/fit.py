@@ -30,10 +30,6 @@ MAX_GRID_NODES = {"boom": 60_000, "bucket": 60_000, "stick": 60_000, "swing": 20
 MAX_POINTS = 12_000  # a seeded subsample above this: LOO selection and the grid stay minutes, not hours
 
 
-
-
-
-
 def load_table_data(path: str | Path, name: str) -> tuple[np.ndarray, np.ndarray]:
     """(X, y) of a collected data set, checked against the table's expected inputs and output."""
     path = Path(path)
@@ -77,8 +73,6 @@ def fitted_points(X: np.ndarray, y: np.ndarray, seed: int = 0) -> tuple[np.ndarr
         return X, y
     keep = np.sort(np.random.default_rng(seed).choice(len(y), MAX_POINTS, replace=False))
     return X[keep], y[keep]
-
-
 
 
 def tables_summary(directory: str | Path | None = None) -> list[dict[str, object]]:

@@ -50,7 +50,6 @@ def load_mbl_model(
     return spec.compile()
 
 
-
 class NativeLearnedModel(LearnedModelBase):
     """The learned machine model run by the native plugin (same interface as LearnedModel).
 

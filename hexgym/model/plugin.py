@@ -144,10 +144,7 @@ def header_text() -> str:
         "};",
         f"constexpr int kNumTables = {len(TABLES)};",
         "constexpr TableSchema kTables[kNumTables] = {",
-        *[
-            f"    {{{quote(s.name)}, {len(s.inputs)}, {{{', '.join('kQ' + _camel(q) for q in s.inputs)}}}, {quote(s.output)}}},"
-            for s in TABLES.values()
-        ],
+        *[_table_row(s.name, s.inputs, s.output) for s in TABLES.values()],
         "};",
         *[f"constexpr int kTable{_camel(name)} = {i};" for i, name in enumerate(TABLES)],
         "",
@@ -160,6 +157,11 @@ def header_text() -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def _table_row(name: str, inputs: tuple[str, ...], output: str) -> str:
+    quantities = ", ".join("kQ" + _camel(q) for q in inputs)
+    return f"    {{{json.dumps(name)}, {len(inputs)}, {{{quantities}}}, {json.dumps(output)}}},"
 
 
 def _camel(name: str) -> str:

@@ -16,7 +16,8 @@ Every control period (default: one 25 ms step of the lean machine), the paper's 
    the swing's target rate is integrated from the acceleration. The MJCF's stiff velocity servos
    reach the targets within the step (a zero target holds the joint: no sag) and MuJoCo integrates.
 
-All Python happens in this step loop (see DESIGN.md on ``mjcb_control``).
+All Python happens in this step loop, not in ``mujoco.set_mjcb_control`` (one global hook per process,
+holding the GIL, which makes ``mujoco.rollout`` serialise).
 """
 
 from __future__ import annotations
@@ -123,7 +124,6 @@ class LearnedModel(LearnedModelBase):
             mujoco.mj_mulJacTVec(m, d, out, np.where(limit_rows, d.efc_force, 0.0))
         return out
 
-
     def step(self, spools_m: np.ndarray, n: int = 1) -> None:
         """Advance ``n`` control periods with the spools (m; swing, boom, stick, bucket) held."""
         self.spools_m = validate_spools(spools_m).copy()
@@ -221,7 +221,6 @@ class LearnedModel(LearnedModelBase):
         return blocked
 
 
-
 def _ancestors(model: mujoco.MjModel, body: int) -> set[int]:
     """``body`` and the bodies it hangs from, up to the world."""
     out = {body}
@@ -229,4 +228,3 @@ def _ancestors(model: mujoco.MjModel, body: int) -> set[int]:
         body = int(model.body_parentid[body])
         out.add(body)
     return out
-

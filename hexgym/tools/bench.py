@@ -26,7 +26,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-import hexgym  # noqa: F401 - registers HexLoading-v0
+from hexgym.envs import ENV_ID  # importing hexgym registers it
 from hexgym.files import write_json
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
@@ -38,7 +38,6 @@ from hexgym.model.python_backend import LearnedModel
 from hexgym.tools.scenarios import scenarios
 
 REFERENCE_ENV = "Hopper-v5"
-ENV_ID = "HexLoading-v0"
 VECTOR_ENVS = 64
 BATCH_ROLLOUTS = 64
 
