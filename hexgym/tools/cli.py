@@ -118,8 +118,13 @@ def _cmd_tables(args: argparse.Namespace) -> int:
 def _cmd_validate(args: argparse.Namespace) -> int:
     from hexgym.tools.validate import run_validation
 
-    print(json.dumps(run_validation(args.out), indent=2))
-    print(f"plots: {Path(args.out)}/test1.png, test2.png, test3.png")
+    summary = run_validation(
+        args.out, suite=args.suite, suite_seed=args.suite_seed, workers=args.workers, suite_only=args.suite_only
+    )
+    print(json.dumps(summary, indent=2))
+    plots = [] if args.suite_only else ["test1.png", "test2.png", "test3.png", "interactions.png"]
+    plots += ["suite_worst.png"] if args.suite else []
+    print(f"plots: {Path(args.out)}/{', '.join(plots)}")
     return 0
 
 
@@ -266,9 +271,15 @@ def build_parser() -> argparse.ArgumentParser:
     tables.set_defaults(func=_cmd_tables)
 
     validate = sub.add_parser(
-        "validate", help="learned vs reference model on the paper's three tests: plots, tip errors, speed"
+        "validate",
+        help="learned vs reference model on the paper's three tests, the interactions both ways and "
+        "(--suite N) N random operator-like logs: plots, tip errors, speed",
     )
     validate.add_argument("--out", default="out/validate", help="output directory (default: out/validate)")
+    validate.add_argument("--suite", type=int, default=0, help="random operator-like logs to add (default: 0)")
+    validate.add_argument("--suite-seed", type=int, default=0, help="seed of the suite's logs (default: 0)")
+    validate.add_argument("--workers", type=int, default=None, help="processes (default: one per CPU)")
+    validate.add_argument("--suite-only", action="store_true", help="run the suite alone (no tests, interactions)")
     validate.set_defaults(func=_cmd_validate)
 
     build = sub.add_parser("build-assets", help="regenerate assets/meshes and assets/cat325.xml (developers)")

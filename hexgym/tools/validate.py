@@ -1,18 +1,30 @@
 """The learned model against the reference model on the paper's three tests: ``hexgym validate``.
 
-Test 1 moves boom and bucket together (their flow sharing on pump 1), Test 2 swing and stick
-together (pump 2), Test 3 is an operator-like loading cycle of about 50 s (three dig, swing,
-dump, return cycles, spools ramped as a joystick would move them). For each test both models
-replay the same command log from the same pose; the plots follow the paper's Figs 5-11: joint
-responses with the commands, the tip-position error each joint contributes through the Jacobian,
-and the overall tip error beside the boom-foot-to-tip distance. ``summary.json`` holds per test
-``mean_tip_error_m`` and ``max_tip_error_m``, and ``speed``: simulated seconds per wall second of
-each model on Test 3 (one core; the learned model on its native plugin when built, its Python
-path beside it) and their ratio.
+The tests' command logs are :mod:`hexgym.tools.scenarios`. Test 1 moves boom and bucket together
+(their flow sharing on pump 1), Test 2 swing and stick together (pump 2), Test 3 is an
+operator-like loading cycle of about 50 s (three dig, swing, dump, return cycles, spools ramped
+as a joystick would move them). For each test both models replay the same command log from the
+same pose; the plots follow the paper's Figs 5-11: joint responses with the commands, the
+tip-position error each joint contributes through the Jacobian, and the overall tip error beside
+the boom-foot-to-tip distance. ``summary.json`` holds per test ``mean_tip_error_m`` and
+``max_tip_error_m``, and ``speed``: simulated seconds per wall second of each model on Test 3
+(one core; the learned model on its native plugin when built, its Python path beside it) and
+their ratio.
+
+Beyond the paper: ``interactions`` holds the actuator interactions in both directions, each
+with an empty bucket and with 2 t (8 s logs, ``interactions.png``): the swing slowed by the
+stick moving in and moving out (pump 2), the boom held back by the bucket curling and dumping
+(pump 1). With ``suite=N`` the ``suite`` block holds the generalisation suite: N seeded random
+operator-like logs (:mod:`hexgym.tools.operator_logs`, 30-60 s, start poses and payloads
+varied) that no table was tuned on, each log's tip errors, their median and worst; the worst
+log is plotted as Test 3 (``suite_worst.png``). The reference runs at only a few times real
+time, so the interactions and the suite run in worker processes.
 """
 
 from __future__ import annotations
 
+import multiprocessing
+import os
 import time
 from pathlib import Path
 
@@ -25,49 +37,34 @@ from hexgym.machine import parameters as p
 from hexgym.model.commandlog import CommandLog
 from hexgym.model.python_backend import LearnedModel
 from hexgym.model.replay import replay
-from hexgym.tools.reference_report import POSE_LOW, POSE_SWING
+from hexgym.tools.operator_logs import pose_from_fractions, suite_log
+from hexgym.tools.scenarios import POSE_CYCLE, ramped_log, scenarios  # noqa: F401 (POSE_CYCLE: re-exported)
 
 DT_OUT = 0.05  # s
-POSE_CYCLE = np.array([0.0, 0.2, 0.4, 0.3])
+# Interaction cases: name -> (slowed joint, partner joint, partner spool sign, start stroke fractions
+# of boom, stick, bucket); the slowed function and its partner both at full spool from 0.5 to 6 s
+INTERACTIONS = {
+    "swing_with_stick_in": ("swing", "stick", 1.0, (0.5, 0.1, 0.5)),
+    "swing_with_stick_out": ("swing", "stick", -1.0, (0.5, 0.9, 0.5)),
+    "boom_with_bucket_curl": ("boom", "bucket", 1.0, (0.1, 0.5, 0.1)),
+    "boom_with_bucket_dump": ("boom", "bucket", -1.0, (0.1, 0.5, 0.9)),
+}
+INTERACTION_PAYLOADS_KG = (0.0, 2000.0)
+INTERACTION_WINDOW_S = (1.0, 6.0)  # both spools fully open
 
 
-def _ramped_log(
-    keys: list[tuple[float, float, float, float, float]], ramp: float = 0.4, dt: float = 0.05
-) -> CommandLog:
-    """A command log through the key rows (t, 4 spools in mm), each change ramped over ``ramp`` s."""
-    t_keys = np.array([k[0] for k in keys])
-    u_keys = np.array([k[1:] for k in keys], dtype=float)
-    t = np.arange(0.0, t_keys[-1] + dt / 2, dt)
-    u = np.empty((len(t), 4))
-    for i, ti in enumerate(t):
-        k = int(np.searchsorted(t_keys, ti, side="right")) - 1
-        previous = u_keys[max(k - 1, 0)]
-        frac = min(1.0, (ti - t_keys[k]) / ramp) if k > 0 else 1.0
-        u[i] = np.round(previous + frac * (u_keys[k] - previous), 1)
-    return CommandLog(t, u)
-
-
-def scenarios() -> dict[str, tuple[CommandLog, np.ndarray]]:
-    """Test name -> (command log, start pose)."""
+def interaction_cases() -> dict[str, tuple[CommandLog, np.ndarray, float]]:
+    """Case name (``<interaction>_<payload>t``) -> (command log, start pose, payload kg)."""
     full = p.SPOOL_STROKE * 1e3
-    test1 = _ramped_log([(0.0, 0, 0, 0, 0), (0.5, 0, full, 0, full), (7.0, 0, 0, 0, 0), (8.0, 0, 0, 0, 0)], ramp=0.2)
-    test2 = _ramped_log([(0.0, 0, 0, 0, 0), (0.5, full, 0, full, 0), (7.0, 0, 0, 0, 0), (9.0, 0, 0, 0, 0)], ramp=0.2)
-    cycle = [  # (duration, swing, boom, stick, bucket) of one loading cycle, mm
-        (2.0, 0, -5, -8, -9),  # reach out and lower
-        (3.0, 0, 0, 10, 7),  # dig: crowd and curl
-        (3.5, 7, 9, 0, 0),  # lift and swing to the truck
-        (2.0, 0, 0, -8, -11),  # dump
-        (3.5, -7, -4, 0, 3),  # swing back and lower
-        (1.5, 0, 0, 0, 0),
-    ]
-    keys, t = [(0.0, 0.0, 0.0, 0.0, 0.0)], 0.5
-    for _ in range(3):
-        for duration, *spools in cycle:
-            keys.append((t, *spools))
-            t += duration
-    keys.append((t, 0, 0, 0, 0))
-    keys.append((t + 1.0, 0, 0, 0, 0))
-    return {"test1": (test1, POSE_LOW), "test2": (test2, POSE_SWING), "test3": (_ramped_log(keys), POSE_CYCLE)}
+    cases = {}
+    for name, (slowed, partner, sign, fractions) in INTERACTIONS.items():
+        spools = np.zeros(4)
+        spools[kinematics.JOINTS.index(slowed)] = full
+        spools[kinematics.JOINTS.index(partner)] = sign * full
+        log = ramped_log([(0.0, 0, 0, 0, 0), (0.5, *spools), (6.0, 0, 0, 0, 0), (8.0, 0, 0, 0, 0)], ramp=0.3)
+        for payload in INTERACTION_PAYLOADS_KG:
+            cases[f"{name}_{payload / 1000:g}t"] = (log, pose_from_fractions(0.0, np.array(fractions)), payload)
+    return cases
 
 
 def tip_errors(reference: np.ndarray, learned: np.ndarray) -> dict[str, np.ndarray]:
@@ -90,14 +87,19 @@ def tip_errors(reference: np.ndarray, learned: np.ndarray) -> dict[str, np.ndarr
 
 
 def run_test(
-    name: str, log: CommandLog, pose: np.ndarray, reference: ReferenceModel, learned: LearnedModel
+    name: str,
+    log: CommandLog,
+    pose: np.ndarray,
+    reference: ReferenceModel,
+    learned: LearnedModel,
+    payload_kg: float = 0.0,
 ) -> dict[str, object]:
     """Both models on one scenario, with their wall times."""
     start = time.perf_counter()
-    traj_ref = replay(reference, log, start=pose, dt_out=DT_OUT)
+    traj_ref = replay(reference, log, start=pose, payload_kg=payload_kg, dt_out=DT_OUT)
     wall_ref = time.perf_counter() - start
     start = time.perf_counter()
-    traj_learned = replay(learned, log, start=pose, dt_out=DT_OUT)
+    traj_learned = replay(learned, log, start=pose, payload_kg=payload_kg, dt_out=DT_OUT)
     wall_learned = time.perf_counter() - start
     return {
         "name": name,
@@ -106,18 +108,20 @@ def run_test(
         "errors": tip_errors(traj_ref, traj_learned),
         "wall": (wall_ref, wall_learned),
         "duration": log.duration,
+        "payload_kg": payload_kg,
     }
 
 
-def plot_test(result: dict[str, object], path: Path) -> Path:
-    """Joint responses of both models with the commands (Figs 5-9); for Test 3 also Figs 10-11."""
+def plot_test(result: dict[str, object], path: Path, error_panels: bool | None = None) -> Path:
+    """Joint responses of both models with the commands (Figs 5-9); with ``error_panels`` (default:
+    for Test 3) also the tip error by joint and overall (Figs 10-11)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     ref, lrn, err = result["reference"], result["learned"], result["errors"]
-    extra = 2 if result["name"] == "test3" else 0
+    extra = 2 if (result["name"] == "test3" if error_panels is None else error_panels) else 0
     fig, axes = plt.subplots(4 + extra, 1, figsize=(11, 2.3 * (4 + extra)), sharex=True)
     t = ref["t"]
     for ax, joint in zip(axes[:4], kinematics.JOINTS, strict=True):
@@ -129,7 +133,8 @@ def plot_test(result: dict[str, object], path: Path) -> Path:
         cmd.set_ylabel("spool (mm)", color="tab:blue")
         cmd.set_ylim(-12, 12)
     axes[0].legend(loc="upper right")
-    axes[0].set_title(f"{result['name']}: reference vs learned model")
+    payload = f", {result['payload_kg'] / 1000:g} t payload" if result.get("payload_kg") else ""
+    axes[0].set_title(f"{result['name']}: reference vs learned model{payload}")
     if extra:
         for j, joint in enumerate(kinematics.JOINTS):
             axes[4].plot(t, err["joint_contribution"][:, j], label=joint)
@@ -148,10 +153,11 @@ def _speed(test3: dict[str, object]) -> dict[str, float]:
     """Real-time factors on Test 3 (one core): the reference's replay, the learned model's fastest path.
 
     The learned model's figure is the native plugin's (Test 3's spools through ``mujoco.rollout``,
-    one thread, :func:`hexgym.model.native_backend.native_rollout_realtime_factor`) when it is built, else the
+    one thread, :func:`hexgym.tools.bench.native_rollout_realtime_factor`) when it is built, else the
     Python path's (this run's replay of Test 3).
     """
-    from hexgym.model.native_backend import native_available, native_rollout_realtime_factor
+    from hexgym.model.plugin import native_available
+    from hexgym.tools.bench import native_rollout_realtime_factor
 
     wall_ref, wall_python = test3["wall"]
     duration = float(test3["duration"])
@@ -169,18 +175,149 @@ def _speed(test3: dict[str, object]) -> dict[str, float]:
     }
 
 
-def run_validation(out_dir: str | Path, learned: LearnedModel | None = None) -> dict[str, object]:
-    """All three tests, plots and ``summary.json`` in ``out_dir``; returns the summary."""
+def plot_interactions(results: dict[str, dict[str, object]], path: Path) -> Path:
+    """Each interaction case: the slowed function's and its partner's joint rates, reference vs learned."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    payloads = INTERACTION_PAYLOADS_KG
+    fig, axes = plt.subplots(len(INTERACTIONS), len(payloads), figsize=(12, 2.6 * len(INTERACTIONS)), sharex=True)
+    for row, (name, (slowed, partner, _, _)) in enumerate(INTERACTIONS.items()):
+        for col, payload in enumerate(payloads):
+            result, ax = results[f"{name}_{payload / 1000:g}t"], axes[row, col]
+            t = result["reference"]["t"]
+            for joint, color in ((slowed, "k"), (partner, "tab:green")):
+                ax.plot(t, result["reference"][f"qd_{joint}"], color=color, label=f"{joint}, reference")
+                ax.plot(t, result["learned"][f"qd_{joint}"], "--", color=color, label=f"{joint}, learned")
+            error = result["errors"]["tip_error"].mean()
+            ax.set_title(f"{name.replace('_', ' ')}, {payload / 1000:g} t: mean tip error {error:.2f} m", fontsize=9)
+            ax.set_ylabel("joint rate (rad/s)")
+            ax.legend(loc="best", fontsize=7, ncols=2)
+    for ax in axes[-1]:
+        ax.set_xlabel("t (s)")
+    fig.tight_layout()
+    return save_figure(fig, path, dpi=80)
+
+
+def _tip_error_figures(result: dict[str, object]) -> dict[str, float]:
+    errors = result["errors"]["tip_error"]
+    return {"mean_tip_error_m": float(errors.mean()), "max_tip_error_m": float(errors.max())}
+
+
+def _interaction_summary(name: str, result: dict[str, object]) -> dict[str, object]:
+    """Tip errors and the slowed function's mean rate while both spools are open, on both models."""
+    slowed = INTERACTIONS[name.rsplit("_", 1)[0]][0]
+    t = result["reference"]["t"]
+    window = (t >= INTERACTION_WINDOW_S[0]) & (t <= INTERACTION_WINDOW_S[1])
+    rates = {model: float(result[model][f"qd_{slowed}"][window].mean()) for model in ("reference", "learned")}
+    return {**_tip_error_figures(result), f"{slowed}_mean_rate_rad_s": rates}
+
+
+_worker_models: dict[str, object] = {}
+
+
+def _init_worker(learned: LearnedModel | None) -> None:
+    """Build this process's reference model, and take or build its learned model (once per worker)."""
+    _worker_models["reference"] = ReferenceModel()
+    _worker_models["learned"] = learned if learned is not None else LearnedModel()
+
+
+def _run_job(job: tuple[str, CommandLog, np.ndarray, float]) -> dict[str, object]:
+    """One (name, log, start pose, payload kg) on this process's two models: :func:`run_test`."""
+    name, log, pose, payload_kg = job
+    return run_test(name, log, pose, _worker_models["reference"], _worker_models["learned"], payload_kg)
+
+
+def run_jobs(
+    jobs: list[tuple[str, CommandLog, np.ndarray, float]], learned: LearnedModel | None = None, workers: int = 1
+) -> dict[str, dict[str, object]]:
+    """:func:`run_test` on each (name, log, start pose, payload kg), keyed by name.
+
+    ``workers`` > 1: in that many spawned processes, the longest logs first; each process builds
+    its reference model and gets a copy of ``learned`` (default: the packaged tables' model).
+    """
+    if workers <= 1 or len(jobs) <= 1:
+        _init_worker(learned)
+        return {job[0]: _run_job(job) for job in jobs}
+    jobs = sorted(jobs, key=lambda job: -job[1].duration)
+    context = multiprocessing.get_context("spawn")
+    with context.Pool(min(workers, len(jobs)), initializer=_init_worker, initargs=(learned,)) as pool:
+        return {result["name"]: result for result in pool.imap_unordered(_run_job, jobs)}
+
+
+def _suite_entry(result: dict[str, object], description: dict[str, object]) -> dict[str, object]:
+    """A suite log's description, tip errors, each joint's share (through the Jacobian: a linearisation,
+    it overstates a swing error of a radian or more) and each joint's mean angle error."""
+    contributions = result["errors"]["joint_contribution"].mean(axis=0)
+    ref, learned = result["reference"], result["learned"]
+    return {
+        **description,
+        **_tip_error_figures(result),
+        "mean_tip_error_from_m": {j: round(float(c), 4) for j, c in zip(kinematics.JOINTS, contributions, strict=True)},
+        "mean_joint_error_rad": {
+            j: round(float(np.abs(learned[f"q_{j}"] - ref[f"q_{j}"]).mean()), 4) for j in kinematics.JOINTS
+        },
+    }
+
+
+def run_validation(
+    out_dir: str | Path,
+    learned: LearnedModel | None = None,
+    suite: int = 0,
+    suite_seed: int = 0,
+    workers: int | None = None,
+    suite_only: bool = False,
+    suite_duration_s: float | None = None,
+) -> dict[str, object]:
+    """The three tests, the interactions and ``suite`` random operator logs; plots and ``summary.json``
+    in ``out_dir``; returns the summary.
+
+    ``suite_seed``: log ``i`` is :func:`hexgym.tools.operator_logs.suite_log` ``(suite_seed, i)``;
+    ``workers``: processes for the interactions and the suite (default: one per CPU);
+    ``suite_only``: the suite alone; ``suite_duration_s``: every suite log this long (default 30-60 s).
+    """
+    if suite < 0 or (suite_only and suite == 0):
+        raise ValueError(f"suite must be a number of logs >= 0 (> 0 with suite_only), got {suite}")
+    workers = (os.cpu_count() or 1) if workers is None else workers
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    reference, learned = ReferenceModel(), learned or LearnedModel()
+    learned = learned or LearnedModel()
     summary: dict[str, object] = {}
-    for name, (log, pose) in scenarios().items():
-        result = run_test(name, log, pose, reference, learned)
-        plot_test(result, out_dir / f"{name}.png")
-        errors = result["errors"]["tip_error"]
-        summary[name] = {"mean_tip_error_m": float(errors.mean()), "max_tip_error_m": float(errors.max())}
-        if name == "test3":
-            summary["speed"] = _speed(result)
+    if not suite_only:
+        reference = ReferenceModel()
+        for name, (log, pose) in scenarios().items():
+            result = run_test(name, log, pose, reference, learned)
+            plot_test(result, out_dir / f"{name}.png")
+            summary[name] = _tip_error_figures(result)
+            if name == "test3":
+                summary["speed"] = _speed(result)
+    interactions = {} if suite_only else interaction_cases()
+    logs = {f"suite log {i} (seed {suite_seed})": suite_log(suite_seed, i, suite_duration_s) for i in range(suite)}
+    jobs = [(name, *case) for name, case in interactions.items()]
+    jobs += [(name, o.log, o.start_pose, o.payload_kg) for name, o in logs.items()]
+    results = run_jobs(jobs, learned, workers)
+    if interactions:
+        summary["interactions"] = {name: _interaction_summary(name, results[name]) for name in interactions}
+        plot_interactions(results, out_dir / "interactions.png")
+    if suite:
+        per_log = [
+            _suite_entry(results[name], {"index": i, "seed": suite_seed, **o.describe()})
+            for i, (name, o) in enumerate(logs.items())
+        ]
+        means = [entry["mean_tip_error_m"] for entry in per_log]
+        worst = int(np.argmax(means))
+        summary["suite"] = {
+            "seed": suite_seed,
+            "n": suite,
+            "median_mean_tip_error_m": float(np.median(means)),
+            "worst_mean_tip_error_m": means[worst],
+            "worst_index": worst,
+            "per_log": per_log,
+        }
+        plot_test(results[list(logs)[worst]], out_dir / "suite_worst.png", error_panels=True)
     write_json(out_dir / "summary.json", summary)
     return summary

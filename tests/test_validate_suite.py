@@ -1,0 +1,142 @@
+"""The generalisation suite of ``hexgym validate``: the operator-like log generator and the summary's blocks."""
+
+import json
+
+import numpy as np
+import pytest
+
+from hexgym.machine import kinematics
+from hexgym.tools import operator_logs as ol
+from hexgym.tools.cli import main
+from hexgym.tools.validate import interaction_cases, run_validation
+
+LOGS = [ol.suite_log(7, i) for i in range(50)]
+
+
+def test_each_log_is_reproducible_on_its_own():
+    again = ol.suite_log(7, 3)
+    assert np.array_equal(again.log.spools_mm, LOGS[3].log.spools_mm)
+    assert np.array_equal(again.start_pose, LOGS[3].start_pose) and again.payload_kg == LOGS[3].payload_kg
+    assert not np.array_equal(ol.suite_log(8, 3).log.spools_mm[:200], LOGS[3].log.spools_mm[:200])
+
+
+@pytest.mark.parametrize("drawn", LOGS[:10])
+def test_log_shape(drawn):
+    t, u = drawn.log.t, drawn.log.spools_mm
+    assert 30.0 <= drawn.log.duration <= 60.0
+    assert np.allclose(np.diff(t), 0.05)
+    assert np.abs(u).max() <= 11.0
+    assert (np.count_nonzero(u, axis=1) <= 3).all()
+    assert np.abs(u[0]).max() == 0.0 and np.abs(u[-1]).max() == 0.0  # starts and ends in neutral
+    assert np.abs(np.diff(u, axis=0)).max() <= 11.0 * 0.05 / 0.2 + 0.01  # no ramp faster than 0.2 s
+    for s in drawn.strokes:
+        assert 0.2 - 1e-9 <= s.ramp_up_s <= 0.6 + 1e-9 and 0.2 - 1e-9 <= s.ramp_down_s <= 0.6 + 1e-9
+        assert 3.0 - 1e-9 <= abs(s.level_mm) <= 11.0
+        low, high = ol.SWING_HOLD_S if s.function == "swing" else ol.HOLD_S
+        assert low - 0.03 <= s.hold_s <= high + 0.03  # on the 0.05 s grid
+    for q, name in zip(drawn.start_pose[1:], kinematics.FRONT_CYLINDERS, strict=True):
+        low, high = kinematics.joint_range(name)
+        assert low < q < high
+
+
+def test_rows_are_the_strokes():
+    drawn = LOGS[0]
+    t = drawn.log.t
+    for s in drawn.strokes:
+        column = drawn.log.spools_mm[:, kinematics.JOINTS.index(s.function)]
+        inside = (t >= s.start_s) & (t <= s.end_s)
+        assert np.allclose(column[inside], s.spool_mm(t[inside]), atol=0.01)
+        hold = (t >= s.start_s + s.ramp_up_s - 1e-9) & (t <= s.end_s - s.ramp_down_s + 1e-9)
+        assert np.allclose(column[hold], s.level_mm, atol=0.01)
+
+
+def test_over_fifty_logs_every_direction_payload_and_phase_kind_occurs():
+    moves, payloads, phases = set(), set(), {1: 0, 2: 0, 3: 0}
+    swing_alone = swing_with_stick = 0
+    for drawn in LOGS:
+        moves |= set(drawn.describe()["moves"])
+        payloads.add(drawn.payload_kg)
+        active = np.count_nonzero(drawn.log.spools_mm, axis=1)
+        for k in phases:
+            phases[k] += int((active == k).any())
+        for s in drawn.strokes:
+            if s.function == "swing" and s.hold_s >= 3.0:
+                others = [o for o in drawn.strokes if o is not s and o.start_s < s.end_s and o.end_s > s.start_s]
+                swing_alone += not others
+                swing_with_stick += any(o.function == "stick" for o in others)
+    assert moves == {f"{j}{d}" for j in kinematics.JOINTS for d in "+-"}
+    assert payloads == {0.0, 1000.0, 2000.0}
+    assert all(n >= 10 for n in phases.values())
+    assert swing_alone >= 10 and swing_with_stick >= 10
+
+
+def _driven_at_a_stroke_end(drawn: ol.OperatorLog) -> float:
+    """Share of the time a cylinder's spool is open that it is at an end, at the nominal full-spool speeds."""
+    driven = at_end = 0
+    for k, name in enumerate(kinematics.FRONT_CYLINDERS, start=1):
+        stroke = ol.p.CYLINDERS[name].stroke
+        f = (kinematics.cylinder_length(name, drawn.start_pose[k]) - ol.p.CYLINDERS[name].retracted_length) / stroke
+        for u in drawn.log.spools_mm[:, k] / 11.0:
+            f = min(1.0, max(0.0, f + ol.NOMINAL_SPEED_MPS[name][0 if u > 0 else 1] * u * 0.05 / stroke))
+            driven += u != 0.0
+            at_end += u != 0.0 and f in (0.0, 1.0)
+    return at_end / driven
+
+
+def test_cylinders_stay_mostly_inside_their_strokes():
+    shares = [_driven_at_a_stroke_end(drawn) for drawn in LOGS]
+    assert np.mean(shares) < 0.15
+    assert max(shares) > 0.0  # an end is reached now and then
+
+
+def test_interaction_cases_move_both_ways_with_and_without_payload():
+    cases = interaction_cases()
+    assert len(cases) == 8
+    signs = {name: np.sign(log.spools_mm.sum(axis=0)) for name, (log, _, _) in cases.items()}
+    assert (signs["swing_with_stick_in_0t"] == [1, 0, 1, 0]).all()
+    assert (signs["swing_with_stick_out_2t"] == [1, 0, -1, 0]).all()
+    assert (signs["boom_with_bucket_curl_0t"] == [0, 1, 0, 1]).all()
+    assert (signs["boom_with_bucket_dump_2t"] == [0, 1, 0, -1]).all()
+    assert {payload for _, _, payload in cases.values()} == {0.0, 2000.0}
+    assert all(log.duration == 8.0 for log, _, _ in cases.values())
+
+
+def _check_suite_block(suite: dict, n: int, seed: int) -> None:
+    assert suite["seed"] == seed and suite["n"] == n and len(suite["per_log"]) == n
+    means = [entry["mean_tip_error_m"] for entry in suite["per_log"]]
+    assert suite["median_mean_tip_error_m"] == pytest.approx(float(np.median(means)))
+    assert suite["worst_mean_tip_error_m"] == max(means) == means[suite["worst_index"]]
+    for i, entry in enumerate(suite["per_log"]):
+        assert entry["index"] == i and entry["seed"] == seed
+        assert set(entry) >= {"duration_s", "payload_kg", "start_pose_rad", "functions", "moves", "max_tip_error_m"}
+        assert 0.0 <= entry["mean_tip_error_m"] <= entry["max_tip_error_m"]
+        assert set(entry["mean_tip_error_from_m"]) == set(entry["mean_joint_error_rad"]) == set(kinematics.JOINTS)
+
+
+def test_suite_block_on_a_short_real_run(tmp_path):
+    """One 6 s log replayed on both models, in this process."""
+    summary = run_validation(tmp_path, suite=1, suite_seed=5, workers=1, suite_only=True, suite_duration_s=6.0)
+    assert list(summary) == ["suite"]
+    _check_suite_block(summary["suite"], 1, 5)
+    assert summary["suite"]["per_log"][0]["duration_s"] == 6.0
+    assert json.loads((tmp_path / "summary.json").read_text()) == summary
+    assert (tmp_path / "suite_worst.png").stat().st_size > 0
+
+
+def test_validate_refuses_bad_suite_arguments(tmp_path, capsys):
+    assert main(["validate", "--out", str(tmp_path), "--suite", "-1"]) == 2
+    assert main(["validate", "--out", str(tmp_path), "--suite-only"]) == 2
+    assert main(["validate", "--out", str(tmp_path), "--suite", "1", "--workers", "0"]) == 2
+    assert "error" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_full_validation_with_two_suite_logs(tmp_path, capsys):
+    """``hexgym validate --suite 2``: the tests, the interactions and two full-length logs, in workers."""
+    assert main(["validate", "--out", str(tmp_path), "--suite", "2", "--suite-seed", "1", "--workers", "2"]) == 0
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert set(summary) == {"test1", "test2", "test3", "speed", "interactions", "suite"}
+    assert set(summary["interactions"]) == set(interaction_cases())
+    _check_suite_block(summary["suite"], 2, 1)
+    for name in ("test1", "test2", "test3", "interactions", "suite_worst"):
+        assert (tmp_path / f"{name}.png").is_file()
