@@ -44,8 +44,18 @@
 namespace hexgym {
 namespace {
 
-struct TableSet {
-  std::vector<MblTable> tables;  // in kTables' order
+// The loaded tables of one table set (kTableSets), in its order.
+struct LoadedTables {
+  const TableSet* set;
+  std::vector<MblTable> tables;
+
+  // The index of table `name` in the set, or -1 when the set has none.
+  int Find(const char* name) const {
+    for (int i = 0; i < set->num_tables; ++i) {
+      if (std::strcmp(set->tables[i].name, name) == 0) return i;
+    }
+    return -1;
+  }
 };
 
 // Failure to set up an instance; the message goes to mju_warning (MuJoCo's load error).
@@ -67,12 +77,22 @@ std::string LibraryDirectory() {
   return ".";
 }
 
-// Tables are immutable once read: one copy per (directory, file times) for all models and datas.
-std::shared_ptr<const TableSet> LoadTables(const std::string& directory) {
+const TableSet& FindTableSet(const std::string& name) {
+  for (const TableSet& set : kTableSets) {
+    if (name == set.name) return set;
+  }
+  std::string known;
+  for (const TableSet& set : kTableSets) known += std::string(known.empty() ? "" : ", ") + set.name;
+  throw SetupError("config key 'table_set': unknown table set '" + name + "' (known: " + known + ")");
+}
+
+// Tables are immutable once read: one copy per (directory, set, file times) for all models and datas.
+std::shared_ptr<const LoadedTables> LoadTables(const std::string& directory, const TableSet& table_set) {
   static std::mutex mutex;
-  static std::map<std::string, std::shared_ptr<const TableSet>> cache;
-  std::string key = directory;
-  for (const TableSchema& spec : kTables) {
+  static std::map<std::string, std::shared_ptr<const LoadedTables>> cache;
+  std::string key = directory + "|" + table_set.name;
+  for (int i = 0; i < table_set.num_tables; ++i) {
+    const TableSchema& spec = table_set.tables[i];
     struct stat st;
     std::string path = directory + "/" + spec.name + ".npz";
     if (stat(path.c_str(), &st) != 0) throw SetupError("MBL table file " + path + " does not exist");
@@ -82,8 +102,10 @@ std::shared_ptr<const TableSet> LoadTables(const std::string& directory) {
   std::lock_guard<std::mutex> lock(mutex);
   auto it = cache.find(key);
   if (it != cache.end()) return it->second;
-  auto set = std::make_shared<TableSet>();
-  for (const TableSchema& spec : kTables) {
+  auto set = std::make_shared<LoadedTables>();
+  set->set = &table_set;
+  for (int i = 0; i < table_set.num_tables; ++i) {
+    const TableSchema& spec = table_set.tables[i];
     std::vector<std::string> inputs;
     for (int j = 0; j < spec.num_inputs; ++j) inputs.push_back(kQuantityNames[spec.inputs[j]]);
     try {
@@ -125,7 +147,8 @@ Triangle ReadTriangle(const mjModel* m, int instance, const char* key) {
 
 // Everything one instance needs: model indices, geometry, limits (per mjData, read-only in steps).
 struct Instance {
-  std::shared_ptr<const TableSet> tables;
+  std::shared_ptr<const LoadedTables> tables;
+  int boom_table, bucket_table, stick_table, swing_table, pump1_table, pump2_table;  // -1: not in the set
   Linkage linkage;
   double retracted[3], stroke[3], push_limit[3], pull_limit[3], rate_lo[4], rate_hi[4];
   double end_margin, swing_torque_limit, dead_band, swing_rest_rate;
@@ -140,13 +163,22 @@ struct Instance {
   // set by compute, committed by advance (the same mj_step)
   bool queried = false;
   double next_rate = 0.0, swing_acceleration = 0.0, target[4] = {0, 0, 0, 0};
+  double next_pressure[2] = {0, 0};  // the pump pressure tables' outputs (extended tables)
   std::vector<mjtNum> limit_force, limit_qfrc;  // scratch: efc forces of joint-limit rows, J^T of them
   std::vector<bool> machine_body;                // per body: carried by the swinging upper structure
   std::vector<mjtNum> jacp;                       // scratch: a contact point's translation Jacobian
 
   Instance(const mjModel* m, int instance) {
+    const char* set_name = mj_getPluginConfig(m, instance, "table_set");
+    const TableSet& table_set = FindTableSet(set_name && set_name[0] ? set_name : kDefaultTableSet);
     const char* dir = mj_getPluginConfig(m, instance, "tables");
-    tables = LoadTables(dir && dir[0] ? std::string(dir) : LibraryDirectory() + "/mbl_tables");
+    tables = LoadTables(dir && dir[0] ? std::string(dir) : LibraryDirectory() + "/mbl_tables/" + table_set.name,
+                        table_set);
+    boom_table = tables->Find("boom"), bucket_table = tables->Find("bucket"), stick_table = tables->Find("stick");
+    swing_table = tables->Find("swing"), pump1_table = tables->Find("pump1"), pump2_table = tables->Find("pump2");
+    if (boom_table < 0 || bucket_table < 0 || stick_table < 0 || swing_table < 0 || (pump1_table < 0) != (pump2_table < 0)) {
+      throw SetupError(std::string("table set '") + table_set.name + "' lacks a function's or a pump's table");
+    }
     linkage.boom = ReadTriangle(m, instance, "boom_triangle");
     linkage.stick = ReadTriangle(m, instance, "stick_triangle");
     std::vector<double> f = Numbers(m, instance, "bucket_four_bar", 11);
@@ -165,9 +197,13 @@ struct Instance {
     swing_torque_limit = Number(m, instance, "swing_torque_limit");
     dead_band = Number(m, instance, "dead_band");
     swing_rest_rate = Number(m, instance, "swing_rest_rate");
-    const MblTable& swing = tables->tables[kTableSwing];
-    slowest_swing = swing.axis_lo(swing.dims() - 1);
-    fastest_swing = swing.axis_hi(swing.dims() - 1);
+    const TableSchema& swing_spec = table_set.tables[swing_table];
+    int rate_axis = 0;
+    while (rate_axis < swing_spec.num_inputs && swing_spec.inputs[rate_axis] != kQSwingRateRadps) ++rate_axis;
+    if (rate_axis == swing_spec.num_inputs) throw SetupError("the swing table does not read the swing rate");
+    const MblTable& swing = tables->tables[swing_table];
+    slowest_swing = swing.axis_lo(rate_axis);
+    fastest_swing = swing.axis_hi(rate_axis);
     const char* period_text = mj_getPluginConfig(m, instance, "control_period");
     double wanted = period_text && period_text[0] ? Number(m, instance, "control_period") : m->opt.timestep;
     // steps per period, rounded to a multiple of 2^-20 so that the phase arithmetic is exact
@@ -299,10 +335,17 @@ struct Instance {
     q[kQSwingSpoolM] = u[0], q[kQBoomSpoolM] = u[1], q[kQStickSpoolM] = u[2], q[kQBucketSpoolM] = u[3];
     q[kQBoomForceN] = f[0], q[kQStickForceN] = f[1], q[kQBucketForceN] = f[2];
     q[kQSwingInertiaKgm2] = inertia, q[kQSwingRateRadps] = rate;
-    double v_boom = closed[1] ? 0.0 : Lookup(kTableBoom, q);
-    double v_bucket = closed[3] ? 0.0 : Lookup(kTableBucket, q);
-    double v_stick = closed[2] ? 0.0 : Lookup(kTableStick, q);
-    swing_acceleration = Lookup(kTableSwing, q);
+    q[kQPump1PressurePa] = d->plugin_state[stateadr + kPressures];
+    q[kQPump2PressurePa] = d->plugin_state[stateadr + kPressures + 1];
+    double v_boom = closed[1] ? 0.0 : Lookup(boom_table, q);
+    double v_bucket = closed[3] ? 0.0 : Lookup(bucket_table, q);
+    double v_stick = closed[2] ? 0.0 : Lookup(stick_table, q);
+    swing_acceleration = Lookup(swing_table, q);
+    next_pressure[0] = q[kQPump1PressurePa], next_pressure[1] = q[kQPump2PressurePa];
+    if (pump1_table >= 0) {  // the pumps' pressures for the next period, from this period's inputs
+      next_pressure[0] = Lookup(pump1_table, q);
+      next_pressure[1] = Lookup(pump2_table, q);
+    }
     if (!(slowest_swing < rate && rate < fastest_swing) && swing_acceleration * rate > 0.0) {
       // the table clamps the rate to its grid (the fastest swing in its data): beyond it, it
       // would keep accelerating at that edge's value; it must not go faster
@@ -322,7 +365,7 @@ struct Instance {
 
   // Table `table` at the quantities q, its inputs gathered in the schema's order.
   double Lookup(int table, const double* q) const {
-    const TableSchema& spec = kTables[table];
+    const TableSchema& spec = tables->set->tables[table];
     double x[kMaxTableInputs];
     for (int j = 0; j < spec.num_inputs; ++j) x[j] = q[spec.inputs[j]];
     return tables->tables[table](x);
@@ -367,6 +410,7 @@ struct Instance {
       state[kAcceleration] = swing_acceleration;
       for (int k = 0; k < 4; ++k) state[kTargets + k] = target[k];
       state[kTargets] = next_rate;  // the swing's rate, unclipped (the servo clips it when used)
+      state[kPressures] = next_pressure[0], state[kPressures + 1] = next_pressure[1];
     }
     // whole periods are subtracted, not the phase zeroed: a period of 12.5 steps alternates 13 and 12
     double phase = state[kPhase] + 1.0;

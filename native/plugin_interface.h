@@ -15,7 +15,8 @@ constexpr int kLoad = 0;  // 4 value(s)
 constexpr int kAcceleration = 4;  // 1 value(s)
 constexpr int kPhase = 5;  // 1 value(s)
 constexpr int kTargets = 6;  // 4 value(s)
-constexpr int kStateSize = 10;
+constexpr int kPressures = 10;  // 2 value(s)
+constexpr int kStateSize = 12;
 
 // Config keys, in the declared order
 constexpr const char* kAttributes[] = {
@@ -33,6 +34,7 @@ constexpr const char* kAttributes[] = {
     "swing_rest_rate",  // rad/s
     "rate_range",  // lo hi per joint, rad/s (the Python path's servo ctrlrange)
     "control_period",  // s between table queries, >= one step (default: one step)
+    "table_set",  // which table set the tables directory holds: paper or extended (default: the default set)
 };
 constexpr int kNumAttributes = sizeof(kAttributes) / sizeof(kAttributes[0]);
 
@@ -47,6 +49,8 @@ enum Quantity {
   kQBucketForceN,
   kQSwingInertiaKgm2,
   kQSwingRateRadps,
+  kQPump1PressurePa,
+  kQPump2PressurePa,
   kNumQuantities
 };
 constexpr const char* kQuantityNames[kNumQuantities] = {
@@ -59,29 +63,45 @@ constexpr const char* kQuantityNames[kNumQuantities] = {
     "bucket_force_n",
     "swing_inertia_kgm2",
     "swing_rate_radps",
+    "pump1_pressure_pa",
+    "pump2_pressure_pa",
 };
 
-constexpr int kMaxTableInputs = 5;
+constexpr int kMaxTableInputs = 6;
 struct TableSchema {
   const char* name;
   int num_inputs;
   Quantity inputs[kMaxTableInputs];
   const char* output;
 };
-constexpr int kNumTables = 4;
-constexpr TableSchema kTables[kNumTables] = {
+constexpr TableSchema kPaperTables[] = {
     {"boom", 4, {kQBoomSpoolM, kQBucketSpoolM, kQBoomForceN, kQBucketForceN}, "boom_velocity_mps"},
     {"bucket", 4, {kQBoomSpoolM, kQBucketSpoolM, kQBoomForceN, kQBucketForceN}, "bucket_velocity_mps"},
     {"stick", 4, {kQSwingSpoolM, kQStickSpoolM, kQSwingInertiaKgm2, kQStickForceN}, "stick_velocity_mps"},
     {"swing", 5, {kQSwingSpoolM, kQStickSpoolM, kQStickForceN, kQSwingInertiaKgm2, kQSwingRateRadps}, "swing_acceleration_radps2"},
 };
-constexpr int kTableBoom = 0;
-constexpr int kTableBucket = 1;
-constexpr int kTableStick = 2;
-constexpr int kTableSwing = 3;
+constexpr TableSchema kExtendedTables[] = {
+    {"boom", 5, {kQBoomSpoolM, kQBucketSpoolM, kQBoomForceN, kQBucketForceN, kQPump2PressurePa}, "boom_velocity_mps"},
+    {"bucket", 5, {kQBoomSpoolM, kQBucketSpoolM, kQBoomForceN, kQBucketForceN, kQPump2PressurePa}, "bucket_velocity_mps"},
+    {"pump1", 5, {kQBoomSpoolM, kQBucketSpoolM, kQBoomForceN, kQBucketForceN, kQPump2PressurePa}, "pump1_pressure_pa"},
+    {"stick", 5, {kQSwingSpoolM, kQStickSpoolM, kQSwingInertiaKgm2, kQStickForceN, kQPump1PressurePa}, "stick_velocity_mps"},
+    {"swing", 6, {kQSwingSpoolM, kQStickSpoolM, kQStickForceN, kQSwingInertiaKgm2, kQSwingRateRadps, kQPump1PressurePa}, "swing_acceleration_radps2"},
+    {"pump2", 5, {kQSwingSpoolM, kQStickSpoolM, kQStickForceN, kQSwingRateRadps, kQPump1PressurePa}, "pump2_pressure_pa"},
+};
+struct TableSet {
+  const char* name;
+  int num_tables;
+  const TableSchema* tables;
+};
+constexpr int kNumTableSets = 2;
+constexpr TableSet kTableSets[kNumTableSets] = {
+    {"paper", 4, kPaperTables},
+    {"extended", 6, kExtendedTables},
+};
+constexpr char kDefaultTableSet[] = "paper";
 
 // All of the above as JSON, returned by hexgym_mbl_interface() for the Python side's check
-constexpr char kInterfaceJson[] = "{\"config_keys\":[\"tables\",\"boom_triangle\",\"stick_triangle\",\"bucket_four_bar\",\"retracted_length\",\"stroke\",\"end_margin\",\"push_limit\",\"pull_limit\",\"swing_torque_limit\",\"dead_band\",\"swing_rest_rate\",\"rate_range\",\"control_period\"],\"ctrl_per_spool_m\":1000.0,\"joints\":[\"swing\",\"boom\",\"stick\",\"bucket\"],\"plugin\":\"hexgym.mbl\",\"quantities\":[\"swing_spool_m\",\"boom_spool_m\",\"stick_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"stick_force_n\",\"bucket_force_n\",\"swing_inertia_kgm2\",\"swing_rate_radps\"],\"state\":{\"acceleration\":[4,1],\"load\":[0,4],\"phase\":[5,1],\"targets\":[6,4]},\"state_size\":10,\"table_format_version\":1,\"tables\":[{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\"],\"name\":\"boom\",\"output\":\"boom_velocity_mps\"},{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\"],\"name\":\"bucket\",\"output\":\"bucket_velocity_mps\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"swing_inertia_kgm2\",\"stick_force_n\"],\"name\":\"stick\",\"output\":\"stick_velocity_mps\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"stick_force_n\",\"swing_inertia_kgm2\",\"swing_rate_radps\"],\"name\":\"swing\",\"output\":\"swing_acceleration_radps2\"}]}";
+constexpr char kInterfaceJson[] = "{\"config_keys\":[\"tables\",\"boom_triangle\",\"stick_triangle\",\"bucket_four_bar\",\"retracted_length\",\"stroke\",\"end_margin\",\"push_limit\",\"pull_limit\",\"swing_torque_limit\",\"dead_band\",\"swing_rest_rate\",\"rate_range\",\"control_period\",\"table_set\"],\"ctrl_per_spool_m\":1000.0,\"default_table_set\":\"paper\",\"joints\":[\"swing\",\"boom\",\"stick\",\"bucket\"],\"plugin\":\"hexgym.mbl\",\"quantities\":[\"swing_spool_m\",\"boom_spool_m\",\"stick_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"stick_force_n\",\"bucket_force_n\",\"swing_inertia_kgm2\",\"swing_rate_radps\",\"pump1_pressure_pa\",\"pump2_pressure_pa\"],\"state\":{\"acceleration\":[4,1],\"load\":[0,4],\"phase\":[5,1],\"pressures\":[10,2],\"targets\":[6,4]},\"state_size\":12,\"table_format_version\":1,\"table_sets\":{\"extended\":[{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\",\"pump2_pressure_pa\"],\"name\":\"boom\",\"output\":\"boom_velocity_mps\"},{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\",\"pump2_pressure_pa\"],\"name\":\"bucket\",\"output\":\"bucket_velocity_mps\"},{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\",\"pump2_pressure_pa\"],\"name\":\"pump1\",\"output\":\"pump1_pressure_pa\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"swing_inertia_kgm2\",\"stick_force_n\",\"pump1_pressure_pa\"],\"name\":\"stick\",\"output\":\"stick_velocity_mps\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"stick_force_n\",\"swing_inertia_kgm2\",\"swing_rate_radps\",\"pump1_pressure_pa\"],\"name\":\"swing\",\"output\":\"swing_acceleration_radps2\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"stick_force_n\",\"swing_rate_radps\",\"pump1_pressure_pa\"],\"name\":\"pump2\",\"output\":\"pump2_pressure_pa\"}],\"paper\":[{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\"],\"name\":\"boom\",\"output\":\"boom_velocity_mps\"},{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\"],\"name\":\"bucket\",\"output\":\"bucket_velocity_mps\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"swing_inertia_kgm2\",\"stick_force_n\"],\"name\":\"stick\",\"output\":\"stick_velocity_mps\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"stick_force_n\",\"swing_inertia_kgm2\",\"swing_rate_radps\"],\"name\":\"swing\",\"output\":\"swing_acceleration_radps2\"}]}}";
 
 }  // namespace hexgym
 

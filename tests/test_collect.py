@@ -12,7 +12,6 @@ from hexgym.hydraulics.reference import ReferenceModel
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.mbl.collect import (
-    TABLES,
     CollectConfig,
     _chunk_task,
     add_collect_parser,
@@ -22,11 +21,15 @@ from hexgym.mbl.collect import (
     episode_setup,
     load_dataset,
     model_fingerprint,
+    plan_segment,
     run_collect,
     run_segment,
     tip_force_world,
 )
 
+from hexgym.mbl.schema import TABLE_SETS
+
+TABLES = TABLE_SETS["paper"]
 # Short segments and episodes: a few seconds per collection, every code path.
 TINY = CollectConfig(segments_per_episode=3, episodes_per_chunk=1, hold_s=(0.7, 0.8), windows_per_segment=1)
 SAMPLES = 4
@@ -158,7 +161,7 @@ def test_swing_samples_accelerate_at_about_the_rated_torque(sim: ReferenceModel)
     start(sim, 1000.0)
     config = CollectConfig()
     result = run_segment(sim, np.array([p.SPOOL_STROKE, 0.0, 0.0, 0.0]), 500, config, swing_samples=True)
-    rows = np.array(result.swing_rows)  # stick force, inertia, swing rate, acceleration
+    rows = np.array(result.swing_rows)[:, [0, 1, 2, 5]]  # stick force, inertia, swing rate, acceleration
     assert len(rows) == 9 and result.swing_rejected == 0  # every 0.1 s from 0.1 s to 0.9 s
     rated = p.SWING_TORQUE / rows[:, 1]
     assert np.all(rows[:, 3] > 0.5 * rated) and np.all(rows[:, 3] < 2.0 * rated)
@@ -184,3 +187,24 @@ def test_cli_parser_defaults() -> None:
     assert args.samples >= 5500
     args = parser.parse_args(["collect", "--out", "x", "--samples", "10", "--seed", "3", "--workers", "1"])
     assert (args.out, args.samples, args.seed, args.workers) == ("x", 10, 3, 1)
+
+
+def test_extended_collection_moves_both_pumps_and_names_the_extended_inputs(tmp_path: Path) -> None:
+    config = CollectConfig(**{**TINY.__dict__, "table_set": "extended"})
+    paths = collect(tmp_path, samples_per_group=SAMPLES, seed=SEED, workers=1, progress=False, config=config)
+    assert paths.keys() == TABLE_SETS["extended"].keys()
+    for table, spec in TABLE_SETS["extended"].items():
+        ds = load_dataset(paths[table])
+        assert ds["inputs"] == spec.inputs and ds["output"] == spec.output and np.isfinite(ds["X"]).all()
+
+
+@pytest.mark.parametrize("table_set", ["paper", "extended"])
+def test_the_other_pump_moves_only_for_the_extended_tables(table_set: str) -> None:
+    config = CollectConfig(table_set=table_set)
+    rng, ext = np.random.default_rng(0), np.array([0.6, 0.8, 0.5])
+    spools = np.array([plan_segment(rng, "boom_bucket", np.zeros(4), ext, 0.002, config)[0] for _ in range(400)])
+    other_moves = np.any(spools[:, [0, 2]] != 0.0, axis=1).mean()  # swing, stick: pump 2
+    if table_set == "paper":
+        assert other_moves == 0.0
+    else:  # idle in about other_pump_idle_probability of the segments
+        assert 0.5 < other_moves < 0.8

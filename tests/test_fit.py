@@ -18,7 +18,10 @@ def data_dir(tmp_path_factory):
     for name, spec in TABLES.items():
         inputs, output = spec.inputs, spec.output
         Xn = X if len(inputs) == 4 else np.column_stack([X, rng.uniform(-1, 1, len(y))])
-        np.savez(directory / f"{name}.npz", X=Xn, y=y, inputs=np.array(inputs), output=np.array(output))
+        episode = np.arange(len(y)) // 10  # ten rows per episode
+        np.savez(
+            directory / f"{name}.npz", X=Xn, y=y, episode=episode, inputs=np.array(inputs), output=np.array(output)
+        )
     return directory
 
 
@@ -62,13 +65,25 @@ def test_wrong_or_missing_data_is_named(data_dir, tmp_path):
 
 
 def test_fitted_points_subsample_only_above_the_limit():
-    from hexgym.mbl.fit import MAX_POINTS, fitted_points
+    from hexgym.mbl.fit import MAX_POINTS, TableData, fitted_points
 
-    X, y = np.arange(20.0).reshape(10, 2), np.arange(10.0)
-    assert fitted_points(X, y)[0] is X
-    X, y = np.arange(2.0 * (MAX_POINTS + 50)).reshape(-1, 2), np.arange(MAX_POINTS + 50.0)
-    Xs, ys = fitted_points(X, y, seed=3)
-    assert len(ys) == MAX_POINTS and np.all(np.diff(ys) > 0)  # distinct rows, in their order
-    np.testing.assert_array_equal(Xs[:, 1], 2 * ys + 1)  # rows stay paired with their outputs
-    np.testing.assert_array_equal(fitted_points(X, y, seed=3)[1], ys)  # seeded
-    assert not np.array_equal(fitted_points(X, y, seed=4)[1], ys)
+    def data(n: int) -> TableData:
+        return TableData(np.arange(2.0 * n).reshape(-1, 2), np.arange(float(n)), np.arange(n) // 7)
+
+    small = data(10)
+    assert fitted_points(small) is small
+    kept = fitted_points(data(MAX_POINTS + 50), seed=3)
+    assert len(kept.y) == MAX_POINTS and np.all(np.diff(kept.y) > 0)  # distinct rows, in their order
+    np.testing.assert_array_equal(kept.X[:, 1], 2 * kept.y + 1)  # rows stay paired with their outputs
+    np.testing.assert_array_equal(kept.episode, kept.y.astype(int) // 7)  # and with their episodes
+    np.testing.assert_array_equal(fitted_points(data(MAX_POINTS + 50), seed=3).y, kept.y)  # seeded
+    assert not np.array_equal(fitted_points(data(MAX_POINTS + 50), seed=4).y, kept.y)
+
+
+def test_episode_split_holds_out_whole_episodes():
+    from hexgym.mbl.fit import episode_split
+
+    episode = np.repeat(np.arange(50), 3)
+    train, test = episode_split(episode, 0.2, seed=1)
+    assert len(test) == 30 and not set(episode[train]) & set(episode[test])
+    assert np.array_equal(np.sort(np.concatenate([train, test])), np.arange(150))

@@ -81,7 +81,8 @@ def test_an_interface_mismatch_is_named(monkeypatch):
     changed = {**plugin.interface(), "state_size": plugin.STATE_SIZE + 1}
     monkeypatch.setattr(plugin, "interface", lambda: changed)
     message = plugin._interface_error(plugin.plugin_library())
-    assert "state_size: library 10 vs Python 11" in message and "rebuild" in message
+    size = plugin.STATE_SIZE
+    assert f"state_size: library {size} vs Python {size + 1}" in message and "rebuild" in message
 
 
 def test_interface_differences_name_each_side():
@@ -109,7 +110,9 @@ def test_a_table_that_differs_from_the_schema_is_refused_naming_file_and_differe
     )
     (tmp_path / "boom.npz").unlink()
     swapped.save(tmp_path / "boom.npz")
-    with pytest.raises(ValueError, match=r"boom\.npz: table 'boom' does not match the schema: inputs in the order"):
+    with pytest.raises(
+        ValueError, match=r"boom\.npz: table 'boom' does not match the 'paper' schema: inputs in the order"
+    ):
         load_tables(tmp_path)
 
 

@@ -60,6 +60,7 @@ from hexgym.envs.loading import (
     STEP_PERIOD,
     HexLoadingEnv,
     heap_for,
+    native_world_model,
     sample_start,
     wrap_angle,
 )
@@ -70,7 +71,6 @@ from hexgym.envs.world import (
     TOOL_CONTACT_SENSOR,
     Layout,
     bed_frame,
-    build_world_model,
     fullest_cut_direction,
     over_bed,
 )
@@ -160,7 +160,7 @@ class HexLoadingVectorEnv(VectorEnv):
 
     # -- construction -------------------------------------------------------------------------
     def _build_batch(self, scene_path: str | Path | None, nthread: int | None) -> None:
-        model = build_world_model(scene_path, machine_file="cat325_mbl.xml", tool_contact_slots=CONTACT_SLOTS)
+        model = native_world_model(scene_path, self._scratch.tables, tool_contact_slots=CONTACT_SLOTS)
         scratch_model = self._scratch.physics.model
         if mujoco.mj_stateSize(model, _STATE) != mujoco.mj_stateSize(scratch_model, _STATE):
             raise RuntimeError("the batch's model and the single environment's differ in their state")

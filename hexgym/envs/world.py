@@ -179,23 +179,28 @@ def _add_bucket_load(spec: mujoco.MjSpec) -> None:
 
 
 def build_world_model(
-    scene_path: str | Path | None = None, machine_file: str | None = None, tool_contact_slots: int = 0
+    scene_path: str | Path | None = None,
+    machine_file: str | None = None,
+    tool_contact_slots: int = 0,
+    machine_xml: str | None = None,
 ) -> mujoco.MjModel:
     """Compile the machine's scene (default: the packaged ``scene.xml``) with the pile, the truck and the loads.
 
     ``machine_file``: another packaged machine MJCF (e.g. ``cat325_mbl.xml``, the native plugin's)
-    to include in place of the one the scene names. ``tool_contact_slots`` > 0 adds a contact
+    to include in place of the one the scene names; ``machine_xml``: a machine MJCF's text to include
+    instead (e.g. the plugin's machine for other tables). ``tool_contact_slots`` > 0 adds a contact
     sensor ``tool_contacts`` (:func:`_add_tool_contact_sensor`) with that many slots.
     """
     path = Path(scene_path) if scene_path is not None else asset_path(SCENE_FILE)
     try:
-        if machine_file is None:
+        if machine_file is None and machine_xml is None:
             spec = mujoco.MjSpec.from_file(str(path))
         else:
-            machine = asset_path(machine_file)
-            xml = re.sub(r'<include file="[^"]+"/>', f'<include file="{machine.name}"/>', path.read_text(), count=1)
-            spec = mujoco.MjSpec.from_string(xml, include={machine.name: machine.read_bytes()})
-            spec.meshdir = str(machine.parent / "meshes")
+            name = machine_file or "machine.xml"
+            text = asset_path(machine_file).read_bytes() if machine_xml is None else machine_xml.encode()
+            xml = re.sub(r'<include file="[^"]+"/>', f'<include file="{name}"/>', path.read_text(), count=1)
+            spec = mujoco.MjSpec.from_string(xml, include={name: text})
+            spec.meshdir = str(asset_path(SCENE_FILE).parent / "meshes")
         _add_pile(spec)
         _add_truck(spec)
         _add_bucket_load(spec)

@@ -108,11 +108,18 @@ def knn_predict(X_train: np.ndarray, y_train: np.ndarray, X_test: np.ndarray, k:
 
 
 def compare_baselines(
-    X: Any, y: Any, *, fraction: float = 0.2, seed: int = 0, lwr_params: LWRParams | None = None
+    X: Any,
+    y: Any,
+    *,
+    fraction: float = 0.2,
+    seed: int = 0,
+    lwr_params: LWRParams | None = None,
+    split: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> dict[str, float]:
-    """Held-out RMSE of simple learners (and of LWR with ``lwr_params``) on one seeded split."""
+    """Held-out RMSE of simple learners (and of LWR with ``lwr_params``) on one seeded split (or ``split``:
+    (train, test) row indices)."""
     X, y = as_training_data(X, y)
-    tr, te = holdout_split(len(y), fraction, seed)
+    tr, te = split if split is not None else holdout_split(len(y), fraction, seed)
     Xa, ya, Xb, yb = X[tr], y[tr], X[te], y[te]
     out = {
         "global_linear": rmse(yb - _linear_fit_predict(Xa, ya, Xb, 0.0)),

@@ -78,7 +78,7 @@ import numpy as np
 from hexgym.files import atomic_path
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
-from hexgym.mbl.schema import TABLES
+from hexgym.mbl.schema import TABLE_SETS
 
 GENERATOR_VERSION = 1
 DEFAULT_SAMPLES = 6400  # per group: the paper had 5500 (boom/bucket) and 6400 (stick/swing) points
@@ -92,11 +92,8 @@ _SPEED_OUT = np.array([2.0 * p.PUMP_MAX_FLOW / p.CYLINDERS[n].head_area for n in
 _SPEED_IN = np.array([1.6 * p.PUMP_MAX_FLOW / p.CYLINDERS[n].rod_area for n in kinematics.FRONT_CYLINDERS])
 
 
-# group -> (moving spools, tables; the first table's samples count towards samples_per_group)
-GROUPS: dict[str, tuple[tuple[str, str], tuple[str, ...]]] = {
-    "boom_bucket": (("boom", "bucket"), ("boom", "bucket")),
-    "stick_swing": (("swing", "stick"), ("stick", "swing")),
-}
+# group -> the functions whose spools its episodes move (its tables: CollectConfig.tables)
+GROUPS: dict[str, tuple[str, str]] = {"boom_bucket": ("boom", "bucket"), "stick_swing": ("swing", "stick")}
 _GROUP_ID = {"boom_bucket": 0, "stick_swing": 1}
 
 
@@ -121,6 +118,18 @@ class CollectConfig:
     swing_settle_s: float = 0.1  # no swing samples this soon after a spool change
     swing_half_width_s: float = 0.024  # central difference over twice this
     record_every: int = 10  # steps between force records in the window and limit checks
+    table_set: str = "paper"  # which tables' data sets to write (hexgym.mbl.schema.TABLE_SETS)
+    # extended tables: the other pump's spools move too (both idle with this probability per segment)
+    other_pump_idle_probability: float = 0.3
+
+    @property
+    def both_pumps(self) -> bool:
+        """Whether the other pump's functions move too (the extended tables see both pumps)."""
+        return self.table_set != "paper"
+
+    def tables(self, group: str) -> tuple[str, ...]:
+        """The tables whose samples ``group``'s episodes give, the first the one counted."""
+        return tuple(name for name, spec in TABLE_SETS[self.table_set].items() if spec.group == group)
 
     def window_s_steps(self, dt: float) -> int:
         """The averaging window in model steps of ``dt``."""
@@ -140,6 +149,7 @@ class WindowMean:
     velocity: np.ndarray  # (3,) cylinder velocities (change of extension / time), m/s
     force: np.ndarray  # (3,) cylinder forces, N
     inertia: float  # swing inertia, kg m^2
+    pressures: np.ndarray  # (2,) pump delivery pressures, Pa
 
 
 @dataclass
@@ -149,7 +159,7 @@ class SegmentResult:
     spools: np.ndarray  # m, order swing, boom, stick, bucket
     limited: bool = False  # ran within the margin of a stroke end (cut short there)
     windows: list[WindowMean] = field(default_factory=list)  # the windows completed before that
-    swing_rows: list[tuple[float, float, float, float]] = field(default_factory=list)  # F_stick, I, w, dw/dt
+    swing_rows: list[tuple[float, ...]] = field(default_factory=list)  # F_stick, I, w, p1, p2, dw/dt
     swing_rejected: int = 0
     windows_rejected: int = 0
     steps: int = 0
@@ -201,10 +211,10 @@ def run_segment(
     plan, edges = _segment_plan(steps, config, half, dt, swing_samples)
     rates = np.empty(steps + 1)
     rates[0] = ph.joint_velocities()[0]
-    pending: dict[int, tuple[float, float, float]] = {}  # centre step -> (F_stick, I, w)
+    pending: dict[int, tuple[float, ...]] = {}  # centre step -> (F_stick, I, w, p1, p2)
     result = SegmentResult(spools=spools.copy())
     ext_edge = ph.cylinder_extensions() if edges[0] == 0 else None
-    records: list[tuple[np.ndarray, float]] = []
+    records: list[tuple[np.ndarray, float, np.ndarray]] = []
     for k in range(1, steps + 1):
         if tip_force_arm is not None:
             ph.apply_tip_force(tip_force_world(tip_force_arm, float(ph.joint_positions()[0])))
@@ -222,14 +232,16 @@ def run_segment(
             result.windows_rejected = len(edges) - 1 - len(result.windows)
             return result
         if action & _RECORD:
-            records.append((_forces(sim), ph.swing_inertia()))
+            records.append((_forces(sim), ph.swing_inertia(), sim.state[:2].copy()))
         if action & _CENTRE:
-            pending[k] = (float(_forces(sim)[_CYL["stick"]]), ph.swing_inertia(), float(rates[k]))
+            p1, p2 = (float(v) for v in sim.state[:2])
+            pending[k] = (float(_forces(sim)[_CYL["stick"]]), ph.swing_inertia(), float(rates[k]), p1, p2)
         if action & _EDGE:
             if ext_edge is not None and records:
                 velocity = (ext - ext_edge) / (config.window_s_steps(dt) * dt)
-                force = np.mean([f for f, _ in records], axis=0)
-                result.windows.append(WindowMean(velocity, force, float(np.mean([i for _, i in records]))))
+                force = np.mean([f for f, _, _ in records], axis=0)
+                inertia = float(np.mean([i for _, i, _ in records]))
+                result.windows.append(WindowMean(velocity, force, inertia, np.mean([q for _, _, q in records], axis=0)))
             ext_edge, records = ext, []
     result.steps = steps
     return result
@@ -257,13 +269,12 @@ def _segment_plan(steps: int, config: CollectConfig, half: int, dt: float, swing
 
 
 def _finish_swing(
-    pending: dict[int, tuple[float, float, float]], rates: np.ndarray, k: int, half: int, dt: float
-) -> list[tuple[float, float, float, float]]:
+    pending: dict[int, tuple[float, ...]], rates: np.ndarray, k: int, half: int, dt: float
+) -> list[tuple[float, ...]]:
     """Swing rows whose central difference completes at step ``k`` (removed from ``pending``)."""
     rows = []
     for c in [c for c in pending if c + half <= k]:
-        force, inertia, rate = pending.pop(c)
-        rows.append((force, inertia, rate, float((rates[c + half] - rates[c - half]) / (2 * half * dt))))
+        rows.append((*pending.pop(c), float((rates[c + half] - rates[c - half]) / (2 * half * dt))))
     return rows
 
 
@@ -343,12 +354,31 @@ def plan_segment(
     draws = [_draw_spool(rng, config) for _ in range(2)]
     keep_swing = rng.uniform() < config.swing_persistence
     spools = np.zeros(4)
-    for name, value in zip(GROUPS[group][0], draws, strict=True):
+    _set_spools(spools, GROUPS[group], draws, keep_swing, previous, ext, hold, config)
+    if config.both_pumps:  # drawn after the group's own: the paper's data sets stay as they were
+        idle = rng.uniform() < config.other_pump_idle_probability
+        draws = [0.0 if idle else _draw_spool(rng, config) for _ in range(2)]
+        keep_swing = rng.uniform() < config.swing_persistence
+        other = next(functions for g, functions in GROUPS.items() if g != group)
+        _set_spools(spools, other, draws, keep_swing and not idle, previous, ext, hold, config)
+    return spools, max(1, round(hold / dt))
+
+
+def _set_spools(
+    spools: np.ndarray,
+    functions: tuple[str, str],
+    draws: list[float],
+    keep_swing: bool,
+    previous: np.ndarray,
+    ext: np.ndarray,
+    hold: float,
+    config: CollectConfig,
+) -> None:
+    for name, value in zip(functions, draws, strict=True):
         if name == "swing":  # unlimited: no stroke ends, but persistence to reach full speed
             spools[_SPOOL[name]] = previous[_SPOOL[name]] if keep_swing else value
         else:
             spools[_SPOOL[name]] = _keep_in_stroke(value, name, ext, hold, config)
-    return spools, max(1, round(hold / dt))
 
 
 @dataclass
@@ -375,7 +405,7 @@ def collect_episode(sim: Any, group: str, episode: int, seed: int, config: Colle
     sim.reset(setup.q, setup.payload_kg)
     if setup.tip_force_arm is not None:
         hold_tip_force(sim, tip_force_world(setup.tip_force_arm, setup.q[0]))
-    result = EpisodeResult(rows={t: [] for t in GROUPS[group][1]})
+    result = EpisodeResult(rows={t: [] for t in config.tables(group)})
     spools = np.zeros(4)
     for seg in range(config.segments_per_episode):
         spools, steps = plan_segment(rng, group, spools, sim.physics.cylinder_extensions(), sim.timestep, config)
@@ -386,7 +416,7 @@ def collect_episode(sim: Any, group: str, episode: int, seed: int, config: Colle
             break
         result.segments += 1
         result.sim_seconds += seg_result.steps * sim.timestep
-        _add_rows(result, group, seg, seg_result)
+        _add_rows(result, group, seg, seg_result, config)
         if seg_result.limited:
             result.rejected_segments += 1
             result.ended_at_limit = True
@@ -394,22 +424,28 @@ def collect_episode(sim: Any, group: str, episode: int, seed: int, config: Colle
     return result
 
 
-def _add_rows(result: EpisodeResult, group: str, seg: int, r: SegmentResult) -> None:
-    s = r.spools
+def _add_rows(result: EpisodeResult, group: str, seg: int, r: SegmentResult, config: CollectConfig) -> None:
+    """The segment's samples as rows of each of the group's tables, its inputs picked by name."""
     result.swing_rejected += r.swing_rejected
     result.rejected_windows += r.windows_rejected
-    if group == "stick_swing":
-        for force, inertia, rate, accel in r.swing_rows:
-            x = np.array([s[_SPOOL["swing"]], s[_SPOOL["stick"]], force, inertia, rate])
-            result.rows["swing"].append((x, accel, seg))
+    spools = {f"{name}_spool_m": float(r.spools[i]) for name, i in _SPOOL.items()}
+    samples: dict[str, list[dict[str, float]]] = {"window": [], "trajectory": []}
     for w in r.windows:
-        if group == "boom_bucket":
-            x = np.array([s[_SPOOL["boom"]], s[_SPOOL["bucket"]], w.force[_CYL["boom"]], w.force[_CYL["bucket"]]])
-            result.rows["boom"].append((x, float(w.velocity[_CYL["boom"]]), seg))
-            result.rows["bucket"].append((x, float(w.velocity[_CYL["bucket"]]), seg))
-        else:
-            x = np.array([s[_SPOOL["swing"]], s[_SPOOL["stick"]], w.inertia, w.force[_CYL["stick"]]])
-            result.rows["stick"].append((x, float(w.velocity[_CYL["stick"]]), seg))
+        forces = {f"{c}_force_n": float(w.force[i]) for c, i in _CYL.items()}
+        velocities = {f"{c}_velocity_mps": float(w.velocity[i]) for c, i in _CYL.items()}
+        pressures = {"pump1_pressure_pa": float(w.pressures[0]), "pump2_pressure_pa": float(w.pressures[1])}
+        samples["window"].append(spools | forces | velocities | pressures | {"swing_inertia_kgm2": w.inertia})
+    if group == "stick_swing":
+        for force, inertia, rate, p1, p2, accel in r.swing_rows:
+            samples["trajectory"].append(
+                spools
+                | {"stick_force_n": force, "swing_inertia_kgm2": inertia, "swing_rate_radps": rate}
+                | {"pump1_pressure_pa": p1, "pump2_pressure_pa": p2, "swing_acceleration_radps2": accel}
+            )
+    for table in config.tables(group):
+        spec = TABLE_SETS[config.table_set][table]
+        for q in samples[spec.sampling]:
+            result.rows[table].append((np.array([q[name] for name in spec.inputs]), q[spec.output], seg))
 
 
 # --------------------------------------------------------------------------------------------
@@ -502,21 +538,23 @@ def _chunk_task(task: tuple[str, str, int, int, str, str]) -> tuple[str, int, in
         (e, collect_episode(sim, group, e, seed, config)) for e in range(first, first + config.episodes_per_chunk)
     ]
     wall = time.perf_counter() - t0
-    arrays = _chunk_arrays(group, episodes)
+    arrays = _chunk_arrays(group, episodes, config)
     meta = _chunk_meta(group, index, seed, config, fingerprint) | {
         "wall_seconds": wall,
         "errors": [f"episode {e}: {r.error}" for e, r in episodes if r.error],
     }
     arrays["meta"] = np.array(json.dumps(meta, sort_keys=True))
     _save_npz(chunk_path(out_dir, group, index), arrays)
-    return group, index, len(arrays[f"{GROUPS[group][1][0]}_y"]), wall
+    return group, index, len(arrays[f"{config.tables(group)[0]}_y"]), wall
 
 
-def _chunk_arrays(group: str, episodes: list[tuple[int, EpisodeResult]]) -> dict[str, np.ndarray]:
+def _chunk_arrays(
+    group: str, episodes: list[tuple[int, EpisodeResult]], config: CollectConfig
+) -> dict[str, np.ndarray]:
     arrays: dict[str, np.ndarray] = {}
-    for table in GROUPS[group][1]:
+    for table in config.tables(group):
         rows = [(e, *row) for e, r in episodes for row in r.rows[table]]
-        d = len(TABLES[table].inputs)
+        d = len(TABLE_SETS[config.table_set][table].inputs)
         arrays[f"{table}_X"] = np.array([x for _, x, _, _ in rows], dtype=np.float64).reshape(-1, d)
         arrays[f"{table}_y"] = np.array([y for _, _, y, _ in rows], dtype=np.float64)
         arrays[f"{table}_episode"] = np.array([e for e, _, _, _ in rows], dtype=np.int64)
@@ -561,7 +599,7 @@ def _group_state(
     out_dir: Path, group: str, seed: int, config: CollectConfig, target: int, fingerprint: str
 ) -> _GroupState:
     counted, index, per = 0, 0, config.episodes_per_chunk
-    count_table = GROUPS[group][1][0]
+    count_table = config.tables(group)[0]
     while (path := chunk_path(out_dir, group, index)).exists():
         arrays = _load_chunk(path, _chunk_meta(group, index, seed, config, fingerprint))
         per_episode = np.bincount(arrays[f"{count_table}_episode"] - index * per, minlength=per)
@@ -696,8 +734,8 @@ def _write_datasets(
             for i in range(math.ceil(n_episodes / config.episodes_per_chunk))
         ]
         stats = _group_stats(chunks, n_episodes)
-        for table in GROUPS[group][1]:
-            spec = TABLES[table]
+        for table in config.tables(group):
+            spec = TABLE_SETS[config.table_set][table]
             kept = {
                 key: np.concatenate([c[f"{table}_{key}"][c[f"{table}_episode"] < n_episodes] for c in chunks])
                 for key in ("X", "y", "episode", "segment")
@@ -789,6 +827,12 @@ def add_collect_parser(subparsers: Any) -> argparse.ArgumentParser:
     )
     parser.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
     parser.add_argument("--workers", type=int, default=2, help="worker processes (default: 2)")
+    parser.add_argument(
+        "--tables",
+        choices=tuple(TABLE_SETS),
+        default="extended",
+        help="which table set's data: 'extended' (both pumps work; the default model) or 'paper' (default: extended)",
+    )
     parser.set_defaults(func=run_collect)
     return parser
 
@@ -796,7 +840,8 @@ def add_collect_parser(subparsers: Any) -> argparse.ArgumentParser:
 def run_collect(args: argparse.Namespace) -> int:
     """Run ``hexgym collect``: collect (resuming), then print the files and their coverage."""
     t0 = time.perf_counter()
-    paths = collect(args.out, samples_per_group=args.samples, seed=args.seed, workers=args.workers)
+    config = CollectConfig(table_set=args.tables)
+    paths = collect(args.out, samples_per_group=args.samples, seed=args.seed, workers=args.workers, config=config)
     print(f"collected in {time.perf_counter() - t0:.0f} s:")
     for table, path in paths.items():
         print(f"{table}: {path}")

@@ -88,12 +88,14 @@ def build_table(
     *,
     holdout_fraction: float = 0.2,
     seed: int = 0,
+    split: tuple[np.ndarray, np.ndarray] | None = None,
     workers: int | None = None,
 ) -> MBLTable:
     """Fit LWR to (X, y), evaluate it on the grid ``axes`` (default :func:`suggest_axes`), measure it.
 
     Metrics: ``loo_rmse_rel`` (exact LOO on all points), ``holdout_rmse_rel`` (LWR fitted without a
-    seeded ``holdout_fraction`` of the points, tested on them), ``grid_rmse_rel`` (table vs direct
+    seeded ``holdout_fraction`` of the points, or the test rows of ``split`` = (train, test) indices,
+    tested on them), ``grid_rmse_rel`` (table vs direct
     LWR at the held-out points, each moved by a random fraction of a grid cell so that the test
     does not sit on nodes), ``grid_min_confidence``, ``n_points``, ``n_nodes``, ``output_range``;
     every ``*_rel`` is divided by ``output_range`` (max - min of y).
@@ -107,7 +109,7 @@ def build_table(
     shape = tuple(len(a) for a in axes)
     table = MBLTable(name, tuple(inputs), output, axes, values.reshape(shape), conf.n_eff.reshape(shape), params)
     span = float(np.ptp(y)) or 1.0
-    train, test = holdout_split(len(y), holdout_fraction, seed)
+    train, test = split if split is not None else holdout_split(len(y), holdout_fraction, seed)
     held = LocallyWeightedRegression(params, workers=workers).fit(X[train], y[train]).predict(X[test])
     probe = _jitter_in_cells(X[test], axes, np.random.default_rng(seed + 1))
     metrics = {

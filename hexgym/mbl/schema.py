@@ -6,6 +6,12 @@ backends build their queries from it, and the native plugin's interface header i
 them with this schema. Adding an input is one edit here plus computing the new quantity where the
 backends gather their quantities.
 
+Two table sets: ``paper``, the paper's four tables (each function's velocity, or the swing's
+acceleration, from its own pump's spools and loads), and ``extended``, which also sees the other
+pump: the pumps' cross-sensing power control makes each pump's delivery depend on both delivery
+pressures, so each pump's pressure is learned as a table of its own and fed, one control period old
+(the regulator's lag allows it), into the other pump's tables.
+
 Quantity names carry their SI unit as a suffix (``_m``, ``_n``, ``_kgm2``, ``_radps``, ``_mps``,
 ``_radps2``); :data:`UNITS` spells them out.
 """
@@ -14,7 +20,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-UNITS = {"_m": "m", "_n": "N", "_kgm2": "kg m^2", "_radps": "rad/s", "_mps": "m/s", "_radps2": "rad/s^2"}
+UNITS = {"_m": "m", "_n": "N", "_kgm2": "kg m^2", "_radps": "rad/s", "_mps": "m/s", "_radps2": "rad/s^2", "_pa": "Pa"}
 
 # Every quantity a table may read, in a fixed order (the plugin's query vector uses this order).
 QUANTITIES = (
@@ -27,17 +33,22 @@ QUANTITIES = (
     "bucket_force_n",
     "swing_inertia_kgm2",
     "swing_rate_radps",
+    "pump1_pressure_pa",
+    "pump2_pressure_pa",
 )
 
 
 @dataclass(frozen=True)
 class TableSchema:
-    """One table: the collection group whose episodes feed it, its inputs (in order) and its output."""
+    """One table: the collection group whose episodes feed it, its inputs (in order), its output, and
+    how collection samples it: ``"window"`` (means over a window ending a held-spool segment) or
+    ``"trajectory"`` (instants along the motion, for outputs that are never steady, as the swing's)."""
 
     name: str
     group: str
     inputs: tuple[str, ...]
     output: str
+    sampling: str = "window"
 
 
 def _tables(*specs: TableSchema) -> dict[str, TableSchema]:
@@ -48,31 +59,36 @@ def _tables(*specs: TableSchema) -> dict[str, TableSchema]:
     return {spec.name: spec for spec in specs}
 
 
-# The paper's four tables (Sec III), in the order the plugin and the files list them.
-TABLES: dict[str, TableSchema] = _tables(
-    TableSchema(
-        "boom", "boom_bucket", ("boom_spool_m", "bucket_spool_m", "boom_force_n", "bucket_force_n"), "boom_velocity_mps"
+_BOOM_BUCKET = ("boom_spool_m", "bucket_spool_m", "boom_force_n", "bucket_force_n")
+_STICK = ("swing_spool_m", "stick_spool_m", "swing_inertia_kgm2", "stick_force_n")
+_SWING = ("swing_spool_m", "stick_spool_m", "stick_force_n", "swing_inertia_kgm2", "swing_rate_radps")
+
+TABLE_SETS: dict[str, dict[str, TableSchema]] = {
+    # The paper's four tables (Sec III), in the order the plugin and the files list them.
+    "paper": _tables(
+        TableSchema("boom", "boom_bucket", _BOOM_BUCKET, "boom_velocity_mps"),
+        TableSchema("bucket", "boom_bucket", _BOOM_BUCKET, "bucket_velocity_mps"),
+        TableSchema("stick", "stick_swing", _STICK, "stick_velocity_mps"),
+        TableSchema("swing", "stick_swing", _SWING, "swing_acceleration_radps2", "trajectory"),
     ),
-    TableSchema(
-        "bucket",
-        "boom_bucket",
-        ("boom_spool_m", "bucket_spool_m", "boom_force_n", "bucket_force_n"),
-        "bucket_velocity_mps",
+    # Each pump's tables also read the other pump's delivery pressure; the pressures are tables too.
+    "extended": _tables(
+        TableSchema("boom", "boom_bucket", (*_BOOM_BUCKET, "pump2_pressure_pa"), "boom_velocity_mps"),
+        TableSchema("bucket", "boom_bucket", (*_BOOM_BUCKET, "pump2_pressure_pa"), "bucket_velocity_mps"),
+        TableSchema("pump1", "boom_bucket", (*_BOOM_BUCKET, "pump2_pressure_pa"), "pump1_pressure_pa"),
+        TableSchema("stick", "stick_swing", (*_STICK, "pump1_pressure_pa"), "stick_velocity_mps"),
+        TableSchema("swing", "stick_swing", (*_SWING, "pump1_pressure_pa"), "swing_acceleration_radps2", "trajectory"),
+        TableSchema(
+            "pump2",
+            "stick_swing",
+            ("swing_spool_m", "stick_spool_m", "stick_force_n", "swing_rate_radps", "pump1_pressure_pa"),
+            "pump2_pressure_pa",
+            "trajectory",
+        ),
     ),
-    TableSchema(
-        "stick",
-        "stick_swing",
-        ("swing_spool_m", "stick_spool_m", "swing_inertia_kgm2", "stick_force_n"),
-        "stick_velocity_mps",
-    ),
-    TableSchema(
-        "swing",
-        "stick_swing",
-        ("swing_spool_m", "stick_spool_m", "stick_force_n", "swing_inertia_kgm2", "swing_rate_radps"),
-        "swing_acceleration_radps2",
-    ),
-)
-TABLE_NAMES = tuple(TABLES)
+}
+DEFAULT_TABLE_SET = "paper"
+TABLES = TABLE_SETS[DEFAULT_TABLE_SET]
 
 
 def unit(quantity: str) -> str:
@@ -83,11 +99,14 @@ def unit(quantity: str) -> str:
     raise ValueError(f"quantity {quantity!r} has no unit suffix")
 
 
-def check_table_schema(source: str, name: str, inputs: tuple[str, ...], output: str) -> None:
-    """Raise ValueError naming ``source`` if table ``name``'s inputs/output differ from the schema's."""
-    if name not in TABLES:
-        raise ValueError(f"{source}: no table named {name!r} in the schema (tables: {', '.join(TABLE_NAMES)})")
-    spec = TABLES[name]
+def check_table_schema(
+    source: str, name: str, inputs: tuple[str, ...], output: str, table_set: str = DEFAULT_TABLE_SET
+) -> None:
+    """Raise ValueError naming ``source`` if table ``name``'s inputs/output differ from ``table_set``'s."""
+    tables = TABLE_SETS[table_set]
+    if name not in tables:
+        raise ValueError(f"{source}: no table named {name!r} in the {table_set!r} tables ({', '.join(tables)})")
+    spec = tables[name]
     if (tuple(inputs), output) == (spec.inputs, spec.output):
         return
     missing = [q for q in spec.inputs if q not in inputs]
@@ -101,4 +120,12 @@ def check_table_schema(source: str, name: str, inputs: tuple[str, ...], output: 
         what.append(f"inputs in the order {list(inputs)} instead of {list(spec.inputs)}")
     if output != spec.output:
         what.append(f"output {output!r} instead of {spec.output!r}")
-    raise ValueError(f"{source}: table {name!r} does not match the schema: {'; '.join(what)}")
+    raise ValueError(f"{source}: table {name!r} does not match the {table_set!r} schema: {'; '.join(what)}")
+
+
+def table_set_of(tables: dict) -> str:
+    """The name of the table set whose tables ``tables`` (a dict by table name) are."""
+    for name, spec in TABLE_SETS.items():
+        if set(tables) == set(spec):
+            return name
+    raise ValueError(f"tables {sorted(tables)} are no table set's ({ {k: list(v) for k, v in TABLE_SETS.items()} })")

@@ -56,7 +56,7 @@ import numpy as np
 
 from hexgym.files import atomic_path
 from hexgym.mbl.lwr_params import LWRParams, as_queries, check_finite
-from hexgym.mbl.schema import TABLE_NAMES, check_table_schema
+from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS, check_table_schema
 
 FORMAT_VERSION = 1
 _UNIFORM_RTOL = 1e-9  # an axis whose steps agree to this is treated as uniform
@@ -252,11 +252,7 @@ class MBLTable:
 
     def content_hash(self) -> str:
         """sha256 of the metadata (canonical JSON) and every array's dtype, shape and bytes."""
-        h = hashlib.sha256(json.dumps(self.metadata(), sort_keys=True).encode())
-        for name, arr in self._arrays().items():
-            h.update(f"{name}|{arr.dtype.str}|{arr.shape}".encode())
-            h.update(np.ascontiguousarray(arr).tobytes())
-        return h.hexdigest()
+        return content_sha256(self.metadata(), self._arrays())
 
     def _arrays(self) -> dict[str, np.ndarray]:
         arrays = {"values": self.values, "confidence": self.confidence}
@@ -274,31 +270,74 @@ class MBLTable:
         return path
 
 
-_META_KEYS = ("format_version", "name", "inputs", "output", "shape", "params", "metrics", "data_hash", "content_sha256")
+# The metadata the content hash covers (MBLTable.metadata), and all the keys a file's metadata has.
+HASHED_META_KEYS = ("data_hash", "format_version", "inputs", "metrics", "name", "output", "params", "shape")
+_META_KEYS = (*HASHED_META_KEYS, "content_sha256")
+
+
+def content_sha256(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> str:
+    """The content hash of a table: sha256 of the metadata's :data:`HASHED_META_KEYS` as canonical JSON
+    (``json.dumps(..., sort_keys=True)``), then for each array in order (``values``, ``confidence``,
+    ``axis_0`` ...) ``"<name>|<dtype>|<shape tuple>"`` and its bytes in C order. The native plugin
+    (``native/mbl_table.cc``) computes the same from the file."""
+    h = hashlib.sha256(json.dumps({k: meta[k] for k in HASHED_META_KEYS}, sort_keys=True).encode())
+    for name, arr in arrays.items():
+        h.update(f"{name}|{arr.dtype.str}|{arr.shape}".encode())
+        h.update(np.ascontiguousarray(arr).tobytes())
+    return h.hexdigest()
 
 
 def load_table(path: str | os.PathLike[str]) -> MBLTable:
-    """Read a table written by :meth:`MBLTable.save`, checking version, shapes and content hash.
+    """Read a table written by :meth:`MBLTable.save`, checking it as the native plugin does.
 
-    Raises FileNotFoundError for a missing file and :class:`TableFileError` (naming the file and
-    the problem) for anything else wrong with it.
+    The rules, in order (``native/mbl_table.cc`` applies the same, so both backends refuse the
+    same files): a zip of ``.npy`` arrays (no pickles) whose ``meta`` is one JSON object; format
+    version; every metadata key; every array present with the shape the metadata gives, dtype
+    float64 (``<f8``) and C order, no other dtype in the file; the content hash
+    (:func:`content_sha256`); finite values; axes of >= 2 strictly increasing nodes; valid LWR
+    parameters. Raises FileNotFoundError for a missing file and :class:`TableFileError` (naming the
+    file and the problem) for anything else wrong with it.
     """
     path = Path(path)
-    if not path.is_file():
+    if not os.path.lexists(path):
         raise FileNotFoundError(f"MBL table file {path} does not exist")
+    if not path.is_file():
+        raise TableFileError(f"MBL table file {path} is not a regular file")
     try:
         with np.load(path, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files}
-        meta = json.loads(str(arrays.pop("meta")[0]))
-    except Exception as exc:  # zip, JSON, pickle-refusal and I/O errors all mean: not a usable table file
+    except Exception as exc:  # zip, pickle-refusal and I/O errors all mean: not a usable table file
         raise TableFileError(f"MBL table file {path} is corrupt or not a table file: {exc}") from exc
-    _check_meta(path, meta, arrays)
+    meta_array = arrays.pop("meta", None)
+    if meta_array is None:
+        raise TableFileError(f"MBL table file {path}: array 'meta' is missing")
+    if meta_array.shape != (1,) or meta_array.dtype.kind != "U":
+        raise TableFileError(f"MBL table file {path}: 'meta' is not one JSON string")
     try:
-        table = MBLTable(
+        meta = json.loads(str(meta_array[0]))
+    except ValueError as exc:
+        raise TableFileError(f"MBL table file {path}: metadata is not valid JSON: {exc}") from exc
+    _check_meta(path, meta, arrays)
+    d = len(meta["inputs"])
+    hashed = {"values": arrays["values"], "confidence": arrays["confidence"]}
+    hashed.update({f"axis_{j}": arrays[f"axis_{j}"] for j in range(d)})
+    if content_sha256(meta, hashed) != meta["content_sha256"]:
+        raise TableFileError(f"MBL table file {path}: content hash mismatch (the file was altered or is corrupt)")
+    for name, arr in hashed.items():
+        if not np.all(np.isfinite(arr)):
+            raise TableFileError(f"MBL table file {path}: array {name!r} holds non-finite numbers")
+    for j in range(d):
+        axis = arrays[f"axis_{j}"]
+        if len(axis) < 2:
+            raise TableFileError(f"MBL table file {path}: axis {j} has fewer than 2 nodes")
+        if not np.all(np.diff(axis) > 0):
+            raise TableFileError(f"MBL table file {path}: axis {j} is not strictly increasing")
+    try:
+        return MBLTable(
             name=meta["name"],
             inputs=tuple(meta["inputs"]),
             output=meta["output"],
-            axes=tuple(arrays[f"axis_{j}"] for j in range(len(meta["inputs"]))),
+            axes=tuple(arrays[f"axis_{j}"] for j in range(d)),
             values=arrays["values"],
             confidence=arrays["confidence"],
             params=LWRParams.from_dict(meta["params"]),
@@ -307,17 +346,14 @@ def load_table(path: str | os.PathLike[str]) -> MBLTable:
         )
     except (ValueError, TypeError, KeyError) as exc:
         raise TableFileError(f"MBL table file {path} holds an invalid table: {exc}") from exc
-    if table.content_hash() != meta["content_sha256"]:
-        raise TableFileError(f"MBL table file {path}: content hash mismatch (the file was altered or is corrupt)")
-    return table
 
 
 def _check_meta(path: Path, meta: Any, arrays: dict[str, np.ndarray]) -> None:
-    """Version, keys and array shapes of a loaded file against its metadata."""
+    """Version, keys and the arrays' shapes, dtypes and order against the metadata."""
     if not isinstance(meta, dict):
         raise TableFileError(f"MBL table file {path}: metadata is not a JSON object")
     version = meta.get("format_version")
-    if version != FORMAT_VERSION:
+    if isinstance(version, bool) or version != FORMAT_VERSION:
         raise TableFileError(
             f"MBL table file {path} has format version {version!r}; this hexgym reads version {FORMAT_VERSION}"
             " (rebuild the table)"
@@ -325,11 +361,18 @@ def _check_meta(path: Path, meta: Any, arrays: dict[str, np.ndarray]) -> None:
     missing = [k for k in _META_KEYS if k not in meta]
     if missing:
         raise TableFileError(f"MBL table file {path}: metadata lacks {missing}")
-    shape = tuple(meta["shape"])
-    d = len(meta["inputs"])
-    expected = {"values": shape, "confidence": shape, **{f"axis_{j}": (shape[j],) for j in range(len(shape))}}
+    inputs, shape = meta["inputs"], meta["shape"]
+    if not isinstance(inputs, list) or not all(isinstance(s, str) for s in inputs):
+        raise TableFileError(f"MBL table file {path}: 'inputs' is not a list of names")
+    if not isinstance(shape, list) or not all(isinstance(n, int) and not isinstance(n, bool) for n in shape):
+        raise TableFileError(f"MBL table file {path}: 'shape' is not a list of whole numbers")
+    if not isinstance(meta["content_sha256"], str):
+        raise TableFileError(f"MBL table file {path}: metadata lacks 'content_sha256'")
+    shape = tuple(shape)
+    d = len(inputs)
     if len(shape) != d:
         raise TableFileError(f"MBL table file {path}: {d} inputs but a {len(shape)}-D shape {shape}")
+    expected = {"values": shape, "confidence": shape, **{f"axis_{j}": (shape[j],) for j in range(d)}}
     for name, want in expected.items():
         if name not in arrays:
             raise TableFileError(f"MBL table file {path}: array {name!r} is missing")
@@ -337,25 +380,35 @@ def _check_meta(path: Path, meta: Any, arrays: dict[str, np.ndarray]) -> None:
             raise TableFileError(
                 f"MBL table file {path}: array {name!r} has shape {arrays[name].shape}, expected {want}"
             )
+    for name, arr in arrays.items():
+        if arr.dtype.str != "<f8":
+            raise TableFileError(f"MBL table file {path}: {name}.npy has dtype {arr.dtype.str}, expected <f8")
+        if not arr.flags.c_contiguous:
+            raise TableFileError(f"MBL table file {path}: {name}.npy is not in C order")
 
 
-def packaged_tables_dir() -> Path:
-    """Where the fitted tables ship inside the package."""
-    return Path(str(resources.files("hexgym") / "mbl_tables"))
+def packaged_tables_dir(table_set: str = DEFAULT_TABLE_SET) -> Path:
+    """Where the fitted tables of ``table_set`` ship inside the package (``hexgym/mbl_tables/<set>``)."""
+    if table_set not in TABLE_SETS:
+        raise ValueError(f"table set must be one of {tuple(TABLE_SETS)}, got {table_set!r}")
+    return Path(str(resources.files("hexgym") / "mbl_tables" / table_set))
 
 
-def table_path(name: str, directory: str | Path | None = None) -> Path:
-    """The file of table ``name`` (in ``directory``, default the packaged tables)."""
-    return Path(directory or packaged_tables_dir()) / f"{name}.npz"
+def table_path(name: str, directory: str | Path | None = None, table_set: str = DEFAULT_TABLE_SET) -> Path:
+    """The file of table ``name`` (in ``directory``, default the packaged tables of ``table_set``)."""
+    return Path(directory or packaged_tables_dir(table_set)) / f"{name}.npz"
 
 
-def load_tables(directory: str | Path | None = None) -> dict[str, MBLTable]:
-    """The schema's tables (default: the packaged ones), each checked by :func:`load_table` and against
-    :mod:`hexgym.mbl.schema`: a file whose inputs or output differ fails naming the file and what differs."""
+def load_tables(directory: str | Path | None = None, table_set: str = DEFAULT_TABLE_SET) -> dict[str, MBLTable]:
+    """The tables of ``table_set`` (from ``directory``, default the packaged ones), each checked by
+    :func:`load_table` and against :mod:`hexgym.mbl.schema`: a file whose inputs or output differ fails
+    naming the file and what differs (e.g. a ``paper`` file where an ``extended`` one is expected)."""
+    if table_set not in TABLE_SETS:
+        raise ValueError(f"table set must be one of {tuple(TABLE_SETS)}, got {table_set!r}")
     tables = {}
-    for name in TABLE_NAMES:
-        path = table_path(name, directory)
+    for name in TABLE_SETS[table_set]:
+        path = table_path(name, directory, table_set)
         table = load_table(path)
-        check_table_schema(str(path), name, table.inputs, table.output)
+        check_table_schema(str(path), name, table.inputs, table.output, table_set)
         tables[name] = table
     return tables

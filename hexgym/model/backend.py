@@ -13,6 +13,7 @@ import os
 import warnings
 from pathlib import Path
 
+from hexgym.mbl.schema import DEFAULT_TABLE_SET
 from hexgym.model.base import LearnedModelBase
 
 BACKENDS = ("auto", "python", "native")
@@ -51,18 +52,19 @@ def make_learned_model(
     backend: str = "auto",
     tables_dir: str | Path | None = None,
     control_period: float | None = None,
+    table_set: str = DEFAULT_TABLE_SET,
 ) -> LearnedModelBase:
     """The learned model on ``backend`` ("native", "python" or "auto"), on the lean machine.
 
-    ``tables_dir``: other tables than the packaged ones (both backends read the same files).
+    ``table_set``: "extended" or "paper" (:mod:`hexgym.mbl.schema`); ``tables_dir``: other tables of
+    that set than the packaged ones (both backends read the same files).
     """
     backend = resolve_backend(backend)
     if backend == "native":
         from hexgym.model.native_backend import NativeLearnedModel
 
-        return NativeLearnedModel(tables_dir=tables_dir, control_period=control_period)
+        return NativeLearnedModel(tables_dir=tables_dir, control_period=control_period, table_set=table_set)
     from hexgym.mbl.table import load_tables
     from hexgym.model.python_backend import LearnedModel
 
-    tables = load_tables(tables_dir) if tables_dir is not None else None
-    return LearnedModel(tables=tables, control_period=control_period)
+    return LearnedModel(tables=load_tables(tables_dir, table_set), control_period=control_period)

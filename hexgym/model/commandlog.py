@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hexgym.files import atomic_path
+from hexgym.files import atomic_path, check_input_file
 from hexgym.machine import parameters as p
 
 COLUMNS = ("t", "swing", "boom", "stick", "bucket")
@@ -42,17 +42,19 @@ class CommandLog:
         return float(self.t[-1])
 
 
+MAX_ROWS = 1_000_000  # rows a command log may have (~40 MB of CSV): more is refused before it fills memory
+
+
 def validate_commands(t: np.ndarray, spools_mm: np.ndarray, source: str = "command log") -> None:
     """Raise ValueError naming the row and column of the first problem in a command table."""
     t, u = np.asarray(t, dtype=float), np.asarray(spools_mm, dtype=float)
     if t.ndim != 1 or t.size == 0 or u.shape != (t.size, 4):
         raise ValueError(f"{source}: need n >= 1 times and an (n, 4) spool table, got {t.shape} and {u.shape}")
     for row in range(t.size):
-        _check_row(source, row + 1, t[row], u[row], t[row - 1] if row else None)
+        _check_row(f"{source}: row {row + 1}", t[row], u[row], t[row - 1] if row else None)
 
 
-def _check_row(source: str, row: int, t: float, spools: np.ndarray, previous: float | None) -> None:
-    where = f"{source}: row {row}"
+def _check_row(where: str, t: float, spools: np.ndarray, previous: float | None) -> None:
     if not math.isfinite(t):
         raise ValueError(f"{where}, column 't': {t} is not a finite time")
     if previous is None and t != 0.0:
@@ -69,45 +71,71 @@ def _check_row(source: str, row: int, t: float, spools: np.ndarray, previous: fl
 
 
 def read_command_log(path: str | Path) -> CommandLog:
-    """Read and check a command log CSV (header ``t,swing,boom,stick,bucket``, any column order)."""
-    path = Path(path)
-    with path.open(newline="") as f:
-        reader = csv.reader(f)
-        header = [h.strip() for h in next(reader, [])]
-        index = _column_index(path, header)
-        t, spools = [], []
-        for row_no, fields in enumerate(reader, start=1):
-            if not fields or all(not x.strip() for x in fields):
-                continue  # blank line
-            values = [_number(path, row_no, name, fields, i) for name, i in index.items()]
-            t.append(values[0])
-            spools.append(values[1:])
+    """Read and check a command log CSV (header ``t,swing,boom,stick,bucket``, any column order).
+
+    The file must be UTF-8 text (a byte-order mark, as Excel's "CSV UTF-8" writes, is allowed). Blank
+    lines are skipped; errors name the row (data rows counted from 1, blank lines not counted) and
+    the file's line. Every problem is a ValueError (FileNotFoundError for a missing file) naming the
+    file: a directory, an unreadable or binary file, a header without the five columns, a row with
+    more or fewer fields than the header, a value that is no finite number, times that do not start
+    at 0 or do not ascend, a spool beyond the stroke, more than :data:`MAX_ROWS` rows.
+    """
+    path = check_input_file(path, "command log")
+    t: list[float] = []
+    spools: list[list[float]] = []
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as f:
+            reader = csv.reader(f)
+            header = [h.strip() for h in next(reader, [])]
+            index = _column_index(path, header)
+            for fields in reader:
+                if not fields or all(not x.strip() for x in fields):
+                    continue  # blank line
+                where = f"{path}: row {len(t) + 1} (line {reader.line_num})"
+                if len(fields) != len(header):
+                    raise ValueError(f"{where}: {len(fields)} fields, the header has {len(header)}")
+                if len(t) >= MAX_ROWS:
+                    raise ValueError(f"{path}: more than {MAX_ROWS} rows; split the log")
+                values = [_number(where, name, fields, i) for name, i in index.items()]
+                _check_row(where, values[0], np.array(values[1:]), t[-1] if t else None)
+                t.append(values[0])
+                spools.append(values[1:])
+    except UnicodeDecodeError as exc:
+        raise ValueError(
+            f"{path}: not a UTF-8 text file (byte 0x{exc.object[exc.start]:02x} at offset {exc.start}); "
+            f"a command log is a CSV file with the header {','.join(COLUMNS)}"
+        ) from None
+    except csv.Error as exc:
+        raise ValueError(f"{path}: not a readable CSV file ({exc})") from None
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot be read ({exc.strerror or exc})") from None
     if not t:
         raise ValueError(f"{path}: the command log has a header but no rows")
-    log_t, log_u = np.array(t), np.array(spools)
-    validate_commands(log_t, log_u, source=str(path))
-    return CommandLog(log_t, log_u)
+    return CommandLog(np.array(t), np.array(spools))
 
 
 def _column_index(path: Path, header: list[str]) -> dict[str, int]:
-    if not header:
+    if not header or header == [""]:
         raise ValueError(f"{path}: empty file; expected the header {','.join(COLUMNS)}")
     missing = [c for c in COLUMNS if c not in header]
     if missing:
-        raise ValueError(f"{path}: missing column(s) {', '.join(missing)}; expected {','.join(COLUMNS)}")
+        raise ValueError(
+            f"{path}: missing column(s) {', '.join(missing)} in the header {','.join(header)[:80]!r}; "
+            f"expected {','.join(COLUMNS)}"
+        )
     extra = [h for h in header if h not in COLUMNS]
     if extra or len(header) != len(COLUMNS):
         raise ValueError(f"{path}: unexpected or repeated column(s) {extra or header}; expected {','.join(COLUMNS)}")
     return {c: header.index(c) for c in COLUMNS}
 
 
-def _number(path: Path, row: int, name: str, fields: list[str], i: int) -> float:
+def _number(where: str, name: str, fields: list[str], i: int) -> float:
     if i >= len(fields) or not fields[i].strip():
-        raise ValueError(f"{path}: row {row}, column {name!r}: value missing")
+        raise ValueError(f"{where}, column {name!r}: value missing")
     try:
         return float(fields[i])
     except ValueError:
-        raise ValueError(f"{path}: row {row}, column {name!r}: {fields[i]!r} is not a number") from None
+        raise ValueError(f"{where}, column {name!r}: {fields[i][:40]!r} is not a number") from None
 
 
 def write_command_log(path: str | Path, log: CommandLog) -> None:

@@ -21,21 +21,26 @@ from hexgym.hydraulics.circuit import validate_spools
 from hexgym.machine import kinematics
 from hexgym.machine.assets import AssetError, asset_path
 from hexgym.machine.physics import ExcavatorPhysics, contiguous_index
+from hexgym.mbl.schema import DEFAULT_TABLE_SET
 from hexgym.model.base import LearnedModelBase
 from hexgym.model.plugin import CTRL_PER_SPOOL_M, STATE, STATE_SIZE, plugin_config_values, require_plugin
 
 
 def load_mbl_model(
-    tables_dir: str | Path | None = None, control_period: float | None = None, full: bool = False
+    tables_dir: str | Path | None = None,
+    control_period: float | None = None,
+    full: bool = False,
+    table_set: str = DEFAULT_TABLE_SET,
 ) -> mujoco.MjModel:
     """The lean machine driven by the plugin (the packaged ``cat325_mbl.xml``, or one generated for
-    other tables or another control period); ``full``: the full machine (``cat325_mbl_full.xml``).
+    other tables, another table set or another control period); ``full``: the full machine
+    (``cat325_mbl_full.xml``).
 
     Table files the plugin cannot use fail the compile with a message naming the file and the
     problem: ValueError (AssetError for the packaged model).
     """
     require_plugin()
-    if tables_dir is None and control_period is None:
+    if tables_dir is None and control_period is None and table_set == DEFAULT_TABLE_SET:
         path = asset_path("cat325_mbl_full.xml" if full else "cat325_mbl.xml")
         try:
             return mujoco.MjModel.from_xml_path(str(path))
@@ -45,7 +50,7 @@ def load_mbl_model(
 
     if tables_dir is not None and not Path(tables_dir).is_dir():
         raise FileNotFoundError(f"MBL table directory {tables_dir} does not exist")
-    spec = mujoco.MjSpec.from_string(mbl_model_xml(tables_dir, control_period, full=full))
+    spec = mujoco.MjSpec.from_string(mbl_model_xml(tables_dir, control_period, full=full, table_set=table_set))
     spec.meshdir = str(asset_path("cat325_lean.xml").parent / "meshes")
     return spec.compile()
 
@@ -71,10 +76,11 @@ class NativeLearnedModel(LearnedModelBase):
         tables_dir: str | Path | None = None,
         model: mujoco.MjModel | None = None,
         control_period: float | None = None,
+        table_set: str = DEFAULT_TABLE_SET,
     ) -> None:
         require_plugin()
         if model is None:
-            model = load_mbl_model(tables_dir, control_period)
+            model = load_mbl_model(tables_dir, control_period, table_set=table_set)
         self.physics = ExcavatorPhysics(model)
         m = self.physics.model
         self._ctrl = np.array([m.actuator(n).id for n in kinematics.JOINTS])

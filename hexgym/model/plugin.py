@@ -24,7 +24,7 @@ import numpy as np
 
 from hexgym.files import atomic_path
 from hexgym.machine import kinematics
-from hexgym.mbl.schema import QUANTITIES, TABLES
+from hexgym.mbl.schema import DEFAULT_TABLE_SET, QUANTITIES, TABLE_SETS
 from hexgym.mbl.table import FORMAT_VERSION
 
 PLUGIN_NAME = "hexgym.mbl"
@@ -45,6 +45,7 @@ CONFIG_KEYS: dict[str, str] = {
     "swing_rest_rate": "rad/s",
     "rate_range": "lo hi per joint, rad/s (the Python path's servo ctrlrange)",
     "control_period": "s between table queries, >= one step (default: one step)",
+    "table_set": "which table set the tables directory holds: paper or extended (default: the default set)",
 }
 # Plugin state slots (mjSTATE_PLUGIN, so mj_getState/mj_setState restore a step exactly): name -> size.
 STATE_SLOTS: dict[str, int] = {
@@ -52,6 +53,7 @@ STATE_SLOTS: dict[str, int] = {
     "acceleration": 1,  # the swing table's last acceleration, rad/s^2
     "phase": 1,  # steps since the last table query, less whole control periods
     "targets": 4,  # the joint-rate targets held until the next query (the swing's unclipped)
+    "pressures": 2,  # the pump pressure tables' last outputs, Pa (extended tables; else 0)
 }
 _PACKAGE_DIR = Path(__file__).resolve().parents[1]  # the build puts the library into the hexgym package
 HEADER = Path("native") / "plugin_interface.h"  # relative to the repository root
@@ -79,7 +81,11 @@ def interface() -> dict:
         "state": {name: [STATE[name], size] for name, size in STATE_SLOTS.items()},
         "state_size": STATE_SIZE,
         "quantities": list(QUANTITIES),
-        "tables": [{"name": s.name, "inputs": list(s.inputs), "output": s.output} for s in TABLES.values()],
+        "table_sets": {
+            set_name: [{"name": s.name, "inputs": list(s.inputs), "output": s.output} for s in tables.values()]
+            for set_name, tables in TABLE_SETS.items()
+        },
+        "default_table_set": DEFAULT_TABLE_SET,
         "table_format_version": FORMAT_VERSION,
     }
 
@@ -135,18 +141,24 @@ def header_text() -> str:
         *[f"    {quote(q)}," for q in QUANTITIES],
         "};",
         "",
-        f"constexpr int kMaxTableInputs = {max(len(s.inputs) for s in TABLES.values())};",
+        f"constexpr int kMaxTableInputs = {max(len(s.inputs) for t in TABLE_SETS.values() for s in t.values())};",
         "struct TableSchema {",
         "  const char* name;",
         "  int num_inputs;",
         "  Quantity inputs[kMaxTableInputs];",
         "  const char* output;",
         "};",
-        f"constexpr int kNumTables = {len(TABLES)};",
-        "constexpr TableSchema kTables[kNumTables] = {",
-        *[_table_row(s.name, s.inputs, s.output) for s in TABLES.values()],
+        *[line for name, tables in TABLE_SETS.items() for line in _table_set_lines(name, tables)],
+        "struct TableSet {",
+        "  const char* name;",
+        "  int num_tables;",
+        "  const TableSchema* tables;",
         "};",
-        *[f"constexpr int kTable{_camel(name)} = {i};" for i, name in enumerate(TABLES)],
+        f"constexpr int kNumTableSets = {len(TABLE_SETS)};",
+        "constexpr TableSet kTableSets[kNumTableSets] = {",
+        *[f"    {{{json.dumps(n)}, {len(t)}, k{_camel(n)}Tables}}," for n, t in TABLE_SETS.items()],
+        "};",
+        f"constexpr char kDefaultTableSet[] = {quote(DEFAULT_TABLE_SET)};",
         "",
         "// All of the above as JSON, returned by hexgym_mbl_interface() for the Python side's check",
         f"constexpr char kInterfaceJson[] = {quote(interface_json())};",
@@ -157,6 +169,14 @@ def header_text() -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def _table_set_lines(name: str, tables: dict) -> list[str]:
+    return [
+        f"constexpr TableSchema k{_camel(name)}Tables[] = {{",
+        *[_table_row(s.name, s.inputs, s.output) for s in tables.values()],
+        "};",
+    ]
 
 
 def _table_row(name: str, inputs: tuple[str, ...], output: str) -> str:

@@ -34,6 +34,7 @@ from hexgym.files import atomic_path
 from hexgym.machine import kinematics, mjcf
 from hexgym.machine import parameters as p
 from hexgym.machine.assets import assets_dir
+from hexgym.mbl.schema import DEFAULT_TABLE_SET
 from hexgym.model.base import END_MARGIN, PULL_LIMIT, PUSH_LIMIT, STROKES, SWING_REST_RATE
 from hexgym.model.plugin import CONFIG_KEYS, CTRL_PER_SPOOL_M, PLUGIN_NAME
 
@@ -126,8 +127,8 @@ def _actuators(lean: bool = True) -> str:
     return "\n".join([*lines, "  </actuator>"])
 
 
-def _extension(tables_dir: str | Path | None, control_period: float | None, lean: bool) -> str:
-    config = plugin_config(lean)
+def _extension(tables_dir: str | Path | None, control_period: float | None, lean: bool, table_set: str) -> str:
+    config = plugin_config(lean) | {"table_set": table_set}
     if tables_dir is not None:
         config = {"tables": str(Path(tables_dir).resolve()), **config}
     if control_period is not None:
@@ -142,7 +143,12 @@ def _extension(tables_dir: str | Path | None, control_period: float | None, lean
     )
 
 
-def mbl_model_xml(tables_dir: str | Path | None = None, control_period: float | None = None, full: bool = False) -> str:
+def mbl_model_xml(
+    tables_dir: str | Path | None = None,
+    control_period: float | None = None,
+    full: bool = False,
+    table_set: str = DEFAULT_TABLE_SET,
+) -> str:
     """The text of ``cat325_mbl.xml`` (``full``: ``cat325_mbl_full.xml``).
 
     ``tables_dir``: other tables than the packaged ones; ``control_period``: seconds between
@@ -161,7 +167,7 @@ def mbl_model_xml(tables_dir: str | Path | None = None, control_period: float | 
         f"       The {which} machine driven by the native hexgym.mbl plugin (hexgym/model/plugin_mjcf.py). -->",
         1,
     )
-    text = text.replace("  <default>\n", _extension(tables_dir, control_period, lean) + "  <default>\n", 1)
+    text = text.replace("  <default>\n", _extension(tables_dir, control_period, lean, table_set) + "  <default>\n", 1)
     defaults = _defaults(_servos(lean))
     text = re.sub(r"^  </default>$", lambda _: defaults + "\n  </default>", text, count=1, flags=re.M)
     text, count = re.subn(r"  <actuator>.*?</actuator>", lambda _: _actuators(lean), text, count=1, flags=re.S)

@@ -30,7 +30,7 @@ from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.machine.assets import load_model
 from hexgym.machine.physics import ExcavatorPhysics
-from hexgym.mbl.schema import TABLES
+from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS, table_set_of
 from hexgym.mbl.table import MBLTable, load_tables
 from hexgym.model.base import END_MARGIN, PULL_LIMIT, PUSH_LIMIT, STROKES, SWING_REST_RATE, LearnedModelBase
 
@@ -39,11 +39,14 @@ class LearnedModel(LearnedModelBase):
     """MuJoCo linkage driven by the MBL tables, in Python.
 
     Args:
-        tables: the four tables (default: the packaged ones, :func:`hexgym.mbl.table.load_tables`).
+        tables: the tables of one table set (default: the packaged ones of ``table_set``,
+            :func:`hexgym.mbl.table.load_tables`).
         model: a compiled machine or scene model with joint-rate servo actuators (default: the lean
             machine, ``assets/cat325_lean.xml``, whose step is the control period).
         control_period: seconds between table queries; a multiple of the MuJoCo step (default:
             one step).
+        table_set: ``"extended"`` (each pump's tables see the other pump's pressure, learned as a table
+            of its own) or ``"paper"`` (the paper's four tables); with ``tables``, the set they form.
     """
 
     def __init__(
@@ -51,11 +54,16 @@ class LearnedModel(LearnedModelBase):
         tables: dict[str, MBLTable] | None = None,
         model: mujoco.MjModel | None = None,
         control_period: float | None = None,
+        table_set: str | None = None,
     ) -> None:
         self.physics = ExcavatorPhysics(model if model is not None else load_model(lean=True))
         if control_period is None:
             control_period = self.physics.timestep
-        self.tables = tables if tables is not None else load_tables()
+        if tables is None:
+            tables = load_tables(table_set=table_set or DEFAULT_TABLE_SET)
+        self.table_set = table_set_of(tables)
+        self.tables = tables
+        self._schema = TABLE_SETS[self.table_set]
         self._substeps = int(round(control_period / self.physics.timestep))
         if self._substeps < 1 or abs(self._substeps * self.physics.timestep - control_period) > 1e-9:
             raise ValueError(f"control_period must be a multiple of the model step, got {control_period}")
@@ -63,7 +71,8 @@ class LearnedModel(LearnedModelBase):
         self.spools_m = np.zeros(4)
         self._swing_acceleration = 0.0
         self._swing_rate_target = 0.0
-        rate_axis = self.tables["swing"].axes[-1]  # the swing table's last input is the swing rate
+        self._pressures = (0.0, 0.0)  # the pump pressure tables' last outputs, Pa (extended tables)
+        rate_axis = tables["swing"].axes[tables["swing"].inputs.index("swing_rate_radps")]
         self._slowest_swing, self._fastest_swing = rate_axis[0], rate_axis[-1]
         self._constraint_load = np.zeros(self.physics.model.nv)  # see _step_physics
         m = self.physics.model
@@ -87,6 +96,7 @@ class LearnedModel(LearnedModelBase):
         self.spools_m = np.zeros(4)
         self._swing_acceleration = 0.0
         self._swing_rate_target = 0.0
+        self._pressures = (0.0, 0.0)
         self.physics.set_actuator_targets(np.zeros(4))
         self._constraint_load[:] = 0.0
         self._step_physics(1)  # one step so the constraint forces (part of the loads) exist
@@ -172,10 +182,14 @@ class LearnedModel(LearnedModelBase):
             "swing_spool_m": u_swing, "boom_spool_m": u_boom, "stick_spool_m": u_stick, "bucket_spool_m": u_bucket,
             "boom_force_n": f_boom, "stick_force_n": f_stick, "bucket_force_n": f_bucket,
             "swing_inertia_kgm2": inertia, "swing_rate_radps": rate,
+            "pump1_pressure_pa": self._pressures[0], "pump2_pressure_pa": self._pressures[1],
         }  # fmt: skip
 
         def table(name: str) -> float:  # the table at its schema inputs
-            return self.tables[name](tuple(q[i] for i in TABLES[name].inputs))
+            return self.tables[name](tuple(q[i] for i in self._schema[name].inputs))
+
+        if "pump1" in self._schema:  # the pumps' pressures for the next period, from this period's inputs
+            self._pressures = (table("pump1"), table("pump2"))
 
         # a spool in its dead band blocks its cylinder's ports: the cylinder holds (no table noise)
         v_boom = 0.0 if closed[1] else table("boom")
