@@ -1,9 +1,20 @@
-"""Atomic file output: a reader sees the old file or the complete new one, never half of one."""
+"""File output and input checks: atomic writes, and paths refused up front, before any work.
+
+Atomic output: a reader sees the old file or the complete new one, never half of one, and a failed
+write (full disk, an exception) leaves the old file as it was. :func:`check_output_file` and
+:func:`check_output_dir` refuse, before a command starts its work, an output that could not be
+written: a directory where a file goes (or a file where a directory goes), a path under a file, a
+read-only file or directory, an output that is also one of the command's inputs.
+:func:`check_input_file` refuses an input that is missing, a directory or unreadable. A path is
+read-only when this user may not write it or when it has no write permission bits at all (so a file
+marked read-only is respected even by root); unreadable likewise.
+"""
 
 from __future__ import annotations
 
 import json
 import os
+import stat
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -45,3 +56,105 @@ def save_figure(fig: object, path: str | Path, dpi: int = 90) -> Path:
         fig.savefig(tmp, dpi=dpi)
     plt.close(fig)
     return Path(path)
+
+
+class PathError(ValueError):
+    """An input or output path that cannot be used; the message names the path and the problem."""
+
+
+def _nearest_existing(path: Path) -> Path:
+    """``path`` or its nearest ancestor that exists (as a link, a file or a directory)."""
+    while not os.path.lexists(path) and path != path.parent:
+        path = path.parent
+    return path
+
+
+def _may_write(path: Path) -> bool:
+    return os.access(path, os.W_OK) and bool(path.stat().st_mode & (stat.S_IWUSR | stat.S_IWGRP | stat.S_IWOTH))
+
+
+def _may_read(path: Path) -> bool:
+    return os.access(path, os.R_OK) and bool(path.stat().st_mode & (stat.S_IRUSR | stat.S_IRGRP | stat.S_IROTH))
+
+
+def _check_parents(path: Path, what: str) -> None:
+    """The folder that will hold ``path`` exists or can be made, and may be written."""
+    existing = _nearest_existing(path.parent)
+    if not existing.is_dir():
+        raise PathError(f"{what} {path}: {existing} is a file, not a directory")
+    if not (_may_write(existing) and os.access(existing, os.X_OK)):
+        raise PathError(f"{what} {path}: cannot write in {existing} (read-only)")
+
+
+def _same(a: Path, b: Path) -> bool:
+    try:
+        return a.resolve() == b.resolve() or (a.exists() and b.exists() and os.path.samefile(a, b))
+    except OSError:
+        return False
+
+
+def check_output_file(
+    path: str | os.PathLike[str],
+    what: str = "output",
+    inputs: tuple[str | os.PathLike[str] | None, ...] = (),
+    source_what: str = "an input or another output",
+) -> Path:
+    """``path`` as a Path, or :class:`PathError` if a file cannot be written there (see the module).
+
+    ``inputs``: the command's other files (its inputs and its other outputs), which ``path`` must not be.
+    """
+    path = Path(path)
+    if str(path) == "" or path.name in ("", ".", ".."):
+        raise PathError(f"{what} {str(path)!r}: not a file name")
+    if path.is_dir():
+        raise PathError(f"{what} {path} is a directory; give a file name")
+    if os.path.lexists(path) and not path.is_file():
+        raise PathError(f"{what} {path} exists and is not a regular file")
+    for source in inputs:
+        if source is not None and _same(path, Path(source)):
+            raise PathError(f"{what} {path} is also {source_what} of this command; one would destroy the other")
+    _check_parents(path, what)
+    if path.is_file() and not _may_write(path):
+        raise PathError(f"{what} {path} is read-only; hexgym does not replace it")
+    return path
+
+
+def check_output_dir(path: str | os.PathLike[str], what: str = "output directory") -> Path:
+    """``path`` as a Path, or :class:`PathError` if files cannot be written in it (see the module)."""
+    path = Path(path)
+    if str(path) == "":
+        raise PathError(f"{what}: empty path")
+    if os.path.lexists(path) and not path.is_dir():
+        raise PathError(f"{what} {path} is a file, not a directory")
+    if path.is_dir():
+        if not (_may_write(path) and os.access(path, os.X_OK)):
+            raise PathError(f"{what} {path} is read-only")
+        return path
+    _check_parents(path / "x", what)
+    return path
+
+
+def check_input_file(path: str | os.PathLike[str], what: str = "input file") -> Path:
+    """``path`` as a Path: an existing, readable regular file (FileNotFoundError or :class:`PathError`)."""
+    path = Path(path)
+    if not os.path.lexists(path):
+        raise FileNotFoundError(f"{what} {path} does not exist")
+    if path.is_dir():
+        raise PathError(f"{what} {path} is a directory, not a file")
+    if not path.is_file():
+        raise PathError(f"{what} {path} is not a regular file (a broken link, a device or a pipe)")
+    if not _may_read(path):
+        raise PathError(f"{what} {path} is not readable (permission denied)")
+    return path
+
+
+def check_input_dir(path: str | os.PathLike[str], what: str = "input directory") -> Path:
+    """``path`` as a Path: an existing, readable directory (FileNotFoundError or :class:`PathError`)."""
+    path = Path(path)
+    if not os.path.lexists(path):
+        raise FileNotFoundError(f"{what} {path} does not exist")
+    if not path.is_dir():
+        raise PathError(f"{what} {path} is a file, not a directory")
+    if not (_may_read(path) and os.access(path, os.X_OK)):
+        raise PathError(f"{what} {path} is not readable (permission denied)")
+    return path

@@ -7,6 +7,7 @@
 
 #include "json.h"
 #include "npz.h"
+#include "sha256.h"
 
 namespace hexgym {
 namespace {
@@ -18,6 +19,32 @@ std::string Join(const std::vector<std::string>& names) {
   std::string s = "[";
   for (size_t i = 0; i < names.size(); ++i) s += (i ? ", " : "") + names[i];
   return s + "]";
+}
+
+// Python's repr of a shape tuple: "(3,)", "(23, 23, 4)".
+std::string TupleText(const std::vector<long>& dims) {
+  std::string out = "(";
+  for (size_t j = 0; j < dims.size(); ++j) out += (j ? ", " : "") + std::to_string(dims[j]);
+  return out + (dims.size() == 1 ? ",)" : ")");
+}
+
+// The metadata keys the content hash covers (hexgym.mbl.table.HASHED_META_KEYS).
+const char* const kHashedMetaKeys[] = {"data_hash", "format_version", "inputs", "metrics",
+                                       "name",      "output",         "params", "shape"};
+
+// hexgym.mbl.table.content_sha256: sha256 of the metadata's canonical JSON, then for each array
+// "<name>|<f8|<shape tuple>" and its bytes (values, confidence, axis_0 ...).
+std::string ContentHash(const Json& meta, const std::vector<std::pair<std::string, const NpyArray*>>& arrays) {
+  Json hashed;
+  hashed.type = Json::kObject;
+  for (const char* key : kHashedMetaKeys) hashed.members.emplace_back(key, *meta.Member(key));
+  Sha256 sha;
+  sha.Update(hashed.Canonical());
+  for (const auto& [name, a] : arrays) {
+    sha.Update(name + "|<f8|" + TupleText(a->shape));
+    sha.Update(a->f8.data(), a->f8.size() * sizeof(double));  // little-endian, as '<f8' is
+  }
+  return sha.HexDigest();
 }
 
 }  // namespace
@@ -69,9 +96,18 @@ MblTable::MblTable(const std::string& path, const std::string& name, const std::
   }
   d_ = static_cast<int>(inputs.size());
   if (d_ < 1 || d_ > kMaxDims) throw TableError(where + ": tables of 1 to 8 inputs are supported");
+  for (const char* key : kHashedMetaKeys) {
+    if (!meta.Member(key)) throw TableError(where + ": metadata lacks '" + key + "'");
+  }
+  const Json* content_hash = meta.Member("content_sha256");
+  if (!content_hash || content_hash->type != Json::kString) throw TableError(where + ": metadata lacks 'content_sha256'");
   const NpyArray& values = array("values");
   std::vector<long> shape;
-  for (int j = 0; j < d_; ++j) shape.push_back(static_cast<long>(array("axis_" + std::to_string(j)).f8.size()));
+  for (int j = 0; j < d_; ++j) {
+    const NpyArray& axis = array("axis_" + std::to_string(j));
+    if (axis.shape.size() != 1) throw TableError(where + ": array 'axis_" + std::to_string(j) + "' is not 1-D");
+    shape.push_back(static_cast<long>(axis.f8.size()));
+  }
   if (values.shape != shape || values.descr != "<f8") {
     auto text = [](const std::vector<long>& dims) {
       std::string out = "(";
@@ -81,8 +117,28 @@ MblTable::MblTable(const std::string& path, const std::string& name, const std::
     throw TableError(where + ": 'values' has shape " + text(values.shape) + " dtype " + values.descr +
                      "; its axes need shape " + text(shape) + " dtype <f8");
   }
-  for (double v : values.f8) {
-    if (!std::isfinite(v)) throw TableError(where + ": 'values' holds a non-finite number");
+  const Json* meta_shape = meta.Member("shape");
+  std::vector<long> declared;
+  if (meta_shape->type == Json::kArray) {
+    for (const Json& n : meta_shape->items) declared.push_back(n.type == Json::kNumber ? static_cast<long>(n.number) : -1);
+  }
+  if (declared != shape) {
+    throw TableError(where + ": array 'values' has shape " + TupleText(shape) + ", expected " + TupleText(declared));
+  }
+  const NpyArray& confidence = array("confidence");
+  if (confidence.shape != shape) {
+    throw TableError(where + ": array 'confidence' has shape " + TupleText(confidence.shape) + ", expected " +
+                     TupleText(shape));
+  }
+  std::vector<std::pair<std::string, const NpyArray*>> hashed = {{"values", &values}, {"confidence", &confidence}};
+  for (int j = 0; j < d_; ++j) hashed.emplace_back("axis_" + std::to_string(j), &array("axis_" + std::to_string(j)));
+  if (ContentHash(meta, hashed) != content_hash->text) {
+    throw TableError(where + ": content hash mismatch (the file was altered or is corrupt)");
+  }
+  for (const auto& [key, a] : hashed) {
+    for (double v : a->f8) {
+      if (!std::isfinite(v)) throw TableError(where + ": array '" + key + "' holds non-finite numbers");
+    }
   }
   values_ = values.f8;
   long stride = 1;
@@ -92,7 +148,7 @@ MblTable::MblTable(const std::string& path, const std::string& name, const std::
     if (a.size() < 2) throw TableError(where + ": axis " + std::to_string(j) + " has fewer than 2 nodes");
     for (size_t i = 0; i < a.size(); ++i) {
       if (!std::isfinite(a[i]) || (i && !(a[i] > a[i - 1]))) {
-        throw TableError(where + ": axis " + std::to_string(j) + " is not finite and strictly increasing");
+        throw TableError(where + ": axis " + std::to_string(j) + " is not strictly increasing");
       }
     }
     Axis& ax = axes_[j];

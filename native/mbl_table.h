@@ -20,7 +20,8 @@ class TableError : public std::runtime_error {
 
 class MblTable {
  public:
-  // Read `path`, checking format version, table name, input names (in order), output name and shapes.
+  // Read `path`, checking (as hexgym.mbl.table.load_table does) format version, table name, input names
+  // (in order), output name, shapes, dtypes, the content hash and finite values.
   MblTable(const std::string& path, const std::string& name, const std::vector<std::string>& inputs,
            const std::string& output);
 

@@ -77,8 +77,8 @@ def test_bad_inputs_give_clear_errors(tmp_path, capsys):
 
 
 def test_normalizer_path_names():
-    assert normalizer_path("run/model.zip").name == "model_vecnormalize.pkl"
-    assert normalizer_path("ckpt/rl_model_2000_steps.zip").name == "rl_model_vecnormalize_2000_steps.pkl"
+    assert normalizer_path("run/model.zip").name == "model_vecnormalize.json"
+    assert normalizer_path("ckpt/rl_model_2000_steps.zip").name == "rl_model_vecnormalize_2000_steps.json"
 
 
 @pytest.mark.skipif(not SHIPPED_POLICY.is_file(), reason="no shipped policy in this checkout")

@@ -10,7 +10,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from hexgym.agents.scripted import run_scripted
-from hexgym.envs.loading import HexLoadingEnv
+from hexgym.checks import check_positive, check_seed
+from hexgym.envs.loading import STEP_PERIOD, HexLoadingEnv
+from hexgym.files import check_output_dir, check_output_file
 
 DEMO_DURATION = 60.0  # s of simulated time: two loading cycles
 DEMO_SEED = 0
@@ -31,10 +33,16 @@ def run_demo(
     """
     from hexgym.machine.render import write_mp4, write_png
 
+    if check_positive("seconds", duration, "s") < STEP_PERIOD:
+        raise ValueError(f"seconds must be at least one control step ({STEP_PERIOD} s), got {duration}")
+    check_seed("seed", seed)
+    if fps is not None:
+        check_positive("fps", fps)
+    check_output_dir(out_dir, "demo output directory")
+    for name in ("demo.mp4", "demo.png"):
+        check_output_file(Path(out_dir) / name, "demo output")
     env = HexLoadingEnv(render_mode="rgb_array", width=width, height=height, time_limit=max(duration, 0.1))
     fps = float(fps) if fps is not None else float(env.metadata["render_fps"])
-    if not fps > 0:
-        raise ValueError(f"fps must be > 0, got {fps}")
     frames: list = []
     metrics = run_scripted(env, seed=seed, seconds=duration, frames=frames)
     env.close()

@@ -2,16 +2,14 @@
 
 A policy is ``"scripted"`` (:class:`hexgym.agents.scripted.ScriptedLoader`), ``"shipped"`` (the
 trained agent packaged in ``hexgym/policies``) or the path of a Stable-Baselines3 ``.zip`` saved by
-``hexgym train`` (its VecNormalize statistics beside it). Every figure comes from the environment's
+``hexgym train`` (its observation normaliser beside it, ``<stem>_vecnormalize.json``). Policy files
+are read without unpickling anything (:mod:`hexgym.agents.policy_files`). Every figure comes from the environment's
 ``info`` stream (``truck_kg``, ``spilled_kg``, ``fuel_l``, ``pile_kg``), so all policies are measured
 the same way, whatever their internals.
 """
 
 from __future__ import annotations
 
-import pickle
-import re
-import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,8 +18,17 @@ from typing import Any, Protocol
 import gymnasium as gym
 import numpy as np
 
+from hexgym.agents.policy_files import (
+    ObsNormalizer,
+    PolicyFileError,
+    load_normalizer,
+    load_sb3_model,
+    normalizer_path,
+    read_model_data,
+)
+from hexgym.checks import check_count, check_seed
 from hexgym.envs import ENV_ID  # importing hexgym registers it
-from hexgym.files import write_json
+from hexgym.files import check_output_file, write_json
 from hexgym.machine import parameters as p
 
 POLICY_DIR = Path(__file__).resolve().parents[1] / "policies"
@@ -65,9 +72,9 @@ class ScriptedPolicy:
 
 
 class TrainedPolicy:
-    """A Stable-Baselines3 model with the VecNormalize statistics it was trained with (deterministic actions)."""
+    """A Stable-Baselines3 model with the observation statistics it was trained with (deterministic actions)."""
 
-    def __init__(self, model: Any, normalizer: Any | None) -> None:
+    def __init__(self, model: Any, normalizer: ObsNormalizer | None) -> None:
         self.model, self.normalizer = model, normalizer
         self.n_obs = model.observation_space.shape[0]
         self.previous = np.zeros(model.action_space.shape[0], np.float32)
@@ -91,44 +98,38 @@ class TrainedPolicy:
         return self.previous.copy()
 
 
-def normalizer_path(model_path: str | Path) -> Path:
-    """Where the VecNormalize statistics of a saved model lie (``<stem>_vecnormalize.pkl``, or a checkpoint's)."""
-    model_path = Path(model_path)
-    match = re.fullmatch(r"(.*)_(\d+)_steps", model_path.stem)  # CheckpointCallback-style names
-    if match:
-        return model_path.with_name(f"{match[1]}_vecnormalize_{match[2]}_steps.pkl")
-    return model_path.with_name(f"{model_path.stem}_vecnormalize.pkl")
+def _spaces_for(model_path: Path) -> tuple[Any, Any]:
+    """HexLoading-v0's spaces, with the previous action appended when the model was trained so."""
+    from hexgym.envs.loading import task_spaces
 
-
-def _algorithm_of(model_path: Path) -> type:
-    """The SB3 class that saved ``model_path`` (read from the zip's ``data`` record)."""
-    from stable_baselines3 import PPO, SAC
-
-    try:
-        with zipfile.ZipFile(model_path) as archive:
-            data = archive.read("data").decode()
-    except (zipfile.BadZipFile, KeyError) as exc:
-        raise ValueError(f"{model_path} is not a Stable-Baselines3 model zip ({exc})") from exc
-    if "stable_baselines3.sac.policies" in data:
-        return SAC
-    if "stable_baselines3.common.policies" in data:  # ActorCriticPolicy: PPO's
-        return PPO
-    raise ValueError(f"{model_path}: neither a PPO nor a SAC model")
+    observation, action = task_spaces()
+    saved = read_model_data(model_path).get("observation_space", {})
+    if isinstance(saved, dict) and saved.get("_shape") == [observation.shape[0] + action.shape[0]]:
+        low = np.concatenate([observation.low, action.low])  # PreviousActionWrapper's space
+        high = np.concatenate([observation.high, action.high])
+        observation = gym.spaces.Box(low, high, dtype=np.float32)
+    return observation, action
 
 
 def load_trained(model_path: str | Path) -> TrainedPolicy:
-    """Load a model saved by ``hexgym train`` (and its observation statistics, when it has them)."""
+    """Load a model saved by ``hexgym train`` with its observation normaliser, unpickling nothing.
+
+    Refused with :class:`~hexgym.agents.policy_files.PolicyFileError` (a ValueError naming the file):
+    a file that is no PPO/SAC model zip, a model for other observations or actions, a missing,
+    pickled or malformed normaliser, a normaliser of another size than the observations.
+    """
     model_path = Path(model_path)
-    if not model_path.is_file():
+    if not model_path.exists():
         raise FileNotFoundError(f"no policy file {model_path} (give 'shipped', 'scripted' or a model .zip)")
-    model = _algorithm_of(model_path).load(model_path, device="cpu")
-    stats = normalizer_path(model_path)
-    normalizer = None
-    if stats.is_file():
-        with open(stats, "rb") as f:
-            normalizer = pickle.load(f)  # a VecNormalize without its venv: only its statistics are used
-        normalizer.training = False
-    return TrainedPolicy(model, normalizer)
+    observation_space, action_space = _spaces_for(model_path)  # reads the zip: is it a model at all?
+    normalizer = load_normalizer(model_path)
+    model = load_sb3_model(model_path, observation_space, action_space)
+    if normalizer.size is not None and normalizer.size != model.observation_space.shape[0]:
+        raise PolicyFileError(
+            f"observation normaliser {normalizer_path(model_path)} has {normalizer.size} entries, the policy's "
+            f"observations {model.observation_space.shape[0]}"
+        )
+    return TrainedPolicy(model, normalizer if normalizer.norm_obs else None)
 
 
 def load_policy(spec: str) -> Policy:
@@ -243,8 +244,10 @@ def evaluate(
     bed; ``mean_cycle_time_s``: mean time between the starts of successive full-enough dumps;
     ``spilled_fraction``: spilled / (spilled + delivered), of the material that left the bucket.
     """
-    if int(episodes) != episodes or episodes < 1:
-        raise ValueError(f"episodes must be a whole number >= 1, got {episodes}")
+    check_count("episodes", episodes)
+    check_seed("seed", seed)
+    if json_out:
+        check_output_file(json_out, "JSON output", inputs=(policy_spec,))
     policy = load_policy(policy_spec)
     env = gym.make(ENV_ID, **(env_kwargs or {}))
     try:

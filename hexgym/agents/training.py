@@ -2,7 +2,8 @@
 
 Hyperparameters are rl-zoo3 YAML keyed by env id (``training/hyperparams/<algo>.yml``). A run lives
 in ``<logdir>/<algo>_<env id>/``: ``checkpoints/`` (model + VecNormalize statistics, saved atomically),
-``tb/`` (TensorBoard, when installed) and the final ``model.zip`` + ``model_vecnormalize.pkl``.
+``tb/`` (TensorBoard, when installed) and the final ``model.zip`` + ``model_vecnormalize.json`` (the
+observation statistics as numbers, :mod:`hexgym.agents.policy_files`: nothing is pickled or unpickled).
 Running the same command again resumes from the newest checkpoint.
 
 Reinforcement learning from scratch on a 180 s, 10 Hz loading task is slow on a laptop CPU (the
@@ -14,6 +15,7 @@ the demonstrations' discounted returns; ``hexgym train --init-from`` then fine-t
 
 from __future__ import annotations
 
+import ast
 import importlib.util
 import os
 import re
@@ -28,8 +30,18 @@ from typing import Any
 import numpy as np
 
 from hexgym.agents.evaluate import load_trained, normalizer_path
+from hexgym.agents.policy_files import (
+    ObsNormalizer,
+    PolicyFileError,
+    algorithm_of,
+    load_normalizer,
+    load_sb3_model,
+    read_model_data,
+    write_normalizer,
+)
+from hexgym.checks import check_count, check_range, check_seed
 from hexgym.envs import ENV_ID
-from hexgym.files import atomic_path
+from hexgym.files import atomic_path, check_input_file, check_output_dir, check_output_file
 
 HYPERPARAMS_DIR = Path(__file__).resolve().parents[2] / "training" / "hyperparams"
 ALGOS = ("ppo", "sac")
@@ -39,17 +51,47 @@ _ZOO_KEYS = ("n_envs", "n_timesteps", "policy", "normalize", "env_kwargs", "poli
 
 
 # -- hyperparameters ------------------------------------------------------------------------------
+_ACTIVATIONS = ("ReLU", "Tanh", "ELU", "LeakyReLU", "GELU", "SiLU", "Sigmoid", "Softplus", "Mish", "Identity")
+
+
 def _parse_kwargs(text: str | dict | bool) -> dict | bool:
-    """An rl-zoo3 keyword string such as ``"dict(norm_obs=True, net_arch=[64, 64])"`` -> a dict."""
+    """An rl-zoo3 keyword string such as ``"dict(norm_obs=True, net_arch=[64, 64])"`` -> a dict.
+
+    rl-zoo3 ``eval``s these strings; hexgym reads them without running them: ``dict(...)`` calls,
+    literals (numbers, strings, True/False/None, lists, tuples, {...}) and ``nn.<activation>``
+    (``torch.nn``'s ReLU, Tanh, ...) are understood, anything else is refused.
+    """
     if not isinstance(text, str):
         return text
-    import torch
-
-    # rl-zoo3 evaluates these strings too; here only dict() and torch.nn (activation_fn) are in scope
     try:
-        return eval(text, {"__builtins__": {}}, {"dict": dict, "nn": torch.nn, "True": True, "False": False})
-    except Exception as exc:
-        raise ValueError(f"cannot read the hyperparameter {text!r}: {exc}") from exc
+        return _literal(ast.parse(text.strip(), mode="eval").body)
+    except (SyntaxError, ValueError, RecursionError) as exc:
+        raise ValueError(f"cannot read the hyperparameter {text!r}: {exc}") from None
+
+
+def _literal(node: ast.AST) -> Any:
+    """The value of an rl-zoo3 keyword expression (see :func:`_parse_kwargs`)."""
+    if isinstance(node, ast.Constant) and isinstance(node.value, (int, float, str, bool, type(None))):
+        return node.value
+    if isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.USub, ast.UAdd)):
+        value = _literal(node.operand)
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            return -value if isinstance(node.op, ast.USub) else value
+    if isinstance(node, (ast.List, ast.Tuple)):
+        items = [_literal(e) for e in node.elts]
+        return items if isinstance(node, ast.List) else tuple(items)
+    if isinstance(node, ast.Dict) and all(k is not None for k in node.keys):
+        return {_literal(k): _literal(v) for k, v in zip(node.keys, node.values, strict=True)}
+    if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "dict" and not node.args:
+        if all(k.arg is not None for k in node.keywords):
+            return {k.arg: _literal(k.value) for k in node.keywords}
+    if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "nn":
+        if node.attr in _ACTIVATIONS:
+            import torch
+
+            return getattr(torch.nn, node.attr)
+        raise ValueError(f"nn.{node.attr} is not an activation hexgym knows ({', '.join(_ACTIVATIONS)})")
+    raise ValueError(f"{ast.unparse(node)!r} is not allowed: only dict(...), literals and nn.<activation>")
 
 
 def load_hyperparams(algo: str, env_id: str = ENV_ID, path: str | Path | None = None) -> dict[str, Any]:
@@ -59,11 +101,19 @@ def load_hyperparams(algo: str, env_id: str = ENV_ID, path: str | Path | None = 
     if algo not in ALGOS:
         raise ValueError(f"algo must be one of {ALGOS}, got {algo!r}")
     path = Path(path) if path is not None else HYPERPARAMS_DIR / f"{algo}.yml"
-    if not path.is_file():
+    if not path.exists():
         raise FileNotFoundError(f"no hyperparameter file {path} (give one with --hyperparams)")
-    table = yaml.safe_load(path.read_text()) or {}
+    check_input_file(path, "hyperparameter file")
+    try:
+        table = yaml.safe_load(path.read_bytes().decode("utf-8")) or {}
+    except (yaml.YAMLError, UnicodeDecodeError, RecursionError) as exc:
+        raise ValueError(f"{path} is not a readable YAML file: {' '.join(str(exc).split())}") from None
+    if not isinstance(table, dict):
+        raise ValueError(f"{path} must map env ids to hyperparameters, not hold a {type(table).__name__}")
     if env_id not in table:
-        raise ValueError(f"{path} has no entry for {env_id!r} (it has {sorted(table)})")
+        raise ValueError(f"{path} has no entry for {env_id!r} (it has {sorted(map(str, table))})")
+    if not isinstance(table[env_id], dict):
+        raise ValueError(f"{path}: the entry for {env_id!r} must be a mapping of hyperparameters")
     hp = dict(table[env_id])
     hp["policy_kwargs"] = _parse_kwargs(hp.get("policy_kwargs", {}))
     normalize = _parse_kwargs(hp.get("normalize", False))
@@ -164,14 +214,16 @@ def make_vec_env(
 
 # -- saving -----------------------------------------------------------------------------------------
 def save_model(model: Any, path: str | Path) -> Path:
-    """Save an SB3 model and its VecNormalize statistics (``<stem>_vecnormalize.pkl``), each atomically."""
+    """Save an SB3 model and its observation normaliser (``<stem>_vecnormalize.json``), each atomically.
+
+    The normaliser is always written (an identity for a model trained without one), so a model
+    without it is known to be incomplete.
+    """
     path = Path(path)
+    normalizer = ObsNormalizer.from_vec_normalize(model.get_vec_normalize_env())
     with atomic_path(path) as tmp:
         model.save(tmp)
-    venv = model.get_vec_normalize_env()
-    if venv is not None:
-        with atomic_path(normalizer_path(path)) as tmp:
-            venv.save(tmp)
+    write_normalizer(normalizer, normalizer_path(path))
     return path
 
 
@@ -200,14 +252,30 @@ def latest_checkpoint(run_dir: str | Path) -> Path | None:
 
 
 def _load_into(path: Path, algo_class: type, venv: Any, **kwargs: Any) -> Any:
-    """Load a saved model onto ``venv``, wrapped in its saved VecNormalize statistics when it has them."""
-    from stable_baselines3.common.vec_env import VecNormalize
+    """Load a saved model onto ``venv``, wrapped in its saved observation statistics (unpickling nothing)."""
+    if algorithm_of(path) is not algo_class:
+        raise PolicyFileError(f"{path} is a {algorithm_of(path).__name__} model, not {algo_class.__name__}")
+    venv = load_normalizer(path).vec_normalize(venv, training=True)
+    return load_sb3_model(path, venv.observation_space, venv.action_space, env=venv, **kwargs)
 
-    stats = normalizer_path(path)
-    if stats.is_file():
-        venv = VecNormalize.load(str(stats), venv)
-        venv.training = True
-    return algo_class.load(path, env=venv, device="cpu", **kwargs)
+
+def check_start_model(path: str | Path, algo: str = "ppo") -> Path:
+    """``path`` if it is a model ``train`` can start from: a PPO/SAC zip of ``algo`` with its normaliser."""
+    from stable_baselines3 import PPO, SAC
+
+    path = check_input_file(path, "model to start from")
+    found = algorithm_of(path, read_model_data(path))
+    if found is not {"ppo": PPO, "sac": SAC}[algo]:
+        raise PolicyFileError(f"{path} is a {found.__name__} model; this run trains {algo.upper()}")
+    load_normalizer(path)
+    return path
+
+
+def rollout_steps(algo: str, hp: dict[str, Any], n_envs: int) -> int:
+    """Environment steps of one rollout (PPO: ``n_steps`` per env; SAC: ``train_freq`` per env)."""
+    per_env = hp.get("n_steps", 2048) if algo == "ppo" else hp.get("train_freq", 1)
+    per_env = per_env[0] if isinstance(per_env, (list, tuple)) else per_env
+    return int(per_env) * n_envs
 
 
 # -- training ---------------------------------------------------------------------------------------
@@ -232,17 +300,21 @@ def train(
     from stable_baselines3.common.vec_env import VecNormalize
 
     hp = load_hyperparams(algo, env_id, hyperparams)
-    total = int(timesteps if timesteps is not None else hp.get("n_timesteps", 100_000))
-    if total < 1:
-        raise ValueError(f"timesteps must be >= 1, got {total}")
+    total = check_count("timesteps", timesteps if timesteps is not None else hp.get("n_timesteps", 100_000))
+    check_seed("seed", seed)
+    n_envs = check_count("n_envs", n_envs if n_envs is not None else os.cpu_count() or 1)
+    rollout = rollout_steps(algo, hp, n_envs)
+    if check_count("checkpoint_every", checkpoint_every) < rollout:
+        raise ValueError(f"checkpoint_every must be at least one rollout ({rollout} steps: {rollout // n_envs} "
+                         f"per environment x {n_envs} environments), got {checkpoint_every}")  # fmt: skip
     algo_class = {"ppo": PPO, "sac": SAC}[algo]
-    run_dir = Path(log_dir) / f"{algo}_{env_id}"
-    tensorboard = str(run_dir / "tb") if importlib.util.find_spec("tensorboard") else None
-    venv = make_vec_env(env_id, n_envs or os.cpu_count() or 1, seed, hp.get("env_kwargs"), hp.get("env_wrapper"))
+    run_dir = check_output_dir(Path(log_dir) / f"{algo}_{env_id}", "run directory")
     resume = latest_checkpoint(run_dir)
     start = resume or (Path(init_from) if init_from is not None else None)
-    if start is not None and not start.is_file():
-        raise FileNotFoundError(f"no model to start from at {start}")
+    if start is not None:
+        check_start_model(start, algo)
+    tensorboard = str(run_dir / "tb") if importlib.util.find_spec("tensorboard") else None
+    venv = make_vec_env(env_id, n_envs, seed, hp.get("env_kwargs"), hp.get("env_wrapper"))
     if start is not None:
         model = _load_into(start, algo_class, venv, tensorboard_log=tensorboard, seed=seed)
         print(f"{'resuming' if resume else 'starting'} from {start} ({model.num_timesteps} steps done)")
@@ -464,10 +536,19 @@ def clone_scripted(
     clone is kept in ``rounds_dir`` (``round<k>.zip``) when given. ``loss``: the actor's fit
     (:func:`fit_to_demonstrations`).
     """
-    _loss_power(loss)  # a bad loss fails here, before minutes of recording
-    if episodes < 1 or dagger_rounds < 0 or epochs < 1 or select_episodes < 0:
-        raise ValueError(f"need episodes >= 1, dagger_rounds >= 0, epochs >= 1, select_episodes >= 0; got "
-                         f"{episodes}, {dagger_rounds}, {epochs}, {select_episodes}")  # fmt: skip
+    _loss_power(loss)  # bad arguments fail here, before minutes of recording
+    for name, value, minimum in (("episodes", episodes, 1), ("dagger_rounds", dagger_rounds, 0),
+                                 ("dagger_episodes", dagger_episodes, 1), ("epochs", epochs, 1),
+                                 ("select_episodes", select_episodes, 0)):  # fmt: skip
+        check_count(name, value, minimum)
+    check_seed("seed", seed)
+    check_range("noise", noise, 0.0, 1.0, "(spool fraction)")
+    if not str(out).endswith(".zip"):
+        raise ValueError(f"the model must be a .zip file, got {out}")
+    check_output_file(out, "model", inputs=(hyperparams,))
+    check_output_file(normalizer_path(out), "observation normaliser", inputs=(hyperparams,))
+    if rounds_dir is not None:
+        check_output_dir(rounds_dir, "rounds directory")
     hp = load_hyperparams("ppo", ENV_ID, hyperparams)
     with _worker_pool() as pool, tempfile.TemporaryDirectory() as tmp:  # workers start once (torch, MuJoCo: s)
         rounds = Path(rounds_dir) if rounds_dir is not None else Path(tmp)

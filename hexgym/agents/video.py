@@ -14,7 +14,9 @@ import gymnasium as gym
 import numpy as np
 
 from hexgym.agents.evaluate import load_policy, run_episode
+from hexgym.checks import check_count, check_positive, check_seed
 from hexgym.envs import ENV_ID
+from hexgym.files import check_output_file
 from hexgym.machine.render import CAMERAS, write_mp4, write_png
 
 OVERLAY_HEIGHT = 28  # px: the text strip at the top of each frame
@@ -73,10 +75,18 @@ def record_video(
     """
     if camera not in CAMERAS:
         raise ValueError(f"camera must be one of {CAMERAS}, got {camera!r}")
-    if int(episodes) != episodes or episodes < 1:
-        raise ValueError(f"episodes must be a whole number >= 1, got {episodes}")
+    check_count("episodes", episodes)
+    check_seed("seed", seed)
+    check_count("width", width)
+    check_count("height", height)
+    if seconds is not None:
+        check_positive("seconds", seconds, "s")
     if not str(out).endswith(".mp4"):
         raise ValueError(f"the video must be an .mp4 file, got {out}")
+    policy_file = None if policy_spec in ("scripted", "shipped") else policy_spec
+    check_output_file(out, "video", inputs=(policy_file,))
+    if snapshot is not None:
+        check_output_file(snapshot, "snapshot", inputs=(policy_file, out))
     policy = load_policy(policy_spec)
     kwargs: dict[str, Any] = {"render_mode": "rgb_array", "camera": camera, "width": width, "height": height}
     if seconds is not None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import numbers
 import os
 from pathlib import Path
 from typing import Any
@@ -148,6 +149,16 @@ def heap_for(layout: Layout) -> Pile:
     )
 
 
+def task_spaces() -> tuple[spaces.Box, spaces.Box]:
+    """HexLoading-v0's observation and action spaces, without building an environment."""
+    return spaces.Box(_OBS_LOW, _OBS_HIGH, dtype=np.float32), spaces.Box(-1.0, 1.0, (4,), np.float32)
+
+
+def _is_number(value: Any) -> bool:
+    """A real number (Python or NumPy), not a bool."""
+    return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
+
+
 class HexLoadingEnv(gym.Env):
     r"""Load a dump truck from a pile of sand and gravel with a 25 t hydraulic excavator.
 
@@ -275,18 +286,33 @@ class HexLoadingEnv(gym.Env):
         if isinstance(earthwork_periods, bool) or not isinstance(earthwork_periods, int) or earthwork_periods < 1:
             raise ValueError(f"earthwork_periods must be an integer >= 1, got {earthwork_periods!r}")
         self.earthwork_periods = earthwork_periods
-        if not (time_limit > 0 and truck_capacity_kg > 0):
-            raise ValueError(f"time_limit and truck_capacity_kg must be > 0, got {time_limit}, {truck_capacity_kg}")
+        if not (math.isfinite(time_limit) and time_limit > 0 and math.isfinite(truck_capacity_kg)
+                and truck_capacity_kg > 0):  # fmt: skip
+            raise ValueError(
+                f"time_limit and truck_capacity_kg must be finite and > 0, got {time_limit}, {truck_capacity_kg}"
+            )
+        for name, size in (("width", width), ("height", height)):
+            if not _is_number(size) or int(size) != size or size < 1:
+                raise ValueError(f"{name} must be a whole number of pixels >= 1, got {size!r}")
         self.render_mode, self.camera, self.width, self.height = render_mode, camera, int(width), int(height)
         self.time_limit, self.truck_capacity_kg = float(time_limit), float(truck_capacity_kg)
         self.weights = {
             "delivery": delivery_weight, "fill": fill_weight, "time": time_weight,
             "fuel": fuel_weight, "spill": spill_weight, "contact": contact_weight,
         }  # fmt: skip
+        for name, weight in self.weights.items():
+            if not _is_number(weight) or not math.isfinite(weight):
+                raise ValueError(f"{name}_weight must be a finite number, got {weight!r}")
         self._scene_path, self._backend = scene_path, backend
-        self.action_space = spaces.Box(-1.0, 1.0, (4,), np.float32)
-        self.observation_space = spaces.Box(_OBS_LOW, _OBS_HIGH, dtype=np.float32)
+        self.observation_space, self.action_space = task_spaces()
         self._build()
+        frame = self.physics.model.vis.global_
+        offscreen = render_mode in ("rgb_array", "depth_array")
+        if offscreen and (self.width > frame.offwidth or self.height > frame.offheight):
+            raise ValueError(
+                f"frames of {self.width} x {self.height} pixels exceed the scene's offscreen buffer "
+                f"({frame.offwidth} x {frame.offheight})"
+            )
         self.layout: Layout | None = None
         self.earth: Earthwork | None = None
 

@@ -21,6 +21,7 @@ from hexgym.machine import parameters as p
 from hexgym.machine.assets import MODEL_FILE, SCENE_FILE, AssetError, asset_path, load_model
 
 _FD_STEP = 1e-6  # rad, central differences for the passive joints' velocities
+MAX_PAYLOAD_KG = p.BUCKET_HEAPED_CAPACITY * p.MATERIAL_DENSITY  # kg: a heaped bucket (2145 kg)
 _RETRACTED = np.array([p.CYLINDERS[n].retracted_length for n in kinematics.FRONT_CYLINDERS])
 
 
@@ -146,7 +147,10 @@ class ExcavatorPhysics:
 
     # -- state ---------------------------------------------------------------------------
     def reset(self, keyframe: str = "home") -> None:
-        """Reset to a keyframe of the model (time 0, payload kept)."""
+        """Reset to a keyframe of the model (time 0, payload kept); ValueError naming the model's keyframes."""
+        names = [self.model.key(i).name for i in range(self.model.nkey)]
+        if keyframe not in names:
+            raise ValueError(f"no keyframe {keyframe!r} in the model; it has {', '.join(names) or 'none'}")
         mujoco.mj_resetDataKeyframe(self.model, self.data, self.model.key(keyframe).id)
         mujoco.mj_forward(self.model, self.data)
 
@@ -237,9 +241,16 @@ class ExcavatorPhysics:
 
     # -- loads -----------------------------------------------------------------------------
     def set_payload(self, mass_kg: float) -> None:
-        """Put ``mass_kg`` of material in the bucket (a box of loose material at its centroid)."""
-        if not np.isfinite(mass_kg) or mass_kg < 0:
-            raise ValueError(f"payload must be a finite mass >= 0 kg, got {mass_kg}")
+        """Put ``mass_kg`` of material in the bucket (a box of loose material at its centroid).
+
+        At most :data:`MAX_PAYLOAD_KG`, a heaped bucket of the material: the machine was built and its
+        tables fitted for that (their data hold 0 to 2 t), and far more makes the simulation unstable.
+        """
+        if not np.isfinite(mass_kg) or not 0 <= mass_kg <= MAX_PAYLOAD_KG * (1 + 1e-9):
+            raise ValueError(
+                f"payload must be a finite mass from 0 to {MAX_PAYLOAD_KG:.0f} kg (a heaped bucket of "
+                f"{p.BUCKET_HEAPED_CAPACITY} m^3 at {p.MATERIAL_DENSITY:.0f} kg/m^3), got {mass_kg} kg"
+            )
         self.payload_kg = float(mass_kg)
         self.model.body_mass[self._payload] = mass_kg
         self.model.body_inertia[self._payload] = payload_inertia(np.array([mass_kg]))[0]

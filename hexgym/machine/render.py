@@ -94,19 +94,40 @@ def write_png(frame: np.ndarray, path: str | Path) -> Path:
     """Write one frame as a PNG, atomically (a reader never sees a half-written file)."""
     import imageio.v3 as iio
 
+    _check_frame(frame, path)
     with atomic_path(path) as tmp:
         iio.imwrite(tmp, frame)
     return Path(path)
 
 
 def write_mp4(frames: Iterable[np.ndarray], path: str | Path, fps: float) -> Path:
-    """Encode frames (H.264, yuv420p so every player opens it) to an MP4, atomically."""
+    """Encode frames (H.264, yuv420p so every player opens it) to an MP4, atomically.
+
+    No frames, an empty frame or a non-positive rate raise ValueError, and an encoder that wrote
+    nothing raises RuntimeError: in each case ``path`` keeps what it held.
+    """
     import imageio.v2 as imageio
 
-    with (
-        atomic_path(path) as tmp,
-        imageio.get_writer(tmp, fps=fps, codec="libx264", quality=7, pixelformat="yuv420p", macro_block_size=8) as w,
-    ):
-        for frame in frames:
-            w.append_data(frame)
+    frames = list(frames)
+    if not frames:
+        raise ValueError(f"no frames to write to {path}")
+    if not (np.isfinite(fps) and fps > 0):
+        raise ValueError(f"the frame rate must be finite and > 0, got {fps}")
+    for frame in frames:
+        _check_frame(frame, path)
+    with atomic_path(path) as tmp:
+        with imageio.get_writer(
+            tmp, fps=fps, codec="libx264", quality=7, pixelformat="yuv420p", macro_block_size=8
+        ) as w:
+            for frame in frames:
+                w.append_data(frame)
+        if tmp.stat().st_size == 0:
+            raise RuntimeError(f"the video encoder wrote nothing for {path}")
     return Path(path)
+
+
+def _check_frame(frame: np.ndarray, path: str | Path) -> None:
+    """ValueError unless ``frame`` is a non-empty image (H x W or H x W x 3/4)."""
+    shape = np.shape(frame)
+    if len(shape) not in (2, 3) or min(shape[:2]) < 1 or (len(shape) == 3 and shape[2] not in (1, 3, 4)):
+        raise ValueError(f"cannot write an image of shape {shape} to {path}")

@@ -75,7 +75,7 @@ from typing import Any
 
 import numpy as np
 
-from hexgym.files import atomic_path
+from hexgym.files import atomic_path, check_output_dir
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.mbl.schema import TABLE_SETS
@@ -577,8 +577,12 @@ def _load_chunk(path: Path, expected: dict[str, Any]) -> dict[str, np.ndarray]:
         with np.load(path, allow_pickle=False) as data:
             arrays = {k: data[k] for k in data.files}
         meta = json.loads(str(arrays["meta"]))
-    except (OSError, ValueError, KeyError) as exc:
-        raise ValueError(f"chunk {path} is unreadable ({exc}); delete it to recompute it") from exc
+        if not isinstance(meta, dict):
+            raise ValueError("its metadata is not a JSON object")
+    except Exception as exc:  # a truncated or damaged file: zip, zlib, npy and JSON errors alike
+        raise ValueError(
+            f"chunk {path} is unreadable ({type(exc).__name__}: {exc}); delete it to recompute it"
+        ) from None
     for key, value in expected.items():
         if meta.get(key) != value:
             raise ValueError(
@@ -661,7 +665,8 @@ def collect(
     if seed < 0 or workers < 1:
         raise ValueError(f"seed must be >= 0 and workers >= 1, got seed={seed}, workers={workers}")
     config = config or CollectConfig()
-    out = Path(out_dir)
+    out = check_output_dir(out_dir, "collection output directory")
+    check_output_dir(out / "chunks", "chunk directory")
     (out / "chunks").mkdir(parents=True, exist_ok=True)
     fingerprint = model_fingerprint()
     bar = _ProgressBar(samples_per_group, enabled=progress)

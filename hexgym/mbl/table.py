@@ -409,6 +409,8 @@ def load_tables(directory: str | Path | None = None, table_set: str = DEFAULT_TA
     for name in TABLE_SETS[table_set]:
         path = table_path(name, directory, table_set)
         table = load_table(path)
+        if table.name != name:  # as the native plugin checks
+            raise TableFileError(f"MBL table file {path} holds table {table.name!r}, expected {name!r}")
         check_table_schema(str(path), name, table.inputs, table.output, table_set)
         tables[name] = table
     return tables

@@ -1,4 +1,13 @@
-"""The ``hexgym`` command line: one subcommand per job, each with ``--help``."""
+"""The ``hexgym`` command line: one subcommand per job, each with ``--help``.
+
+Errors a user can cause (a bad option value, a file that is missing, malformed or cannot be
+written, a policy or table that does not fit) end as one line on stderr, ``hexgym <command>: error:
+...`` naming the file, option or value and what is wrong, with exit status 2 and no traceback;
+``--debug`` (anywhere on the line) or ``HEXGYM_DEBUG=1`` shows the traceback instead. Options and
+paths are checked before a command starts its work (:func:`check_arguments`): outputs that cannot
+be written (a directory, under a file, read-only, the same file as an input) are refused up front.
+An unexpected error (a bug) is one line too, with exit status 1 and a pointer to ``--debug``.
+"""
 
 from __future__ import annotations
 
@@ -59,6 +68,9 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from hexgym.model.replay import replay
 
     commands = read_command_log(args.commands)
+    from hexgym.model.replay import check_replay_size
+
+    check_replay_size(commands.duration, args.dt_out)  # before building the model
     if args.model == "reference":
         from hexgym.hydraulics.reference import ReferenceModel
 
@@ -89,6 +101,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     unknown = set(names) - set(TABLES)
     if unknown:
         raise ValueError(f"unknown table(s) {sorted(unknown)}; choose from {list(TABLES)}")
+    _check_data_files(args.data, names)
     for name, path in fit_all(args.data, args.out, seed=args.seed, names=names).items():
         print(f"{name}: {path}")
     return 0
@@ -99,6 +112,7 @@ def _cmd_tables(args: argparse.Namespace) -> int:
 
     summary = tables_summary(args.dir)
     if args.bench:
+        _check_data_files(args.bench, [t["name"] for t in summary])
         from hexgym.mbl.fit import lookup_benchmark
 
         timings = lookup_benchmark(args.bench, args.dir)
@@ -195,13 +209,36 @@ def _cmd_video(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_convert_normalizer(args: argparse.Namespace) -> int:
+    from hexgym.agents.policy_files import convert_pickled_normalizer
+
+    print(f"wrote {convert_pickled_normalizer(args.pkl, args.out)}")
+    return 0
+
+
+def _check_data_files(directory: str, names: list[str] | tuple[str, ...]) -> None:
+    """Each table's data set in ``directory`` exists and is well formed (before minutes of fitting)."""
+    from hexgym.files import check_input_dir
+    from hexgym.mbl.datafile import check_dataset_file
+
+    check_input_dir(directory, "data directory")
+    for name in names:
+        check_dataset_file(Path(directory) / f"{name}.npz")
+
+
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose usage errors are one line: the command, the option and the problem."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser with all subcommands."""
     from hexgym.mbl.collect import add_collect_parser
 
-    parser = argparse.ArgumentParser(
-        prog="hexgym", description="A hydraulic excavator (Cat 325 class) simulator for robot learning."
-    )
+    parser = _Parser(prog="hexgym", description="A hydraulic excavator (Cat 325 class) simulator for robot learning.")
+    parser.add_argument("--debug", action="store_true", help="show the traceback of an error (or HEXGYM_DEBUG=1)")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     demo = sub.add_parser("demo", help="the scripted loader on HexLoading-v0, filmed: an MP4 and a PNG")
@@ -347,16 +384,112 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
     video.add_argument("--snapshot", default=None, help="also write a PNG of a mid-episode frame")
     video.set_defaults(func=_cmd_video)
 
+    convert = sub.add_parser("convert-normalizer", help="convert a pickled VecNormalize (*_vecnormalize.pkl) to "
+                             "the JSON normaliser hexgym reads (nothing in the pickle is run)")  # fmt: skip
+    convert.add_argument("pkl", help="the pickled normaliser, e.g. model_vecnormalize.pkl")
+    convert.add_argument("--out", default=None, help="JSON to write (default: beside it, .json)")
+    convert.set_defaults(func=_cmd_convert_normalizer)
+
+
+# -- checks before any work -------------------------------------------------------------------------
+# Option values, by option name, whatever the command: (check, argument) for hexgym.checks.
+_COUNTS = {"episodes": 1, "steps": 1, "samples": 1, "epochs": 1, "workers": 1, "n_envs": 1, "timesteps": 1,
+           "frames": 1, "dagger_episodes": 1, "checkpoint_every": 1, "suite": 0, "dagger_rounds": 0,
+           "select_episodes": 0, "width": 1, "height": 1}  # fmt: skip
+_SEEDS = ("seed", "suite_seed")
+_POSITIVE = {"seconds": "s", "fps": "frames/s", "dt_out": "s"}
+# Paths, by (command, option): files and directories written, files and directories read.
+_OUTPUT_FILES = {("simulate", "out"), ("video", "out"), ("video", "snapshot"), ("evaluate", "json"),
+                 ("bench", "json"), ("scripted", "json"), ("clone", "out"), ("view", "screenshot"),
+                 ("convert-normalizer", "out")}  # fmt: skip
+_OUTPUT_DIRS = {("demo", "out"), ("reference-report", "out"), ("validate", "out"), ("collect", "out"),
+                ("fit", "out"), ("build-assets", "dir"), ("clone", "rounds_dir"), ("train", "log_dir")}  # fmt: skip
+_INPUT_FILES = {("simulate", "commands"), ("train", "hyperparams"), ("train", "init_from"), ("clone", "hyperparams"),
+                ("convert-normalizer", "pkl")}  # fmt: skip
+_INPUT_DIRS = {("fit", "data"), ("tables", "dir"), ("tables", "bench")}
+_POLICY_NAMES = ("shipped", "scripted")
+
+
+def check_arguments(args: argparse.Namespace) -> None:
+    """Refuse bad option values and unusable paths before a command starts (ValueError, FileNotFoundError)."""
+    from hexgym.checks import check_count, check_positive, check_range, check_seed
+    from hexgym.files import check_input_dir, check_input_file, check_output_dir, check_output_file
+    from hexgym.machine.physics import MAX_PAYLOAD_KG
+
+    values = {k: v for k, v in vars(args).items() if v is not None}
+    for name, value in values.items():
+        option = "--" + name.replace("_", "-")
+        if name in _COUNTS:
+            check_count(option, value, _COUNTS[name])
+        elif name in _SEEDS:
+            check_seed(option, value)
+        elif name in _POSITIVE:
+            check_positive(option, value, _POSITIVE[name])
+        elif name == "payload_kg":
+            check_range(option, value, 0.0, MAX_PAYLOAD_KG, "kg (a heaped bucket)")
+        elif name == "noise":
+            check_range(option, value, 0.0, 1.0, "(spool fraction)")
+    command = args.command
+    policy = values.get("policy")  # checked where it is loaded, which says what a policy may be
+    inputs = [policy] if policy is not None and policy not in _POLICY_NAMES else []
+    for (cmd, name), check, what in (
+        *((k, check_input_file, "input file") for k in _INPUT_FILES),
+        *((k, check_input_dir, "input directory") for k in _INPUT_DIRS),
+    ):
+        value = values.get(name) if cmd == command else None
+        if value is None:
+            continue
+        check(value, f"{what} --{name.replace('_', '-')}" if name != "pkl" else what)
+        inputs.append(value)
+    outputs: list[str] = []
+    for cmd, name in sorted(_OUTPUT_FILES | _OUTPUT_DIRS):
+        value = values.get(name) if cmd == command else None
+        if value is None:
+            continue
+        what = f"output --{name.replace('_', '-')}"
+        if (cmd, name) in _OUTPUT_FILES:
+            check_output_file(value, what, inputs=(*inputs, *outputs))
+        else:
+            check_output_dir(value, what)
+        outputs.append(value)
+
+
+def _one_line(exc: BaseException) -> str:
+    """The error as one line, naming the file of an OS error."""
+    if isinstance(exc, OSError) and exc.strerror:
+        where = exc.filename if exc.filename is not None else ""
+        text = f"{where}: {exc.strerror}" if where else exc.strerror
+    elif isinstance(exc, MemoryError):
+        text = f"not enough memory ({exc or 'the input asks for more than this machine has'})"
+    else:
+        text = str(exc) or type(exc).__name__
+    return " ".join(text.split())
+
+
+_USER_ERRORS = (ValueError, OSError, RuntimeError, MemoryError, LookupError, EOFError)
+
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``hexgym`` console command."""
+    """Entry point of the ``hexgym`` console command (exit status 0, 2 for a user's error, 1 for a bug)."""
     os.environ.setdefault("MUJOCO_GL", "egl")  # offscreen rendering without a display
-    args = build_parser().parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in argv or os.environ.get("HEXGYM_DEBUG", "") not in ("", "0")
+    args = build_parser().parse_args([a for a in argv if a != "--debug"])
     try:
+        check_arguments(args)
         return args.func(args)
-    except (ValueError, FileNotFoundError, RuntimeError) as exc:
-        print(f"hexgym {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+    except KeyboardInterrupt:
+        print(f"hexgym {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:
+        if debug:
+            raise
+        if isinstance(exc, _USER_ERRORS):
+            print(f"hexgym {args.command}: error: {_one_line(exc)}", file=sys.stderr)
+            return 2
+        print(f"hexgym {args.command}: internal error: {type(exc).__name__}: {_one_line(exc)} "
+              "(run with --debug for the traceback, and please report it)", file=sys.stderr)  # fmt: skip
+        return 1
 
 
 if __name__ == "__main__":
