@@ -233,6 +233,19 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {' '.join(message.split())} (see {self.prog} --help)\n")
 
 
+def _cmd_view(args: argparse.Namespace) -> int:
+    from hexgym.tools.view import ViewSite, key_help, parse_start, run_viewer
+
+    site = ViewSite(parse_start(args.start), payload_kg=args.payload_kg, seed=args.seed)
+    print(key_help())
+    result = run_viewer(site, seconds=args.seconds, frames=args.frames, screenshot=args.screenshot, camera=args.camera)
+    spools = ", ".join(f"{v:+.2f}" for v in result["spools_mm"])
+    print(f"viewer closed after {result['sim_seconds']:.2f} s simulated, {result['frames']} frames; spools {spools} mm")
+    if args.screenshot:
+        print(f"screenshot: {args.screenshot}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser with all subcommands."""
     from hexgym.mbl.collect import add_collect_parser
@@ -322,6 +335,20 @@ def build_parser() -> argparse.ArgumentParser:
     build = sub.add_parser("build-assets", help="regenerate assets/meshes and assets/cat325.xml (developers)")
     build.add_argument("--dir", default=str(Path(__file__).resolve().parents[2] / "assets"), help="assets dir")
     build.set_defaults(func=_cmd_build_assets)
+
+    from hexgym.tools.view import key_help
+
+    view = sub.add_parser("view", help="MuJoCo's viewer on the loading site; drive the spools with keys or sliders",
+                          epilog=key_help(), formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    view.add_argument("--start", default="home", help="keyframe (home), 'site' (the env's start pose for --seed) "
+                      "or angles 'swing,boom,stick,bucket' in rad (default: home)")  # fmt: skip
+    view.add_argument("--payload-kg", type=float, default=0.0, help="material in the bucket, kg (default: 0)")
+    view.add_argument("--seed", type=int, default=0, help="the site's layout, as HexLoading-v0 seeds it (default: 0)")
+    view.add_argument("--camera", choices=("free", "chase", "cab"), default="free", help="camera (default: free)")
+    view.add_argument("--seconds", type=float, default=None, help="close after this much simulated time")
+    view.add_argument("--frames", type=int, default=None, help="close after this many frames")
+    view.add_argument("--screenshot", metavar="PNG", default=None, help="save the window before closing")
+    view.set_defaults(func=_cmd_view)
 
     _add_agent_parsers(sub)
     return parser
