@@ -411,6 +411,9 @@ def load_tables(directory: str | Path | None = None, table_set: str = DEFAULT_TA
         table = load_table(path)
         if table.name != name:  # as the native plugin checks
             raise TableFileError(f"MBL table file {path} holds table {table.name!r}, expected {name!r}")
-        check_table_schema(str(path), name, table.inputs, table.output, table_set)
+        try:
+            check_table_schema(str(path), name, table.inputs, table.output, table_set)
+        except ValueError as exc:  # named as every other problem of a table file
+            raise TableFileError(f"MBL table file {exc}") from None
         tables[name] = table
     return tables

@@ -87,8 +87,12 @@ def read_command_log(path: str | Path) -> CommandLog:
         with path.open(newline="", encoding="utf-8-sig") as f:
             reader = csv.reader(f)
             header = [h.strip() for h in next(reader, [])]
+            if any("\x00" in h for h in header):
+                raise ValueError(f"{path}: line 1 holds a NUL byte: not a text file")
             index = _column_index(path, header)
             for fields in reader:
+                if any("\x00" in x for x in fields):
+                    raise ValueError(f"{path}: line {reader.line_num} holds a NUL byte: not a text file")
                 if not fields or all(not x.strip() for x in fields):
                     continue  # blank line
                 where = f"{path}: row {len(t) + 1} (line {reader.line_num})"

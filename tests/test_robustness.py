@@ -1,0 +1,1239 @@
+"""Bad input and faults (issue 18): a clear error every time, nothing lost, no code run from a data file.
+
+A corpus of bad inputs and faults across every ``hexgym`` command and every file format hexgym reads
+(command logs, MBL tables, policy zips, observation normalisers, collected data sets and chunks,
+hyperparameter YAML, output paths, option values, environment and API arguments). Each case asserts
+the exact kind of error (exit status 2 and one line naming the problem on the command line; the
+exception class from Python) and that no existing file changed (a snapshot of the case's folder
+before and after: no file altered, created or removed), and that no code from a data file ran (a
+crafted pickle that would create a marker folder). The tables' corruptions are tried on both
+loaders (Python and the native plugin) with the same files.
+
+``python tests/test_robustness.py`` prints the corpus's size by kind (docs/robustness.md quotes it).
+"""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import json
+import os
+import pickle
+import re
+import resource
+import shutil
+import signal
+import stat
+import subprocess
+import sys
+import zipfile
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from hexgym.agents.policy_files import PolicyFileError
+from hexgym.files import PathError
+from hexgym.mbl.table import TableFileError
+
+ROOT = Path(__file__).resolve().parent.parent
+LOG = "t,swing,boom,stick,bucket\n0,0,0,0,0\n0.2,5,0,0,0\n0.4,0,0,0,0\n"
+TINY_YAML = """HexLoading-v0:
+  n_timesteps: 256
+  policy: 'MlpPolicy'
+  normalize: "dict(norm_obs=True, norm_reward=False)"
+  n_steps: 64
+  batch_size: 64
+  n_epochs: 1
+  policy_kwargs: "dict(net_arch=dict(pi=[16], vf=[16]))"
+  env_kwargs: {time_limit: 2.0}
+"""
+
+
+# -- the corpus ------------------------------------------------------------------------------------
+@dataclass
+class Case:
+    """One bad input or fault.
+
+    ``setup(tmp)`` builds the case's files in ``tmp`` and returns the command line (a list: exit
+    status 2 and one error line on stderr matching ``match``) or a Python call (raising ``error``
+    matching ``match``; ``error`` None: the call must succeed). ``kind`` says what is bad, for the
+    counts; ``creates`` names files the case may write (an input that is accepted); ``marker``: a
+    crafted file's code would create the folder MARKER.
+    """
+
+    kind: str
+    name: str
+    setup: Callable[[Path], list[str] | Callable[[], Any]]
+    match: str = ""
+    error: type[BaseException] | None = None
+    creates: tuple[str, ...] = ()
+    exit_code: int = 2
+    needs: str = ""  # "native", "view": skipped where that is not available
+    marker: bool = field(default=False)
+
+
+CORPUS: list[Case] = []
+
+
+def case(kind: str, name: str, match: str = "", **kwargs: Any) -> Callable:
+    def register(setup: Callable) -> Callable:
+        CORPUS.append(Case(kind, name, setup, match, **kwargs))
+        return setup
+
+    return register
+
+
+def write(path: Path, content: str | bytes, mode: int | None = None) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(content.encode() if isinstance(content, str) else content)
+    if mode is not None:
+        path.chmod(mode)
+    return path
+
+
+def simulate(tmp: Path, log: str | bytes | None = LOG, *extra: str, out: str = "traj.csv") -> list[str]:
+    """``hexgym simulate`` of ``log`` (written to log.csv unless None) into ``out``."""
+    if log is not None:
+        write(tmp / "log.csv", log)
+    return ["simulate", "--commands", str(tmp / "log.csv"), "--out", str(tmp / out), *extra]
+
+
+class _Mkdir:
+    """What a crafted data file would run: a folder appears if its pickle is ever loaded."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = str(path)
+
+    def __reduce__(self) -> tuple:
+        return (os.mkdir, (self.path,))
+
+
+def evil_pickle(tmp: Path) -> bytes:
+    return pickle.dumps(_Mkdir(tmp / "MARKER"))
+
+
+# -- command logs (hexgym simulate) -----------------------------------------------------------------
+_LOG_CASES = {
+    "extra field": (LOG + "0.6,0,0,0,0,7\n", r"row 4 \(line 5\): 6 fields, the header has 5"),
+    "missing field": (LOG + "0.6,0,0,0\n", r"row 4 \(line 5\): 4 fields, the header has 5"),
+    "blank lines, row and line": (
+        "t,swing,boom,stick,bucket\n\n0,0,0,0,0\n\n\n0.1,0,0,0,0\n0.05,0,0,0,0\n",
+        r"row 3 \(line 7\), column 't': 0.05 s does not come after",
+    ),
+    "missing column": ("t,swing,boom,stick\n0,0,0,0\n", r"missing column\(s\) bucket"),
+    "repeated column": ("t,swing,boom,stick,bucket,boom\n0,0,0,0,0,0\n", r"unexpected or repeated"),
+    "semicolons": ("t;swing;boom;stick;bucket\n0;0;0;0;0\n", r"missing column\(s\) t, swing"),
+    "empty file": ("", r"empty file"),
+    "header only": ("t,swing,boom,stick,bucket\n", r"header but no rows"),
+    "start not at 0": ("t,swing,boom,stick,bucket\n0.5,0,0,0,0\n", r"must start at t = 0"),
+    "time goes back": ("t,swing,boom,stick,bucket\n0,0,0,0,0\n0.2,0,0,0,0\n0.1,0,0,0,0\n", r"does not come after"),
+    "repeated time": ("t,swing,boom,stick,bucket\n0,0,0,0,0\n0,1,0,0,0\n", r"does not come after"),
+    "NaN spool": ("t,swing,boom,stick,bucket\n0,0,nan,0,0\n", r"column 'boom': nan is not a finite spool"),
+    "infinite time": ("t,swing,boom,stick,bucket\n0,0,0,0,0\ninf,0,0,0,0\n", r"inf is not a finite time"),
+    "spool beyond stroke": ("t,swing,boom,stick,bucket\n0,0,0,12,0\n", r"column 'stick': 12.0 mm is beyond"),
+    "text for a number": ("t,swing,boom,stick,bucket\n0,0,abc,0,0\n", r"'abc' is not a number"),
+    "empty value": ("t,swing,boom,stick,bucket\n0,0,,0,0\n", r"column 'boom': value missing"),
+    "duration of 1e7 s": ("t,swing,boom,stick,bucket\n0,0,0,0,0\n1e7,0,0,0,0\n", r"2e\+08 trajectory rows"),
+    "binary garbage": (bytes(range(256)) * 8, r"log.csv: not a UTF-8 text file"),
+    "UTF-16 (Excel Unicode text)": (LOG.encode("utf-16"), r"log.csv: not a UTF-8 text file"),
+    "NUL byte": ("t,swing,boom,stick,bucket\n0,0,0\x00,0,0\n", r"log.csv: line 2 holds a NUL byte: not a text file"),
+    "huge field": ("t,swing,boom,stick,bucket\n0," + "1" * 200_000 + ",0,0,0\n", r"not a readable CSV file"),
+}
+for _name, (_body, _match) in _LOG_CASES.items():
+    case("command log", _name, _match)(lambda tmp, body=_body: simulate(tmp, body))
+
+
+@case("command log", "a directory", r"input file --commands .*log.csv is a directory")
+def _(tmp):
+    (tmp / "log.csv").mkdir()
+    return simulate(tmp, None)
+
+
+@case("command log", "missing", r"input file --commands .*log.csv does not exist")
+def _(tmp):
+    return simulate(tmp, None)
+
+
+@case("command log", "unreadable", r"log.csv is not readable")
+def _(tmp):
+    write(tmp / "log.csv", LOG, mode=0)
+    return simulate(tmp, None)
+
+
+@case("command log", "UTF-8 BOM (Excel CSV UTF-8): accepted", creates=("traj.csv",), exit_code=0)
+def _(tmp):
+    return simulate(tmp, "\ufeff" + LOG)
+
+
+@case("command log", "more rows than the limit", r"more than 3 rows", error=ValueError)
+def _(tmp):
+    from hexgym.model import commandlog
+
+    write(tmp / "log.csv", LOG + "0.6,0,0,0,0\n")
+    original = commandlog.MAX_ROWS
+    commandlog.MAX_ROWS = 3
+
+    def call():
+        try:
+            commandlog.read_command_log(tmp / "log.csv")
+        finally:
+            commandlog.MAX_ROWS = original
+
+    return call
+
+
+@case("command log", "non-finite time in code", r"row 2, column 't': nan is not a finite time", error=ValueError)
+def _(tmp):
+    from hexgym.model.commandlog import CommandLog
+
+    return lambda: CommandLog(np.array([0.0, np.nan]), np.zeros((2, 4)))
+
+
+# -- option values ---------------------------------------------------------------------------------
+for _name, _extra, _match in (
+    ("--start unknown keyframe", ["--start", "nosuchkey"], r"no keyframe 'nosuchkey' in the model; it has home"),
+    ("--payload-kg 1e9", ["--payload-kg", "1e9"], r"--payload-kg must be a finite number from 0 to 2145 kg"),
+    ("--payload-kg negative", ["--payload-kg", "-5"], r"--payload-kg must be a finite number from 0"),
+    ("--payload-kg nan", ["--payload-kg", "nan"], r"--payload-kg must be a finite number from 0"),
+    ("--dt-out 0", ["--dt-out", "0"], r"--dt-out must be a finite number > 0 s, got 0.0"),
+    ("--dt-out inf", ["--dt-out", "inf"], r"--dt-out must be a finite number > 0 s"),
+    ("--dt-out off the period", ["--dt-out", "0.013"], r"multiple of the model's control period"),
+    ("--dt-out not a number", ["--dt-out", "abc"], r"argument --dt-out: invalid float value: 'abc'"),
+    ("--model unknown", ["--model", "bogus"], r"argument --model: invalid choice: 'bogus'"),
+):
+    case("option", "simulate " + _name, _match)(lambda tmp, extra=_extra: simulate(tmp, LOG, *extra))
+
+for _argv, _match in (
+    (["evaluate", "--seed", "-1"], r"--seed must be a whole number from 0"),
+    (["evaluate", "--episodes", "0"], r"--episodes must be a whole number >= 1, got 0"),
+    (["evaluate", "--seconds", "0"], r"--seconds must be a finite number > 0 s"),
+    (["evaluate", "--seconds", "nan"], r"--seconds must be a finite number > 0 s"),
+    (["video", "--out", "v.mp4", "--episodes", "0"], r"--episodes must be a whole number >= 1"),
+    (["video", "--out", "v.mp4", "--seed", "-3"], r"--seed must be a whole number from 0"),
+    (["demo", "--seconds", "0"], r"--seconds must be a finite number > 0 s"),
+    (["demo", "--seconds", "-1"], r"--seconds must be a finite number > 0 s"),
+    (["demo", "--fps", "0"], r"--fps must be a finite number > 0"),
+    (["scripted", "--episodes", "0"], r"--episodes must be a whole number >= 1"),
+    (["scripted", "--seconds", "inf"], r"--seconds must be a finite number > 0 s"),
+    (["scripted", "--seed", "-1"], r"--seed must be a whole number from 0"),
+    (["bench", "--steps", "0"], r"--steps must be a whole number >= 1"),
+    (["bench", "--seconds", "-2"], r"--seconds must be a finite number > 0"),
+    (["collect", "--samples", "0"], r"--samples must be a whole number >= 1"),
+    (["collect", "--workers", "0"], r"--workers must be a whole number >= 1"),
+    (["collect", "--seed", "-1"], r"--seed must be a whole number from 0"),
+    (["validate", "--suite", "-1"], r"--suite must be a whole number >= 0"),
+    (["validate", "--workers", "0"], r"--workers must be a whole number >= 1"),
+    (["train", "--timesteps", "0"], r"--timesteps must be a whole number >= 1"),
+    (["train", "--n-envs", "0"], r"--n-envs must be a whole number >= 1"),
+    (["train", "--checkpoint-every", "0"], r"--checkpoint-every must be a whole number >= 1"),
+    (["clone", "--out", "bc.zip", "--episodes", "0"], r"--episodes must be a whole number >= 1"),
+    (["clone", "--out", "bc.zip", "--noise", "nan"], r"--noise must be a finite number from 0 to 1"),
+    (["clone", "--out", "bc.zip", "--dagger-rounds", "-1"], r"--dagger-rounds must be a whole number >= 0"),
+    (["evaluate", "--seed", "x"], r"argument --seed: invalid int value: 'x'"),
+    (["nosuchcommand"], r"argument COMMAND: invalid choice: 'nosuchcommand'"),
+    (["model", "--bogus"], r"unrecognized arguments: --bogus"),
+):
+    case("option", " ".join(_argv), _match)(lambda tmp, argv=_argv: list(argv))
+
+
+@case("option", "view --payload-kg 1e9", r"--payload-kg must be a finite number from 0 to 2145", needs="view")
+def _(tmp):
+    return ["view", "--payload-kg", "1e9"]
+
+
+# -- output paths ----------------------------------------------------------------------------------
+@case("output path", "simulate --out a directory", r"output --out .*traj.csv is a directory")
+def _(tmp):
+    (tmp / "traj.csv").mkdir()
+    return simulate(tmp)
+
+
+@case("output path", "simulate --out under a file", r"output --out .*: .*afile is a file, not a directory")
+def _(tmp):
+    write(tmp / "afile", "x")
+    return simulate(tmp, LOG, out="afile/traj.csv")
+
+
+@case("output path", "simulate --out read-only file", r"output --out .*traj.csv is read-only")
+def _(tmp):
+    write(tmp / "traj.csv", "old trajectory\n", mode=0o444)
+    return simulate(tmp)
+
+
+@case("output path", "simulate --out in a read-only folder", r"cannot write in .*ro \(read-only\)")
+def _(tmp):
+    (tmp / "ro").mkdir()
+    (tmp / "ro").chmod(0o555)
+    return simulate(tmp, LOG, out="ro/traj.csv")
+
+
+@case("output path", "simulate --out is --commands", r"output --out .*log.csv is also an input or another output")
+def _(tmp):
+    return simulate(tmp, LOG, out="log.csv")
+
+
+@case("output path", "simulate --out a hard link to --commands", r"is also an input or another output")
+def _(tmp):
+    write(tmp / "log.csv", LOG)
+    os.link(tmp / "log.csv", tmp / "traj.csv")
+    return simulate(tmp, None)
+
+
+@case("output path", "simulate --out a symlink to --commands", r"is also an input or another output")
+def _(tmp):
+    write(tmp / "log.csv", LOG)
+    (tmp / "traj.csv").symlink_to(tmp / "log.csv")
+    return simulate(tmp, None)
+
+
+@case("output path", "video --width 0 over a good MP4", r"--width must be a whole number >= 1, got 0")
+def _(tmp):
+    write(tmp / "v.mp4", b"\x00\x00\x00\x18ftypmp42 a good video")
+    return ["video", "--policy", "scripted", "--out", str(tmp / "v.mp4"), "--width", "0", "--height", "0"]
+
+
+@case("output path", "video --out not an MP4", r"the video must be an .mp4 file")
+def _(tmp):
+    return ["video", "--policy", "scripted", "--out", str(tmp / "v.avi")]
+
+
+@case("output path", "video --snapshot is --out", r"output --snapshot .*v.mp4 is also an input or another output")
+def _(tmp):
+    return ["video", "--policy", "scripted", "--out", str(tmp / "v.mp4"), "--snapshot", str(tmp / "v.mp4")]
+
+
+@case("output path", "video --out a directory", r"output --out .*v.mp4 is a directory")
+def _(tmp):
+    (tmp / "v.mp4").mkdir()
+    return ["video", "--policy", "scripted", "--out", str(tmp / "v.mp4")]
+
+
+@case("output path", "demo --width 0 over a good demo.mp4", r"--width must be a whole number >= 1, got 0")
+def _(tmp):
+    write(tmp / "out" / "demo.mp4", b"a good video")
+    return ["demo", "--out", str(tmp / "out"), "--width", "0", "--height", "0"]
+
+
+@case("output path", "demo --out a file", r"output --out .*out is a file, not a directory")
+def _(tmp):
+    write(tmp / "out", "x")
+    return ["demo", "--out", str(tmp / "out")]
+
+
+@case("output path", "demo --seconds below one step", r"seconds must be at least one control step", error=ValueError)
+def _(tmp):
+    from hexgym.agents.demo import run_demo
+
+    return lambda: run_demo(tmp / "out", duration=0.01)
+
+
+@case("output path", "demo's demo.png is a directory", r"demo output .*demo.png is a directory")
+def _(tmp):
+    (tmp / "out" / "demo.png").mkdir(parents=True)
+    return ["demo", "--out", str(tmp / "out")]
+
+
+@case("output path", "evaluate --json a directory", r"output --json .*e.json is a directory")
+def _(tmp):
+    (tmp / "e.json").mkdir()
+    return ["evaluate", "--policy", "scripted", "--json", str(tmp / "e.json")]
+
+
+@case("output path", "evaluate --json read-only", r"output --json .*e.json is read-only")
+def _(tmp):
+    write(tmp / "e.json", "{}", mode=0o444)
+    return ["evaluate", "--policy", "scripted", "--json", str(tmp / "e.json")]
+
+
+@case("output path", "bench --json under a file", r"afile is a file, not a directory")
+def _(tmp):
+    write(tmp / "afile", "x")
+    return ["bench", "--json", str(tmp / "afile" / "b.json")]
+
+
+@case("output path", "scripted --json a directory", r"is a directory")
+def _(tmp):
+    (tmp / "s.json").mkdir()
+    return ["scripted", "--json", str(tmp / "s.json")]
+
+
+@case("output path", "reference-report --out a file", r"output --out .* is a file, not a directory")
+def _(tmp):
+    return ["reference-report", "--out", str(write(tmp / "rep", "x"))]
+
+
+@case("output path", "reference-report --out read-only", r"output --out .*rep is read-only")
+def _(tmp):
+    (tmp / "rep").mkdir(mode=0o555)
+    return ["reference-report", "--out", str(tmp / "rep")]
+
+
+@case("output path", "validate --out a file", r"output --out .* is a file, not a directory")
+def _(tmp):
+    return ["validate", "--out", str(write(tmp / "val", "x"))]
+
+
+@case("output path", "build-assets --dir a file", r"output --dir .* is a file, not a directory")
+def _(tmp):
+    return ["build-assets", "--dir", str(write(tmp / "assets", "x"))]
+
+
+@case("output path", "collect --out a file", r"output --out .*data is a file, not a directory")
+def _(tmp):
+    return ["collect", "--out", str(write(tmp / "data", "x"))]
+
+
+@case("output path", "fit --out a file", r"output --out .*tables is a file, not a directory")
+def _(tmp):
+    return ["fit", "--data", str(tmp), "--out", str(write(tmp / "tables", "x"))]
+
+
+@case("output path", "train --log-dir a file", r"output --log-dir .*logs is a file, not a directory")
+def _(tmp):
+    return ["train", "--log-dir", str(write(tmp / "logs", "x"))]
+
+
+@case("output path", "clone --out a directory", r"output --out .*bc.zip is a directory")
+def _(tmp):
+    (tmp / "bc.zip").mkdir()
+    return ["clone", "--out", str(tmp / "bc.zip")]
+
+
+@case("output path", "clone --out not a zip", r"the model must be a .zip file", error=ValueError)
+def _(tmp):
+    from hexgym.agents.training import clone_scripted
+
+    return lambda: clone_scripted(tmp / "bc.pt")
+
+
+@case("output path", "clone normaliser read-only", r"observation normaliser .*bc_vecnormalize.json is read-only")
+def _(tmp):
+    write(tmp / "bc_vecnormalize.json", "{}", mode=0o444)
+    return ["clone", "--out", str(tmp / "bc.zip")]
+
+
+@case("output path", "view --screenshot a directory", r"output --screenshot .* is a directory", needs="view")
+def _(tmp):
+    (tmp / "shot.png").mkdir()
+    return ["view", "--screenshot", str(tmp / "shot.png")]
+
+
+# -- collected data: chunks (collect, resuming) and data sets (fit, tables --bench) ----------------
+def _chunk(tmp: Path, content: bytes | None = None) -> Path:
+    """Chunk 0 of the boom/bucket group in ``tmp/data``: ``content``, or an npz whose metadata is no JSON."""
+    from hexgym.mbl.collect import chunk_path
+
+    path = chunk_path(tmp / "data", "boom_bucket", 0)
+    if content is not None:
+        return write(path, content)
+    path.parent.mkdir(parents=True)
+    with path.open("wb") as f:
+        np.savez(f, meta=np.array("not json {"), boom_X=np.zeros((2, 2)))
+    return path
+
+
+@case("data chunk", "resume over a truncated chunk", r"chunk .*boom_bucket_00000.npz is unreadable .* delete it")
+def _(tmp):
+    buffer = __import__("io").BytesIO()
+    np.savez(buffer, meta=np.array("{}"), boom_X=np.zeros((50, 4)))
+    _chunk(tmp, buffer.getvalue()[:600])
+    return ["collect", "--out", str(tmp / "data"), "--samples", "10", "--workers", "1"]
+
+
+@case("data chunk", "resume over a chunk with bad metadata", r"is unreadable \(JSONDecodeError.* delete it")
+def _(tmp):
+    _chunk(tmp)
+    return ["collect", "--out", str(tmp / "data"), "--samples", "10", "--workers", "1"]
+
+
+@case("data chunk", "resume over a text file", r"chunk .* is unreadable .* delete it to recompute it", error=ValueError)
+def _(tmp):
+    from hexgym.mbl.collect import collect
+
+    _chunk(tmp, b"not an npz\n")
+    return lambda: collect(tmp / "data", samples_per_group=10, seed=0, workers=1, progress=False)
+
+
+def _dataset(tmp: Path, **arrays: Any) -> list[str]:
+    n = 5
+    base = {"X": np.zeros((n, 4)), "y": np.zeros(n), "inputs": np.array(["a", "b", "c", "d"]),
+            "output": np.array("v"), "episode": np.arange(n)}  # fmt: skip
+    base.update(arrays)
+    (tmp / "data").mkdir(exist_ok=True)
+    with (tmp / "data" / "boom.npz").open("wb") as f:
+        np.savez(f, **{k: v for k, v in base.items() if v is not None})
+    return ["fit", "--data", str(tmp / "data"), "--out", str(tmp / "fitted")]
+
+
+for _name, _arrays, _match in (
+    ("X with a NaN", {"X": np.array([[0.0] * 4] * 4 + [[0, np.nan, 0, 0]])}, r"'X' holds a non-finite number at row 4"),
+    ("y with an inf", {"y": np.array([0, 0, np.inf, 0, 0])}, r"'y' holds a non-finite number at row 2"),
+    ("no y", {"y": None}, r"lacks the array\(s\) \['y'\]"),
+    ("y too short", {"y": np.zeros(3)}, r"'y' must be 5 floats"),
+    ("X of text", {"X": np.array([["a"] * 4] * 5)}, r"'X' must be a float array"),
+    ("object array (a pickle)", {"X": np.array([None] * 5, dtype=object)}, r"corrupt or not an .npz data set"),
+):
+    case("data set", "fit " + _name, _match)(lambda tmp, arrays=_arrays: _dataset(tmp, **arrays))
+
+
+@case("data set", "fit --data missing", r"input directory --data .*nodata does not exist")
+def _(tmp):
+    return ["fit", "--data", str(tmp / "nodata"), "--out", str(tmp / "fitted")]
+
+
+@case("data set", "fit, boom.npz garbage", r"data set .*boom.npz is corrupt or not an .npz data set")
+def _(tmp):
+    write(tmp / "data" / "boom.npz", b"PK\x03\x04 garbage")
+    return ["fit", "--data", str(tmp / "data"), "--out", str(tmp / "fitted")]
+
+
+@case("data set", "fit, boom.npz missing", r"data set .*boom.npz does not exist \(run `hexgym collect`\)")
+def _(tmp):
+    (tmp / "data").mkdir()
+    return ["fit", "--data", str(tmp / "data"), "--out", str(tmp / "fitted")]
+
+
+@case("data set", "tables --bench missing", r"input directory --bench .* does not exist")
+def _(tmp):
+    return ["tables", "--bench", str(tmp / "nodata")]
+
+
+# -- MBL tables through the command line (both loaders: test_table_damage_both_backends below) ------
+def _tables(tmp: Path) -> Path:
+    from hexgym.mbl.table import packaged_tables_dir
+
+    return Path(shutil.copytree(packaged_tables_dir(), tmp / "tables"))
+
+
+@case("table", "tables --dir with an edited value", r"MBL table file .*boom.npz: content hash mismatch")
+def _(tmp):
+    _rewrite_table(_tables(tmp) / "boom.npz", values=lambda v: v + 1e-6)
+    return ["tables", "--dir", str(tmp / "tables")]
+
+
+@case("table", "tables --dir missing", r"input directory --dir .*nosuch does not exist")
+def _(tmp):
+    return ["tables", "--dir", str(tmp / "nosuch")]
+
+
+@case("table", "table file is a directory", r"MBL table file .*boom.npz is not a regular file", error=TableFileError)
+def _(tmp):
+    from hexgym.mbl.table import load_table
+
+    (tmp / "boom.npz").mkdir()
+    return lambda: load_table(tmp / "boom.npz")
+
+
+# -- policies: the model zip ------------------------------------------------------------------------
+def _policy(tmp: Path, normalizer: bool = True) -> Path:
+    from hexgym.agents.evaluate import SHIPPED_POLICY
+    from hexgym.agents.policy_files import normalizer_path
+
+    path = Path(shutil.copy(SHIPPED_POLICY, tmp / "policy.zip"))
+    if normalizer:
+        shutil.copy(normalizer_path(SHIPPED_POLICY), normalizer_path(path))
+    return path
+
+
+def _rewrite_zip(path: Path, change: Callable[[dict[str, bytes]], None]) -> Path:
+    with zipfile.ZipFile(path) as z:
+        members = {n: z.read(n) for n in z.namelist()}
+    change(members)
+    with zipfile.ZipFile(path, "w") as z:
+        for name, data in members.items():
+            z.writestr(name, data)
+    return path
+
+
+def _rewrite_data(path: Path, change: Callable[[dict], None]) -> Path:
+    def edit(members: dict[str, bytes]) -> None:
+        data = json.loads(members["data"])
+        change(data)
+        members["data"] = json.dumps(data).encode()
+
+    return _rewrite_zip(path, edit)
+
+
+def _evaluate(path: Path) -> list[str]:
+    return ["evaluate", "--policy", str(path), "--episodes", "1"]
+
+
+def _pickled(tmp: Path, **readable: Any) -> dict:
+    return {":type:": "<class 'object'>", ":serialized:": base64.b64encode(evil_pickle(tmp)).decode(), **readable}
+
+
+@case("policy", "missing", r"no policy file .*nope.zip")
+def _(tmp):
+    return _evaluate(tmp / "nope.zip")
+
+
+@case("policy", "a directory", r"policy file .*policy.zip is a directory")
+def _(tmp):
+    (tmp / "policy.zip").mkdir()
+    return _evaluate(tmp / "policy.zip")
+
+
+@case("policy", "a text file", r"policy.zip is not a Stable-Baselines3 model zip")
+def _(tmp):
+    return _evaluate(write(tmp / "policy.zip", "hello"))
+
+
+@case("policy", "a zip without data", r"is not a Stable-Baselines3 model zip \(.*data")
+def _(tmp):
+    return _evaluate(_rewrite_zip(_policy(tmp), lambda m: m.pop("data")))
+
+
+@case("policy", "data that is not JSON", r"is not a Stable-Baselines3 model zip")
+def _(tmp):
+    return _evaluate(_rewrite_zip(_policy(tmp), lambda m: m.update(data=b"\x80\x04 not json")))
+
+
+@case("policy", "a truncated zip", r"is not a Stable-Baselines3 model zip")
+def _(tmp):
+    path = _policy(tmp)
+    path.write_bytes(path.read_bytes()[:4000])
+    return _evaluate(path)
+
+
+@case("policy", "an extra pickled entry", r"its 'evil' is pickled; hexgym does not unpickle", marker=True)
+def _(tmp):
+    return _evaluate(_rewrite_data(_policy(tmp), lambda d: d.update(evil=_pickled(tmp))))
+
+
+@case("policy", "policy_class not an SB3 policy", r"neither a PPO nor a SAC MlpPolicy model", marker=True)
+def _(tmp):
+    return _evaluate(_rewrite_data(_policy(tmp), lambda d: d.update(policy_class=_pickled(tmp, __module__="os"))))
+
+
+@case("policy", "a crafted policy_class pickle is never loaded: accepted", marker=True)
+def _(tmp):
+    from hexgym.agents.evaluate import load_policy
+
+    def craft(data: dict) -> None:
+        data["policy_class"][":serialized:"] = _pickled(tmp)[":serialized:"]  # readable fields say PPO's
+
+    path = _rewrite_data(_policy(tmp), craft)
+    return lambda: load_policy(str(path)) and None
+
+
+@case("policy", "observations of another shape", r"the policy takes observations of shape \(22,\)")
+def _(tmp):
+    return _evaluate(_rewrite_data(_policy(tmp), lambda d: d["observation_space"].update(_shape=[22])))
+
+
+@case("policy", "actions of another shape", r"the policy takes actions of shape \(3,\)")
+def _(tmp):
+    return _evaluate(_rewrite_data(_policy(tmp), lambda d: d["action_space"].update(_shape=[3])))
+
+
+@case("policy", "weights that are garbage", r"policy.zip: the model does not load")
+def _(tmp):
+    return _evaluate(_rewrite_zip(_policy(tmp), lambda m: m.update({"policy.pth": b"garbage"})))
+
+
+@case("policy", "weights that are a crafted pickle", r"policy.zip: the model does not load", marker=True)
+def _(tmp):
+    return _evaluate(_rewrite_zip(_policy(tmp), lambda m: m.update({"policy.pth": evil_pickle(tmp)})))
+
+
+@case("policy", "policy_kwargs naming an unknown class", r"policy_kwargs name .*os.system.* hexgym does not load")
+def _(tmp):
+    kwargs = {":type:": "<class 'dict'>", ":serialized:": "AAAA", "activation_fn": "<class 'os.system'>"}
+    return _evaluate(_rewrite_data(_policy(tmp), lambda d: d.update(policy_kwargs=kwargs)))
+
+
+@case("policy", "a pickled schedule hexgym cannot read", r"the clip_range is a pickled schedule", marker=True)
+def _(tmp):
+    schedule = _pickled(tmp, value_schedule="<function <lambda>>")
+    return _evaluate(_rewrite_data(_policy(tmp), lambda d: d.update(clip_range=schedule)))
+
+
+@case("policy", "video with a policy lacking its normaliser", r"has no observation normaliser")
+def _(tmp):
+    return ["video", "--policy", str(_policy(tmp, normalizer=False)), "--out", str(tmp / "v.mp4")]
+
+
+@case("policy", "train --init-from a text file", r"init.zip is not a Stable-Baselines3 model zip")
+def _(tmp):
+    write(tmp / "h.yml", TINY_YAML)
+    init = write(tmp / "init.zip", "not a model")
+    return ["train", "--hyperparams", str(tmp / "h.yml"), "--init-from", str(init), "-f", str(tmp / "logs")]
+
+
+@case("policy", "train --init-from a policy without its normaliser", r"has no observation normaliser")
+def _(tmp):
+    write(tmp / "h.yml", TINY_YAML)
+    init = _policy(tmp, normalizer=False)
+    return ["train", "--hyperparams", str(tmp / "h.yml"), "--init-from", str(init), "-f", str(tmp / "logs")]
+
+
+# -- policies: the observation normaliser ----------------------------------------------------------
+def _normalizer(tmp: Path, change: Callable[[dict], None] | None = None, raw: bytes | None = None) -> list[str]:
+    from hexgym.agents.policy_files import normalizer_path
+
+    path = _policy(tmp)
+    stats = normalizer_path(path)
+    if raw is not None:
+        stats.write_bytes(raw)
+    elif change is not None:
+        data = json.loads(stats.read_text())
+        change(data)
+        stats.write_text(json.dumps(data))
+    return _evaluate(path)
+
+
+def _drop_last(data: dict) -> None:
+    data["obs"]["mean"].pop()
+    data["obs"]["var"].pop()
+
+
+for _name, _change, _match in (
+    ("another format", lambda d: d.update(format="sb3"), r"format 'sb3', expected 'hexgym.vecnormalize'"),
+    ("version 2", lambda d: d.update(version=2), r"version 2; this hexgym reads 1"),
+    ("a negative variance", lambda d: d["obs"]["var"].__setitem__(3, -1.0), r"a variance in 'obs.var' is negative"),
+    ("22 entries for 23 observations", _drop_last, r"has 22 entries, the policy's observations 23"),
+    ("mean and variance of different lengths", lambda d: d["obs"]["var"].pop(), r"lists of the same length"),
+    ("an unknown key", lambda d: d.update(eval="__import__('os')"), r"unknown key\(s\) \['eval'\]"),
+    ("a boolean clip", lambda d: d.update(clip_obs=True), r"'clip_obs' must be a finite number, got True"),
+    ("a number as text", lambda d: d["obs"]["mean"].__setitem__(0, "1.0"), r"'obs.mean\[0\]' must be a finite"),
+    ("epsilon 0", lambda d: d.update(epsilon=0), r"'epsilon' must be > 0"),
+    ("an unknown dtype", lambda d: d["obs"].update(dtype="float16"), r"'obs.dtype' must be one of"),
+    ("not an object", lambda d: d.clear(), r"format None, expected"),
+):
+    case("normaliser", _name, _match)(lambda tmp, change=_change: _normalizer(tmp, change))
+
+for _name, _raw, _match in (
+    ("a NaN", b'{"format": "hexgym.vecnormalize", "version": 1, "clip_obs": NaN}', r"NaN is not a finite number"),
+    ("not JSON", b"mean: 1, var: 2\n", r"observation normaliser .* is not a JSON file"),
+    ("binary", bytes(range(256)), r"observation normaliser .* is not a JSON file"),
+    ("a JSON list", b"[1, 2, 3]", r"not a JSON object"),
+    ("deeply nested", b"[" * 100_000, r"is not a JSON file"),
+):
+    case("normaliser", _name, _match)(lambda tmp, raw=_raw: _normalizer(tmp, raw=raw))
+
+
+@case("normaliser", "a pickle under the .json name", r"is a pickle, not JSON: convert it once", marker=True)
+def _(tmp):
+    return _normalizer(tmp, raw=evil_pickle(tmp))
+
+
+@case("normaliser", "missing: the policy is refused, not run raw", r"policy .*policy.zip has no observation normaliser")
+def _(tmp):
+    return _evaluate(_policy(tmp, normalizer=False))
+
+
+@case("normaliser", "only an old pickled one (crafted)", r"is a pickle, which hexgym no longer reads", marker=True)
+def _(tmp):
+    path = _policy(tmp, normalizer=False)
+    write(tmp / "policy_vecnormalize.pkl", evil_pickle(tmp))
+    return _evaluate(path)
+
+
+@case("normaliser", "a directory", r"observation normaliser .* is a directory")
+def _(tmp):
+    from hexgym.agents.policy_files import normalizer_path
+
+    path = _policy(tmp, normalizer=False)
+    normalizer_path(path).mkdir()
+    return _evaluate(path)
+
+
+@case(
+    "normaliser", "convert-normalizer of a crafted pickle", r"refers to posix.mkdir, which a VecNormalize", marker=True
+)
+def _(tmp):
+    return ["convert-normalizer", str(write(tmp / "x_vecnormalize.pkl", evil_pickle(tmp)))]
+
+
+@case("normaliser", "convert-normalizer of a text file", r"is not a pickled VecNormalize hexgym can convert")
+def _(tmp):
+    return ["convert-normalizer", str(write(tmp / "x_vecnormalize.pkl", "hello"))]
+
+
+@case("normaliser", "convert-normalizer --out read-only", r"output --out .*x.json is read-only")
+def _(tmp):
+    write(tmp / "x.json", "{}", mode=0o444)
+    return ["convert-normalizer", str(write(tmp / "x_vecnormalize.pkl", b"x")), "--out", str(tmp / "x.json")]
+
+
+# -- hyperparameter YAML (train, clone) -----------------------------------------------------------
+def _train_yaml(tmp: Path, text: str | bytes, *extra: str) -> list[str]:
+    write(tmp / "h.yml", text)
+    return ["train", "--hyperparams", str(tmp / "h.yml"), "-f", str(tmp / "logs"), "--n-envs", "2", *extra]
+
+
+for _name, _text, _match in (
+    ("not YAML", "HexLoading-v0: [1, 2\n", r"h.yml is not a readable YAML file"),
+    ("a list", "- 1\n- 2\n", r"h.yml must map env ids to hyperparameters, not hold a list"),
+    ("no entry for the env", "Other-v0: {}\n", r"h.yml has no entry for 'HexLoading-v0'"),
+    ("an entry that is a number", "HexLoading-v0: 3\n", r"the entry for 'HexLoading-v0' must be a mapping"),
+    (
+        "code in policy_kwargs",
+        TINY_YAML.replace("dict(net_arch=dict(pi=[16], vf=[16]))", "__import__('os').mkdir('MARKER')"),
+        r"cannot read the hyperparameter .* is not allowed: only dict\(...\), literals and nn.<activation>",
+    ),
+    (
+        "an unknown activation",
+        TINY_YAML.replace("dict(net_arch=dict(pi=[16], vf=[16]))", "dict(activation_fn=nn.Evil)"),
+        r"nn.Evil is not an activation hexgym knows",
+    ),
+    (
+        "a python/object tag",
+        "HexLoading-v0: !!python/object/apply:os.mkdir ['MARKER']\n",
+        r"h.yml is not a readable YAML file: could not determine a constructor",
+    ),
+    ("binary", b"HexLoading-v0:\n  gamma: \xff\xfe\x00", r"h.yml is not a readable YAML file"),
+):
+    case("YAML", _name, _match, marker=True)(lambda tmp, text=_text: _train_yaml(tmp, text))
+
+
+@case("YAML", "train --hyperparams missing", r"input file --hyperparams .*none.yml does not exist")
+def _(tmp):
+    return ["train", "--hyperparams", str(tmp / "none.yml"), "-f", str(tmp / "logs")]
+
+
+@case("YAML", "checkpoints more often than one rollout", r"checkpoint_every must be at least one rollout \(128 steps")
+def _(tmp):
+    return _train_yaml(tmp, TINY_YAML, "--checkpoint-every", "100")
+
+
+@case("YAML", "clone --hyperparams not YAML", r"is not a readable YAML file")
+def _(tmp):
+    return ["clone", "--out", str(tmp / "bc.zip"), "--hyperparams", str(write(tmp / "h.yml", "a: [\n"))]
+
+
+# -- environment and Python API arguments ----------------------------------------------------------
+def _env(**kwargs: Any) -> Callable[[Path], Callable[[], Any]]:
+    def setup(tmp: Path) -> Callable[[], Any]:
+        from hexgym.envs.loading import HexLoadingEnv
+
+        return lambda: HexLoadingEnv(**kwargs)
+
+    return setup
+
+
+for _name, _kwargs, _match in (
+    ("fuel_weight=nan", {"fuel_weight": float("nan")}, r"fuel_weight must be a finite number, got nan"),
+    ("time_weight=inf", {"time_weight": float("inf")}, r"time_weight must be a finite number"),
+    ("delivery_weight as text", {"delivery_weight": "1"}, r"delivery_weight must be a finite number, got '1'"),
+    ("time_limit=inf", {"time_limit": float("inf")}, r"time_limit and truck_capacity_kg must be finite and > 0"),
+    ("truck_capacity_kg=nan", {"truck_capacity_kg": float("nan")}, r"must be finite and > 0"),
+    ("render width 0", {"render_mode": "rgb_array", "width": 0}, r"width must be a whole number of pixels >= 1"),
+    ("render height 2.5", {"render_mode": "rgb_array", "height": 2.5}, r"height must be a whole number of pixels"),
+    ("render width 5000", {"render_mode": "rgb_array", "width": 5000}, r"exceed the scene's offscreen buffer"),
+):
+    case("environment", "HexLoadingEnv " + _name, _match, error=ValueError)(_env(**_kwargs))
+
+
+@case("environment", "set_payload(1e9)", r"payload must be a finite mass from 0 to 2145 kg", error=ValueError)
+def _(tmp):
+    from hexgym.hydraulics.reference import ReferenceModel
+
+    return lambda: ReferenceModel().reset("home", 1e9)
+
+
+@case("environment", "replay from an unknown keyframe", r"no keyframe 'nosuch'", error=ValueError)
+def _(tmp):
+    from hexgym.hydraulics.reference import ReferenceModel
+    from hexgym.model.commandlog import CommandLog
+    from hexgym.model.replay import replay
+
+    log = CommandLog(np.array([0.0, 0.1]), np.zeros((2, 4)))
+    return lambda: replay(ReferenceModel(), log, start="nosuch")
+
+
+@case("environment", "replay of a log lasting 1e7 s", r"would make 2e\+08 trajectory rows", error=ValueError)
+def _(tmp):
+    from hexgym.hydraulics.reference import ReferenceModel
+    from hexgym.model.commandlog import CommandLog
+    from hexgym.model.replay import replay
+
+    log = CommandLog(np.array([0.0, 1e7]), np.zeros((2, 4)))
+    return lambda: replay(ReferenceModel(), log)
+
+
+@case("environment", "write_mp4 of no frames over a good file", r"no frames to write", error=ValueError)
+def _(tmp):
+    from hexgym.machine.render import write_mp4
+
+    write(tmp / "v.mp4", b"a good video")
+    return lambda: write_mp4([], tmp / "v.mp4", fps=10)
+
+
+@case("environment", "write_mp4 of 0 x 0 frames", r"cannot write an image of shape \(0, 0, 3\)", error=ValueError)
+def _(tmp):
+    from hexgym.machine.render import write_mp4
+
+    return lambda: write_mp4([np.zeros((0, 0, 3), np.uint8)] * 3, tmp / "v.mp4", fps=10)
+
+
+@case("environment", "evaluate(seed=-1)", r"seed must be a whole number from 0", error=ValueError)
+def _(tmp):
+    from hexgym.agents.evaluate import evaluate
+
+    return lambda: evaluate("scripted", episodes=1, seed=-1)
+
+
+@case("environment", "record_video(width=0)", r"width must be a whole number >= 1", error=ValueError)
+def _(tmp):
+    from hexgym.agents.video import record_video
+
+    return lambda: record_video("scripted", tmp / "v.mp4", width=0)
+
+
+@case("environment", "run_demo(duration=nan)", r"seconds must be a finite number > 0 s, got nan", error=ValueError)
+def _(tmp):
+    from hexgym.agents.demo import run_demo
+
+    return lambda: run_demo(tmp / "out", duration=float("nan"))
+
+
+@case("environment", "check_output_file under a file", r"afile is a file, not a directory", error=PathError)
+def _(tmp):
+    from hexgym.files import check_output_file
+
+    write(tmp / "afile", "x")
+    return lambda: check_output_file(tmp / "afile" / "x.csv")
+
+
+@case("environment", "load_trained of a pickled normaliser", r"is a pickle, which hexgym", error=PolicyFileError,
+      marker=True)  # fmt: skip
+def _(tmp):
+    from hexgym.agents.evaluate import load_trained
+
+    path = _policy(tmp, normalizer=False)
+    write(tmp / "policy_vecnormalize.pkl", evil_pickle(tmp))
+    return lambda: load_trained(path)
+
+
+# -- running the corpus ----------------------------------------------------------------------------
+def snapshot(root: Path) -> dict[str, tuple[str, int]]:
+    """Every path under ``root``: its content's digest (or kind) and permission bits."""
+    out = {}
+    for path in sorted(root.rglob("*")):
+        info = path.lstat()
+        if stat.S_ISLNK(info.st_mode):
+            digest = "link:" + os.readlink(path)
+        elif path.is_dir():
+            digest = "dir"
+        else:
+            digest = hashlib.sha256(path.read_bytes()).hexdigest()
+        out[str(path.relative_to(root))] = (digest, stat.S_IMODE(info.st_mode))
+    return out
+
+
+def _available(needs: str) -> bool:
+    if needs == "native":
+        from hexgym.model import plugin
+
+        return plugin.native_available()
+    if needs == "view":
+        from hexgym.tools.cli import build_parser
+
+        return "view" in build_parser()._subparsers._group_actions[0].choices
+    return True
+
+
+def _restore_permissions(root: Path) -> None:
+    for path in [root, *root.rglob("*")]:
+        if not path.is_symlink():
+            path.chmod(path.stat().st_mode | stat.S_IRWXU)
+
+
+@pytest.fixture
+def workdir(tmp_path, monkeypatch):
+    work = tmp_path / "case"
+    work.mkdir()
+    monkeypatch.chdir(work)  # default outputs (out/, logs/, data/) land where the snapshot sees them
+    yield work
+    _restore_permissions(tmp_path)
+
+
+_PROGRESS = re.compile(r"\d+%\|")  # a progress bar's line (collect's tqdm) is not an error line
+
+
+@pytest.mark.filterwarnings("ignore:Detected pickle protocol")  # torch, refusing a crafted policy.pth
+@pytest.mark.parametrize("case", CORPUS, ids=[f"{c.kind}: {c.name}" for c in CORPUS])
+def test_bad_input_is_refused_and_nothing_changes(case, workdir, capsys):
+    from hexgym.tools import cli
+
+    if case.needs and not _available(case.needs):
+        pytest.skip(f"needs {case.needs}")
+    action = case.setup(workdir)
+    before = snapshot(workdir)
+    if isinstance(action, list):
+        try:
+            code = cli.main(action)
+        except SystemExit as exit_:  # argparse's usage errors exit from parse_args
+            code = exit_.code
+        err = capsys.readouterr().err
+        lines = [line for line in err.splitlines() if line.strip() and not _PROGRESS.search(line)]
+        assert "Traceback" not in err, err
+        assert code == case.exit_code, err
+        if case.exit_code == 2:
+            assert len(lines) == 1, f"not one line: {err}"
+            assert re.match(r"hexgym( \S+)?: error: ", lines[0]), lines[0]
+            assert re.search(case.match, lines[0]), lines[0]
+    elif case.error is None:
+        action()
+    else:
+        with pytest.raises(case.error, match=case.match):
+            action()
+    after = snapshot(workdir)
+    new = {k: v for k, v in after.items() if k not in before}
+    assert {k: after.get(k) for k in before} == before, "an existing file changed"
+    assert sorted(new) == sorted(case.creates), f"unexpected new files {sorted(new)}"
+    if case.marker:
+        assert not (workdir / "MARKER").exists(), "code from a data file ran"
+
+
+# -- MBL tables: the same damaged files through both loaders ---------------------------------------
+def _rewrite_table(
+    path: Path, rehash: bool = False, meta: dict | None = None, meta_text: str | None = None, **arrays: Any
+) -> None:
+    """Rewrite table ``path``: arrays replaced (a value, None to drop it, or a function of the old),
+    metadata updated (or replaced by ``meta_text``); with ``rehash`` the content hash is made to fit
+    again (a well-formed file)."""
+    from hexgym.mbl.table import content_sha256
+
+    with np.load(path, allow_pickle=False) as z:
+        content = {k: z[k] for k in z.files}
+    info = json.loads(str(content["meta"][0]))
+    info.update(meta or {})
+    for name, value in arrays.items():
+        if value is None:
+            content.pop(name, None)
+        else:
+            content[name] = value(content[name]) if callable(value) else value
+    if rehash:
+        d = len(info["inputs"])
+        hashed = {k: content[k] for k in ("values", "confidence", *(f"axis_{j}" for j in range(d)))}
+        info["content_sha256"] = content_sha256(info, hashed)
+    content["meta"] = np.array([meta_text if meta_text is not None else json.dumps(info, sort_keys=True)])
+    with path.open("wb") as f:
+        np.savez_compressed(f, **content)
+
+
+def _nan_at(index: int) -> Callable[[np.ndarray], np.ndarray]:
+    def spoil(a: np.ndarray) -> np.ndarray:
+        a = a.copy()
+        a.reshape(-1)[index] = np.nan
+        return a
+
+    return spoil
+
+
+def _flip(a: np.ndarray) -> np.ndarray:
+    a = a.copy()
+    a[[0, 1]] = a[[1, 0]]
+    return a
+
+
+def _object_array(path: Path) -> None:
+    with np.load(path, allow_pickle=False) as z:
+        content = {k: z[k] for k in z.files}
+    content["evil"] = np.array([_Mkdir(path.parent / "MARKER")], dtype=object)
+    with path.open("wb") as f:
+        np.savez(f, allow_pickle=True, **content)
+
+
+TABLE_DAMAGE: dict[str, tuple[Callable[[Path], None], str]] = {
+    "a value edited": (lambda p: _rewrite_table(p, values=lambda v: v * 1.001), r"content hash mismatch"),
+    "metrics edited": (lambda p: _rewrite_table(p, meta={"metrics": {"loo_rmse_rel": 0.0}}), r"content hash mismatch"),
+    "parameters edited": (
+        lambda p: _rewrite_table(p, meta={"params": {**_meta(p)["params"], "bandwidth": 9.0}}),
+        r"content hash mismatch",
+    ),
+    "the hash edited": (lambda p: _rewrite_table(p, meta={"content_sha256": "0" * 64}), r"content hash mismatch"),
+    "no hash": (lambda p: _rewrite_table(p, meta={"content_sha256": 5}), r"metadata lacks .?'?content_sha256"),
+    "format version 2": (lambda p: _rewrite_table(p, meta={"format_version": 2}), r"has format version 2"),
+    "NaN in values (rehashed)": (lambda p: _rewrite_table(p, True, values=_nan_at(7)), r"'values' holds non-finite"),
+    "inf in confidence (rehashed)": (
+        lambda p: _rewrite_table(p, True, confidence=lambda c: c * np.inf),
+        r"'confidence' holds non-finite",
+    ),
+    "NaN on an axis (rehashed)": (lambda p: _rewrite_table(p, True, axis_2=_nan_at(1)), r"'axis_2' holds non-finite"),
+    "an axis out of order (rehashed)": (lambda p: _rewrite_table(p, True, axis_0=_flip), r"not strictly increasing"),
+    "float32 values": (lambda p: _rewrite_table(p, values=lambda v: v.astype(np.float32)), r"dtype <f4, expected <f8"),
+    "big-endian values": (lambda p: _rewrite_table(p, values=lambda v: v.astype(">f8")), r"dtype >f8, expected <f8"),
+    "an extra integer array": (lambda p: _rewrite_table(p, extra=np.arange(3)), r"dtype <i8, expected <f8"),
+    "Fortran-order values (rehashed)": (
+        lambda p: _rewrite_table(p, True, values=np.asfortranarray),
+        r"not in C order",
+    ),
+    "confidence missing": (lambda p: _rewrite_table(p, confidence=None), r"'confidence' is missing"),
+    "values of the wrong shape": (
+        lambda p: _rewrite_table(p, values=lambda v: v[..., :-1].copy()),
+        r"'values' has shape",
+    ),
+    "metadata not JSON": (lambda p: _rewrite_table(p, meta_text="{not json"), r"metadata is not valid JSON"),
+    "another table's name (rehashed)": (
+        lambda p: _rewrite_table(p, True, meta={"name": "stick"}),
+        r"holds table 'stick', expected 'swing'",
+    ),
+    "inputs reordered (rehashed)": (
+        lambda p: _rewrite_table(p, True, meta={"inputs": _meta(p)["inputs"][::-1]}),
+        r"inputs",
+    ),
+    "truncated": (lambda p: p.write_bytes(p.read_bytes()[: p.stat().st_size // 2]), r"is corrupt or not a table file"),
+    "not a zip": (lambda p: p.write_text("swing table\n"), r"is corrupt or not a table file"),
+    "a pickled object inside": (_object_array, r"MBL table file"),
+    "missing": (Path.unlink, r"does not exist"),
+}
+
+
+def _meta(path: Path) -> dict:
+    with np.load(path, allow_pickle=False) as z:
+        return json.loads(str(z["meta"][0]))
+
+
+@pytest.mark.parametrize("backend", ["python", "native"])
+@pytest.mark.parametrize("damage", list(TABLE_DAMAGE))
+def test_table_damage_both_backends(damage, backend, workdir):
+    """The same damaged file is refused by the Python loader and by the native plugin, each naming
+    the file and the same problem (FileNotFoundError from Python for a missing file, as documented)."""
+    from hexgym.mbl.table import TableFileError, load_tables
+
+    if backend == "native" and not _available("native"):
+        pytest.skip("native plugin not built")
+    directory = _tables(workdir)
+    path = directory / "swing.npz"
+    spoil, match = TABLE_DAMAGE[damage]
+    spoil(path)
+    before = snapshot(workdir)
+    if backend == "python":
+        error = FileNotFoundError if damage == "missing" else TableFileError
+        with pytest.raises(error, match=match) as info:
+            load_tables(directory)
+    else:
+        from hexgym.model.native_backend import load_mbl_model
+
+        with pytest.raises(ValueError, match=match) as info:
+            load_mbl_model(directory)
+    assert f"MBL table file {path}" in str(info.value), str(info.value)
+    assert snapshot(workdir) == before
+    assert not (directory / "MARKER").exists()
+
+
+def test_both_loaders_agree_on_the_hash_of_unusual_metadata(workdir):
+    """The native loader's canonical JSON (Python's json.dumps) on floats, escapes and big integers:
+    a table saved by Python with such metadata loads on both backends."""
+    from hexgym.mbl.table import load_table, load_tables
+
+    directory = _tables(workdir)
+    path = directory / "boom.npz"
+    table = load_table(path)
+    metrics = {"tiny": 1e-05, "small": 0.0001, "big": 1e16, "almost": 1e15, "neg": -0.0, "third": 1 / 3,
+               "int": 12345678901234567890, "text": "tab\tquote\" \u00e9 \U0001f600", "none": None, "flag": True,
+               "list": [1.5, -2, 3e-300], "nan": float("nan")}  # fmt: skip
+    object.__setattr__(table, "metrics", metrics)
+    table.save(path)
+    assert load_tables(directory)["boom"].metrics["text"] == metrics["text"]
+    if _available("native"):
+        from hexgym.model.native_backend import load_mbl_model
+
+        load_mbl_model(directory)
+
+
+# -- faults ----------------------------------------------------------------------------------------
+FAULTS = ["disk full", "no space (ENOSPC) at the rename", "interrupted", "internal error", "--debug", "HEXGYM_DEBUG"]
+
+
+def test_full_disk_keeps_the_old_file(tmp_path):
+    """A write that fails for space (the file size limit, as a full disk fails it) ends as one line,
+    exit 2, and leaves the old trajectory as it was and no temporary file behind."""
+    rows = "".join(f"{0.1 * k:.1f},{(k % 5) - 2},0,0,0\n" for k in range(1, 30))
+    log = write(tmp_path / "log.csv", "t,swing,boom,stick,bucket\n0,0,0,0,0\n" + rows)
+    out = write(tmp_path / "traj.csv", "old trajectory\n")
+    before = snapshot(tmp_path)
+
+    def limit() -> None:
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (4000, 4000))
+
+    argv = ["simulate", "--commands", str(log), "--out", str(out), "--dt-out", "0.05"]
+    result = subprocess.run([sys.executable, "-m", "hexgym.tools.cli", *argv], capture_output=True, text=True,
+                            preexec_fn=limit, cwd=tmp_path, env={**os.environ, "MUJOCO_GL": "egl"})  # fmt: skip
+    lines = result.stderr.strip().splitlines()
+    assert result.returncode == 2 and len(lines) == 1, result.stderr
+    assert lines[0].startswith("hexgym simulate: error: ") and "File too large" in lines[0], lines[0]
+    assert snapshot(tmp_path) == before
+
+
+def test_no_space_at_the_rename_keeps_the_old_file(workdir, capsys, monkeypatch):
+    import errno
+
+    from hexgym import files
+    from hexgym.tools import cli
+
+    argv = simulate(workdir)
+    write(workdir / "traj.csv", "old trajectory\n")
+    before = snapshot(workdir)
+
+    def full(*args: Any) -> None:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(args[1]))
+
+    monkeypatch.setattr(files.os, "replace", full)
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "traj.csv: No space left on device" in err, err
+    assert snapshot(workdir) == before
+
+
+def test_interrupt_is_one_line_and_keeps_the_old_file(workdir, capsys, monkeypatch):
+    from hexgym.model import replay
+    from hexgym.tools import cli
+
+    argv = simulate(workdir)
+    write(workdir / "traj.csv", "old trajectory\n")
+    before = snapshot(workdir)
+
+    def interrupted(*args: Any, **kwargs: Any) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(replay, "replay", interrupted)
+    assert cli.main(argv) == 130
+    assert capsys.readouterr().err.strip() == "hexgym simulate: interrupted"
+    assert snapshot(workdir) == before
+
+
+def test_a_bug_is_one_line_with_exit_1_and_debug_shows_the_traceback(workdir, capsys, monkeypatch):
+    from hexgym.model import replay
+    from hexgym.tools import cli
+
+    argv = simulate(workdir)
+
+    def bug(*args: Any, **kwargs: Any) -> None:
+        raise TypeError("unsupported operand")
+
+    monkeypatch.setattr(replay, "replay", bug)
+    assert cli.main(argv) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "internal error: TypeError: unsupported operand" in err and "--debug" in err
+    with pytest.raises(TypeError):
+        cli.main([*argv, "--debug"])
+    monkeypatch.undo()
+    monkeypatch.setenv("HEXGYM_DEBUG", "1")
+    with pytest.raises(ValueError, match="no keyframe"):
+        cli.main([*argv, "--start", "nosuch"])
+
+
+def corpus_counts() -> dict[str, int]:
+    """Inputs tried by kind: the corpus, the table damages (each on both loaders) and the faults."""
+    counts: dict[str, int] = {}
+    for c in CORPUS:
+        counts[c.kind] = counts.get(c.kind, 0) + 1
+    counts["table"] = counts.get("table", 0) + len(TABLE_DAMAGE)
+    counts["fault"] = len(FAULTS)
+    return counts
+
+
+if __name__ == "__main__":
+    counts = corpus_counts()
+    for kind, n in sorted(counts.items()):
+        print(f"{kind:12s} {n:4d}")
+    print(f"{'total':12s} {sum(counts.values()):4d}")
