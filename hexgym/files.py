@@ -119,11 +119,19 @@ def check_output_file(
     return path
 
 
-def check_output_dir(path: str | os.PathLike[str], what: str = "output directory") -> Path:
-    """``path`` as a Path, or :class:`PathError` if files cannot be written in it (see the module)."""
+def check_output_dir(
+    path: str | os.PathLike[str], what: str = "output directory", inputs: tuple[str | os.PathLike[str] | None, ...] = ()
+) -> Path:
+    """``path`` as a Path, or :class:`PathError` if files cannot be written in it (see the module).
+
+    ``inputs``: the command's input files and directories, which ``path`` must be none of.
+    """
     path = Path(path)
     if str(path) == "":
         raise PathError(f"{what}: empty path")
+    for source in inputs:
+        if source is not None and _same(path, Path(source)):
+            raise PathError(f"{what} {path} is also an input of this command; its files would replace the input's")
     if os.path.lexists(path) and not path.is_dir():
         raise PathError(f"{what} {path} is a file, not a directory")
     if path.is_dir():

@@ -55,7 +55,7 @@ MblTable::MblTable(const std::string& path, const std::string& name, const std::
   std::map<std::string, NpyArray> arrays;
   try {
     arrays = ReadNpz(path);
-  } catch (const NpzError& e) {
+  } catch (const std::exception& e) {  // NpzError, or sizes in a damaged header that cannot be allocated
     throw TableError(where + " is corrupt or not a table file: " + e.what());
   }
   auto array = [&](const std::string& key) -> const NpyArray& {

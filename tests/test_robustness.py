@@ -422,6 +422,33 @@ def _(tmp):
     return ["view", "--screenshot", str(tmp / "shot.png")]
 
 
+@case("output path", "fit --out is --data", r"output --out .*data is also an input of this command")
+def _(tmp):
+    (tmp / "data").mkdir()
+    return ["fit", "--data", str(tmp / "data"), "--out", str(tmp / "data")]
+
+
+@case("output path", "convert-normalizer over its own input", r"normaliser .*x.json is also an input")
+def _(tmp):
+    return ["convert-normalizer", str(write(tmp / "x.json", evil_pickle(tmp)))]
+
+
+@case("output path", "video frames beyond memory", r"the video would hold 86400\d frames of 1920 x 1080")
+def _(tmp):
+    return ["video", "--policy", "scripted", "--out", str(tmp / "v.mp4"), "--seconds", "86400", "--width", "1920",
+            "--height", "1080"]  # fmt: skip
+
+
+@case("output path", "demo frames beyond memory", r"the demo would hold 36002 frames of 1920 x 1080")
+def _(tmp):
+    return ["demo", "--out", str(tmp / "out"), "--seconds", "3600", "--width", "1920", "--height", "1080"]
+
+
+@case("option", "evaluate --seconds beyond a day", r"time_limit must be at most 86400 s")
+def _(tmp):
+    return ["evaluate", "--policy", "scripted", "--seconds", "1e6", "--episodes", "1"]
+
+
 # -- collected data: chunks (collect, resuming) and data sets (fit, tables --bench) ----------------
 def _chunk(tmp: Path, content: bytes | None = None) -> Path:
     """Chunk 0 of the boom/bucket group in ``tmp/data``: ``content``, or an npz whose metadata is no JSON."""
@@ -456,6 +483,35 @@ def _(tmp):
 
     _chunk(tmp, b"not an npz\n")
     return lambda: collect(tmp / "data", samples_per_group=10, seed=0, workers=1, progress=False)
+
+
+def _valid_chunk(tmp: Path, change: Callable[[dict], None]) -> Callable[[], Any]:
+    """Chunk 0 made with this run's settings (so its metadata fits), then ``change``d; the resuming call."""
+    from hexgym.mbl import collect as c
+
+    config = c.CollectConfig()
+    tables = config.tables("boom_bucket")
+    arrays = {f"{t}_{k}": np.zeros((3, 4)) if k == "X" else np.zeros(3) for t in tables for k in ("X", "y")}
+    arrays |= {f"{t}_{k}": np.zeros(3, np.int64) for t in tables for k in ("episode", "segment")}
+    arrays["episode_index"] = np.arange(config.episodes_per_chunk)
+    change(arrays)
+    meta = c._chunk_meta("boom_bucket", 0, 0, config, c.model_fingerprint()) | {"wall_seconds": 1.0, "errors": []}
+    arrays["meta"] = np.array(json.dumps(meta, sort_keys=True))
+    path = c.chunk_path(tmp / "data", "boom_bucket", 0)
+    path.parent.mkdir(parents=True)
+    with path.open("wb") as f:
+        np.savez(f, **arrays)
+    return lambda: c.collect(tmp / "data", samples_per_group=10, seed=0, workers=1, progress=False, config=config)
+
+
+@case("data chunk", "resume over a chunk lacking an array", r"chunk .* lacks \['boom_y'\]; delete it", error=ValueError)
+def _(tmp):
+    return _valid_chunk(tmp, lambda a: a.pop("boom_y"))
+
+
+@case("data chunk", "resume over a chunk with a NaN", r"holds non-finite numbers in \['boom_X'\]", error=ValueError)
+def _(tmp):
+    return _valid_chunk(tmp, lambda a: a["boom_X"].__setitem__((1, 2), np.nan))
 
 
 def _dataset(tmp: Path, **arrays: Any) -> list[str]:
@@ -789,6 +845,38 @@ for _name, _text, _match in (
     ("binary", b"HexLoading-v0:\n  gamma: \xff\xfe\x00", r"h.yml is not a readable YAML file"),
 ):
     case("YAML", _name, _match, marker=True)(lambda tmp, text=_text: _train_yaml(tmp, text))
+
+
+@case("YAML", "an unknown hyperparameter", r"hyperparameter\(s\) \['learning_rat'\] are not arguments of PPO")
+def _(tmp):
+    return _train_yaml(tmp, TINY_YAML + "  learning_rat: 0.1\n")
+
+
+@case("YAML", "env_kwargs with a NaN weight", r"fuel_weight must be a finite number, got nan")
+def _(tmp):
+    return _train_yaml(tmp, TINY_YAML.replace("{time_limit: 2.0}", "{time_limit: 2.0, fuel_weight: .nan}"))
+
+
+@case("YAML", "env_kwargs with an unknown keyword", r"env_kwargs: .*unexpected keyword argument 'bogus'")
+def _(tmp):
+    return _train_yaml(tmp, TINY_YAML.replace("{time_limit: 2.0}", "{time_limit: 2.0, bogus: 1}"))
+
+
+@case("YAML", "a value of the wrong type", r"hyperparameter n_epochs must be a whole number \(default 10\), got 'many'")
+def _(tmp):
+    return _train_yaml(tmp, TINY_YAML.replace("n_epochs: 1", "n_epochs: many"))
+
+
+@case("YAML", "values SB3 refuses", r"the hyperparameters do not make a PPO model: .*batch_size")
+def _(tmp):
+    return _train_yaml(tmp, TINY_YAML.replace("batch_size: 64", "batch_size: 1"))[:-2] + ["--n-envs", "1"]
+
+
+@case("YAML", "an alias bomb", r"expands to more than 100000 values")
+def _(tmp):
+    lines = ["a0: &a0 [x, x, x, x, x, x, x, x, x, x]"]
+    lines += [f"a{i}: &a{i} [" + ", ".join([f"*a{i - 1}"] * 10) + "]" for i in range(1, 9)]
+    return _train_yaml(tmp, "\n".join(lines) + "\nHexLoading-v0: {n_steps: *a8}\n")
 
 
 @case("YAML", "train --hyperparams missing", r"input file --hyperparams .*none.yml does not exist")

@@ -31,13 +31,14 @@ def run_demo(
     ``fps`` is the playback rate (default: the control rate, 10, real time; 20 plays at 2x).
     Returns the two paths and the run's figures (``metrics``, see :func:`run_scripted`).
     """
-    from hexgym.machine.render import write_mp4, write_png
+    from hexgym.machine.render import check_frame_memory, write_mp4, write_png
 
     if check_positive("seconds", duration, "s") < STEP_PERIOD:
         raise ValueError(f"seconds must be at least one control step ({STEP_PERIOD} s), got {duration}")
     check_seed("seed", seed)
     if fps is not None:
         check_positive("fps", fps)
+    check_frame_memory(int(duration / STEP_PERIOD) + 2, width, height, "the demo")
     check_output_dir(out_dir, "demo output directory")
     for name in ("demo.mp4", "demo.png"):
         check_output_file(Path(out_dir) / name, "demo output")

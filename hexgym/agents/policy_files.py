@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from hexgym.files import atomic_path, check_input_file
+from hexgym.files import atomic_path, check_input_file, check_output_file
 
 NORMALIZER_FORMAT = "hexgym.vecnormalize"
 NORMALIZER_VERSION = 1
@@ -338,7 +338,7 @@ def convert_pickled_normalizer(pkl: str | Path, out: str | Path | None = None) -
     (nothing of the file's choosing runs); anything beyond a VecNormalize's parts is refused.
     """
     pkl = check_input_file(pkl, "pickled normaliser")
-    out = Path(out) if out is not None else pkl.with_suffix(".json")
+    out = check_output_file(out if out is not None else pkl.with_suffix(".json"), "normaliser", inputs=(pkl,))
     try:
         with pkl.open("rb") as f:
             state = _state(_StatisticsUnpickler(f).load(), "the file")

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import ast
 import importlib.util
+import math
 import os
 import re
 import shutil
@@ -110,6 +111,8 @@ def load_hyperparams(algo: str, env_id: str = ENV_ID, path: str | Path | None = 
         raise ValueError(f"{path} is not a readable YAML file: {' '.join(str(exc).split())}") from None
     if not isinstance(table, dict):
         raise ValueError(f"{path} must map env ids to hyperparameters, not hold a {type(table).__name__}")
+    if _nodes(table) > MAX_YAML_NODES:
+        raise ValueError(f"{path} expands to more than {MAX_YAML_NODES} values (aliases within aliases?)")
     if env_id not in table:
         raise ValueError(f"{path} has no entry for {env_id!r} (it has {sorted(map(str, table))})")
     if not isinstance(table[env_id], dict):
@@ -119,6 +122,55 @@ def load_hyperparams(algo: str, env_id: str = ENV_ID, path: str | Path | None = 
     normalize = _parse_kwargs(hp.get("normalize", False))
     hp["normalize"] = {"norm_obs": True, "norm_reward": False} if normalize is True else (normalize or {})
     return hp
+
+
+MAX_YAML_NODES = 100_000  # values in a hyperparameter file, aliases expanded (a real one has ~20 per env)
+
+
+def _nodes(value: Any, limit: int = MAX_YAML_NODES) -> int:
+    """Values in a YAML document counted through its aliases (stops counting past ``limit``)."""
+    count, stack = 0, [value]
+    while stack and count <= limit:
+        item = stack.pop()
+        count += 1
+        if isinstance(item, dict):
+            stack.extend(item.keys())
+            stack.extend(item.values())
+        elif isinstance(item, (list, tuple)):
+            stack.extend(item)
+    return count
+
+
+def check_hyperparams(algo: str, hp: dict[str, Any], env_id: str = ENV_ID) -> None:
+    """ValueError naming hyperparameters the algorithm or the environment does not take, before any work."""
+    import inspect
+
+    from stable_baselines3 import PPO, SAC
+
+    parameters = inspect.signature({"ppo": PPO, "sac": SAC}[algo]).parameters
+    unknown = sorted(set(algo_kwargs(hp)) - set(parameters) | {"policy", "env"} & set(algo_kwargs(hp)))
+    if unknown:
+        raise ValueError(f"hyperparameter(s) {unknown} are not arguments of {algo.upper()}")
+    for key, value in algo_kwargs(hp).items():
+        default = parameters[key].default
+        if isinstance(default, bool):
+            kind_ok = isinstance(value, bool)
+        elif isinstance(default, int):
+            kind_ok = isinstance(value, int) and not isinstance(value, bool)
+        elif isinstance(default, float):
+            kind_ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+        else:
+            continue
+        if not kind_ok:
+            what = {bool: "true or false", int: "a whole number", float: "a finite number"}[type(default)]
+            raise ValueError(f"hyperparameter {key} must be {what} (default {default!r}), got {value!r}")
+    env_kwargs = hp.get("env_kwargs") or {}
+    if not isinstance(env_kwargs, dict):
+        raise ValueError(f"env_kwargs must be a mapping, got {env_kwargs!r}")
+    try:
+        make_env(env_id, hp.get("env_wrapper"), **env_kwargs).close()  # the env's own checks, in this process
+    except TypeError as exc:  # a keyword the environment does not take
+        raise ValueError(f"env_kwargs: {exc}") from None
 
 
 def algo_kwargs(hp: dict[str, Any]) -> dict[str, Any]:
@@ -313,6 +365,7 @@ def train(
     start = resume or (Path(init_from) if init_from is not None else None)
     if start is not None:
         check_start_model(start, algo)
+    check_hyperparams(algo, hp, env_id)
     tensorboard = str(run_dir / "tb") if importlib.util.find_spec("tensorboard") else None
     venv = make_vec_env(env_id, n_envs, seed, hp.get("env_kwargs"), hp.get("env_wrapper"))
     if start is not None:
@@ -321,8 +374,7 @@ def train(
     else:
         if hp["normalize"]:
             venv = VecNormalize(venv, **hp["normalize"])
-        model = algo_class(hp.get("policy", "MlpPolicy"), venv, seed=seed, tensorboard_log=tensorboard,
-                           device="cpu", **algo_kwargs(hp))  # fmt: skip
+        model = _new_model(algo_class, hp, venv, seed=seed, tensorboard_log=tensorboard)
     remaining = total - model.num_timesteps if resume else total
     if remaining > 0:
         model.learn(
@@ -508,7 +560,17 @@ def _new_ppo(hp: dict[str, Any], seed: int) -> Any:
     venv = VecNormalize(
         DummyVecEnv([lambda: make_env(ENV_ID, wrapper, **env_kwargs)]), **(hp["normalize"] or {"norm_obs": True})
     )
-    return PPO(hp.get("policy", "MlpPolicy"), venv, seed=seed, device="cpu", **algo_kwargs(hp))
+    return _new_model(PPO, hp, venv, seed=seed)
+
+
+def _new_model(algo_class: type, hp: dict[str, Any], venv: Any, **kwargs: Any) -> Any:
+    """``algo_class`` built from ``hp`` on ``venv``; a ValueError (and ``venv`` closed) when they do not fit."""
+    try:
+        return algo_class(hp.get("policy", "MlpPolicy"), venv, device="cpu", **kwargs, **algo_kwargs(hp))
+    except (TypeError, ValueError, AssertionError, KeyError) as exc:
+        venv.close()
+        message = " ".join(str(exc).split()) or type(exc).__name__
+        raise ValueError(f"the hyperparameters do not make a {algo_class.__name__} model: {message}") from None
 
 
 def clone_scripted(
@@ -550,6 +612,7 @@ def clone_scripted(
     if rounds_dir is not None:
         check_output_dir(rounds_dir, "rounds directory")
     hp = load_hyperparams("ppo", ENV_ID, hyperparams)
+    check_hyperparams("ppo", hp)
     with _worker_pool() as pool, tempfile.TemporaryDirectory() as tmp:  # workers start once (torch, MuJoCo: s)
         rounds = Path(rounds_dir) if rounds_dir is not None else Path(tmp)
         return _clone_rounds(Path(out), rounds, hp, pool, episodes, dagger_rounds, dagger_episodes, noise, epochs,

@@ -7,6 +7,7 @@ canvas onto the frame, so no font files or GUI are needed.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -16,8 +17,9 @@ import numpy as np
 from hexgym.agents.evaluate import load_policy, run_episode
 from hexgym.checks import check_count, check_positive, check_seed
 from hexgym.envs import ENV_ID
+from hexgym.envs.loading import STEP_PERIOD
 from hexgym.files import check_output_file
-from hexgym.machine.render import CAMERAS, write_mp4, write_png
+from hexgym.machine.render import CAMERAS, check_frame_memory, write_mp4, write_png
 
 OVERLAY_HEIGHT = 28  # px: the text strip at the top of each frame
 
@@ -92,6 +94,8 @@ def record_video(
     if seconds is not None:
         kwargs["time_limit"] = seconds
     env = gym.make(ENV_ID, **kwargs)
+    steps = math.ceil(env.unwrapped.time_limit / STEP_PERIOD - 1e-9) + 1
+    check_frame_memory(int(episodes) * steps, width, height)
     frames: list[np.ndarray] = []
     summaries = []
     try:

@@ -40,6 +40,7 @@ PYTHON_CONTROL_PERIOD = 0.01
 STEP_PERIOD = 0.1  # s: one environment step, 10 Hz, an operator's reaction time scale
 # Control periods per dig (fill, pile cut and relaxation, spill) while the teeth may be in the pile: 4 = once
 # per 0.1 s step (fast; the digging force still follows the motion every period; `hexgym scripted` results
+MAX_TIME_LIMIT = 86_400.0  # s: an episode of at most a day (a longer one is a mistake that fills memory)
 # stay within 1 % of digging every period, see README), 1 = every 25 ms period.
 EARTHWORK_PERIODS = 4
 # Control periods between re-aims of the digging force while the edge cuts: 2 is ~15 % faster on random actions
@@ -312,6 +313,8 @@ class HexLoadingEnv(gym.Env):
             raise ValueError(
                 f"frames of {self.width} x {self.height} pixels exceed the scene's offscreen buffer "
                 f"({frame.offwidth} x {frame.offheight})"
+        if time_limit > MAX_TIME_LIMIT:
+            raise ValueError(f"time_limit must be at most {MAX_TIME_LIMIT:.0f} s (a day), got {time_limit}")
             )
         self.layout: Layout | None = None
         self.earth: Earthwork | None = None

@@ -90,6 +90,19 @@ def _camera_names(model: mujoco.MjModel) -> list[str]:
     return [model.camera(i).name for i in range(model.ncam)]
 
 
+MAX_FRAME_BYTES = 4 * 2**30  # frames a video may hold in memory before it is encoded
+
+
+def check_frame_memory(frames: int, width: int, height: int, what: str = "the video") -> None:
+    """ValueError when ``frames`` RGB frames of ``width`` x ``height`` would exceed :data:`MAX_FRAME_BYTES`."""
+    size = frames * width * height * 3
+    if size > MAX_FRAME_BYTES:
+        raise ValueError(
+            f"{what} would hold {frames} frames of {width} x {height} pixels ({size / 2**30:.1f} GiB) in memory; "
+            f"the limit is {MAX_FRAME_BYTES / 2**30:.0f} GiB: shorten it, record fewer episodes or smaller frames"
+        )
+
+
 def write_png(frame: np.ndarray, path: str | Path) -> Path:
     """Write one frame as a PNG, atomically (a reader never sees a half-written file)."""
     import imageio.v3 as iio

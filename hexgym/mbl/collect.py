@@ -591,6 +591,13 @@ def _load_chunk(path: Path, expected: dict[str, Any]) -> dict[str, np.ndarray]:
             )
     return arrays
 
+    tables = _config_from_json(json.dumps(expected["config"])).tables(expected["group"])
+    needed = [f"{t}_{k}" for t in tables for k in ("X", "y", "episode", "segment")] + ["episode_index"]
+    missing = [k for k in needed if k not in arrays]
+    bad = [k for k in needed if k in arrays and arrays[k].dtype.kind == "f" and not np.all(np.isfinite(arrays[k]))]
+    if missing or bad:
+        what = f"lacks {missing}" if missing else f"holds non-finite numbers in {bad}"
+        raise ValueError(f"chunk {path} {what}; delete it to recompute it")
 
 @dataclass
 class _GroupState:

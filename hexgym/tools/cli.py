@@ -477,7 +477,7 @@ def check_arguments(args: argparse.Namespace) -> None:
         if (cmd, name) in _OUTPUT_FILES:
             check_output_file(value, what, inputs=(*inputs, *outputs))
         else:
-            check_output_dir(value, what)
+            check_output_dir(value, what, inputs=tuple(inputs))
         outputs.append(value)
 
 
