@@ -708,6 +708,55 @@ def _(tmp):
     return _evaluate(_rewrite_data(_policy(tmp), lambda d: d.update(clip_range=schedule)))
 
 
+def _sac(tmp: Path) -> Path:
+    """A small SAC model saved as ``hexgym train`` saves one (its train_freq is pickled by SB3)."""
+    import gymnasium as gym
+    from stable_baselines3 import SAC
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    from hexgym.agents.training import save_model
+
+    venv = VecNormalize(DummyVecEnv([lambda: gym.make("HexLoading-v0", time_limit=1.0)]))
+    model = SAC(
+        "MlpPolicy", venv, device="cpu", policy_kwargs={"net_arch": [8]}, buffer_size=10, train_freq=(2, "step")
+    )
+    path = save_model(model, tmp / "sac.zip")
+    venv.close()
+    return path
+
+
+@case("policy", "SAC with a crafted train_freq pickle", r"its train_freq is not one hexgym can read", marker=True)
+def _(tmp):
+    path = _sac(tmp)
+    return _evaluate(_rewrite_data(path, lambda d: d["train_freq"].update(_pickled(tmp))))
+
+
+@case("policy", "SAC and a PPO with a pickled activation: accepted", marker=True)
+def _(tmp):
+    from hexgym.agents.evaluate import load_trained
+
+    sac, ppo = _sac(tmp), _relu_ppo(tmp)
+
+    def call() -> None:
+        assert load_trained(sac).model.train_freq.frequency == 2
+        assert load_trained(ppo).model.policy.activation_fn.__name__ == "ReLU"
+
+    return call
+
+
+def _relu_ppo(tmp: Path) -> Path:
+    import gymnasium as gym
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from hexgym.agents.training import _parse_kwargs, save_model
+
+    venv = DummyVecEnv([lambda: gym.make("HexLoading-v0", time_limit=1.0)])
+    kwargs = _parse_kwargs("dict(activation_fn=nn.ReLU, net_arch=dict(pi=[8], vf=[8]))")
+    model = PPO("MlpPolicy", venv, device="cpu", policy_kwargs=kwargs, n_steps=8, batch_size=8)
+    return save_model(model, tmp / "p.zip")
+
+
 @case("policy", "video with a policy lacking its normaliser", r"has no observation normaliser")
 def _(tmp):
     return ["video", "--policy", str(_policy(tmp, normalizer=False)), "--out", str(tmp / "v.mp4")]
@@ -914,17 +963,17 @@ for _name, _kwargs, _match in (
     ("render height 2.5", {"render_mode": "rgb_array", "height": 2.5}, r"height must be a whole number of pixels"),
     ("render width 5000", {"render_mode": "rgb_array", "width": 5000}, r"exceed the scene's offscreen buffer"),
 ):
-    case("environment", "HexLoadingEnv " + _name, _match, error=ValueError)(_env(**_kwargs))
+    case("API argument", "HexLoadingEnv " + _name, _match, error=ValueError)(_env(**_kwargs))
 
 
-@case("environment", "set_payload(1e9)", r"payload must be a finite mass from 0 to 2145 kg", error=ValueError)
+@case("API argument", "set_payload(1e9)", r"payload must be a finite mass from 0 to 2145 kg", error=ValueError)
 def _(tmp):
     from hexgym.hydraulics.reference import ReferenceModel
 
     return lambda: ReferenceModel().reset("home", 1e9)
 
 
-@case("environment", "replay from an unknown keyframe", r"no keyframe 'nosuch'", error=ValueError)
+@case("API argument", "replay from an unknown keyframe", r"no keyframe 'nosuch'", error=ValueError)
 def _(tmp):
     from hexgym.hydraulics.reference import ReferenceModel
     from hexgym.model.commandlog import CommandLog
@@ -934,7 +983,7 @@ def _(tmp):
     return lambda: replay(ReferenceModel(), log, start="nosuch")
 
 
-@case("environment", "replay of a log lasting 1e7 s", r"would make 2e\+08 trajectory rows", error=ValueError)
+@case("API argument", "replay of a log lasting 1e7 s", r"would make 2e\+08 trajectory rows", error=ValueError)
 def _(tmp):
     from hexgym.hydraulics.reference import ReferenceModel
     from hexgym.model.commandlog import CommandLog
@@ -944,7 +993,7 @@ def _(tmp):
     return lambda: replay(ReferenceModel(), log)
 
 
-@case("environment", "write_mp4 of no frames over a good file", r"no frames to write", error=ValueError)
+@case("API argument", "write_mp4 of no frames over a good file", r"no frames to write", error=ValueError)
 def _(tmp):
     from hexgym.machine.render import write_mp4
 
@@ -952,35 +1001,35 @@ def _(tmp):
     return lambda: write_mp4([], tmp / "v.mp4", fps=10)
 
 
-@case("environment", "write_mp4 of 0 x 0 frames", r"cannot write an image of shape \(0, 0, 3\)", error=ValueError)
+@case("API argument", "write_mp4 of 0 x 0 frames", r"cannot write an image of shape \(0, 0, 3\)", error=ValueError)
 def _(tmp):
     from hexgym.machine.render import write_mp4
 
     return lambda: write_mp4([np.zeros((0, 0, 3), np.uint8)] * 3, tmp / "v.mp4", fps=10)
 
 
-@case("environment", "evaluate(seed=-1)", r"seed must be a whole number from 0", error=ValueError)
+@case("API argument", "evaluate(seed=-1)", r"seed must be a whole number from 0", error=ValueError)
 def _(tmp):
     from hexgym.agents.evaluate import evaluate
 
     return lambda: evaluate("scripted", episodes=1, seed=-1)
 
 
-@case("environment", "record_video(width=0)", r"width must be a whole number >= 1", error=ValueError)
+@case("API argument", "record_video(width=0)", r"width must be a whole number >= 1", error=ValueError)
 def _(tmp):
     from hexgym.agents.video import record_video
 
     return lambda: record_video("scripted", tmp / "v.mp4", width=0)
 
 
-@case("environment", "run_demo(duration=nan)", r"seconds must be a finite number > 0 s, got nan", error=ValueError)
+@case("API argument", "run_demo(duration=nan)", r"seconds must be a finite number > 0 s, got nan", error=ValueError)
 def _(tmp):
     from hexgym.agents.demo import run_demo
 
     return lambda: run_demo(tmp / "out", duration=float("nan"))
 
 
-@case("environment", "check_output_file under a file", r"afile is a file, not a directory", error=PathError)
+@case("API argument", "check_output_file under a file", r"afile is a file, not a directory", error=PathError)
 def _(tmp):
     from hexgym.files import check_output_file
 
@@ -988,7 +1037,7 @@ def _(tmp):
     return lambda: check_output_file(tmp / "afile" / "x.csv")
 
 
-@case("environment", "load_trained of a pickled normaliser", r"is a pickle, which hexgym", error=PolicyFileError,
+@case("API argument", "load_trained of a pickled normaliser", r"is a pickle, which hexgym", error=PolicyFileError,
       marker=True)  # fmt: skip
 def _(tmp):
     from hexgym.agents.evaluate import load_trained

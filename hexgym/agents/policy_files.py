@@ -23,6 +23,8 @@ no pickle from the zip is ever loaded.
 
 from __future__ import annotations
 
+import base64
+import io
 import json
 import math
 import pickle
@@ -284,8 +286,13 @@ def load_normalizer(model_path: str | Path) -> ObsNormalizer:
 class _Record:
     """Stands in for any object of the pickle: keeps its constructor arguments and state, runs nothing."""
 
+    def __new__(cls, *args: Any, **kwargs: Any) -> _Record:  # NEWOBJ calls only __new__
+        record = super().__new__(cls)
+        record.args = args
+        return record
+
     def __init__(self, *args: Any, **kwargs: Any) -> None:
-        self.args = args
+        pass
 
     def __setstate__(self, state: Any) -> None:
         self.state = state
@@ -317,10 +324,12 @@ _NUMPY = {
 
 
 class _StatisticsUnpickler(pickle.Unpickler):
+    recorded = _RECORDED
+
     def find_class(self, module: str, name: str) -> Any:
         if (module, name) in _NUMPY:
             return super().find_class(module, name)
-        if (module, name) in _RECORDED:
+        if (module, name) in self.recorded:
             return _Record if name[0].isupper() else _record
         raise pickle.UnpicklingError(f"it refers to {module}.{name}, which a VecNormalize's statistics do not need")
 
@@ -425,6 +434,26 @@ def _schedule(path: Path, key: str, item: dict[str, Any]) -> Any:
     raise PolicyFileError(f"{path}: the {key} is a pickled schedule hexgym cannot read safely ({text or 'unnamed'})")
 
 
+class _TrainFreqUnpickler(_StatisticsUnpickler):
+    recorded = {("stable_baselines3.common.type_aliases", "TrainFreq"),
+                ("stable_baselines3.common.type_aliases", "TrainFrequencyUnit")}  # fmt: skip
+
+
+def _train_freq(path: Path, item: dict[str, Any]) -> Any:
+    """SAC's ``TrainFreq(frequency, unit)``, read from its pickle by recording it (nothing runs)."""
+    from stable_baselines3.common.type_aliases import TrainFreq, TrainFrequencyUnit
+
+    try:
+        record = _TrainFreqUnpickler(io.BytesIO(base64.b64decode(item[":serialized:"], validate=True))).load()
+        frequency, unit = record.args
+        unit = TrainFrequencyUnit(unit.args[0])
+        if isinstance(frequency, bool) or not isinstance(frequency, int) or frequency < 1:
+            raise ValueError(f"frequency {frequency!r}")
+    except Exception as exc:  # anything but a TrainFreq of a whole number and a unit
+        raise PolicyFileError(f"{path}: its train_freq is not one hexgym can read safely ({exc})") from None
+    return TrainFreq(frequency, unit)
+
+
 def _class_from(path: Path, key: str, text: str) -> Any:
     import torch
 
@@ -481,6 +510,8 @@ def safe_custom_objects(
             custom[key] = _schedule(path, key, item)
         elif key == "policy_kwargs":
             custom[key] = _policy_kwargs(path, item)
+        elif key == "train_freq":
+            custom[key] = _train_freq(path, item)
         else:
             raise PolicyFileError(f"{path}: its {key!r} is pickled; hexgym does not unpickle policy files")
     return custom
