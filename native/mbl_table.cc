@@ -47,6 +47,43 @@ std::string ContentHash(const Json& meta, const std::vector<std::pair<std::strin
   return sha.HexDigest();
 }
 
+// The LWR parameters the values were computed with, checked as hexgym.mbl.lwr_params.LWRParams does
+// (the plugin does not use them, but a file both loaders accept must be a valid table).
+void CheckParams(const std::string& where, const Json& params, int d) {
+  auto invalid = [&](const std::string& what) { throw TableError(where + " holds an invalid table: params " + what); };
+  if (params.type != Json::kObject) invalid("is not an object");
+  for (const auto& [key, value] : params.members) {
+    if (key != "bandwidth" && key != "input_scales" && key != "ridge" && key != "max_neighbours" && key != "cutoff") {
+      invalid("has an unknown key '" + key + "'");
+    }
+  }
+  auto number = [&](const char* key, bool required, double fallback) {
+    const Json* v = params.Member(key);
+    if (!v) {
+      if (required) invalid(std::string("lacks '") + key + "'");
+      return fallback;
+    }
+    if (v->type != Json::kNumber || !std::isfinite(v->number)) invalid(std::string("'") + key + "' is not a finite number");
+    return v->number;
+  };
+  if (!(number("bandwidth", true, 0.0) > 0)) invalid("'bandwidth' must be > 0");
+  if (!(number("ridge", false, 1e-6) >= 0)) invalid("'ridge' must be >= 0");
+  if (!(number("cutoff", false, 4.0) > 0)) invalid("'cutoff' must be > 0");
+  const Json* k = params.Member("max_neighbours");
+  if (k && k->type != Json::kNull && (k->type != Json::kNumber || !(k->number >= 1))) {
+    invalid("'max_neighbours' must be >= 1 or null");
+  }
+  const Json* scales = params.Member("input_scales");
+  if (!scales || scales->type != Json::kArray || static_cast<int>(scales->items.size()) != d) {
+    invalid("'input_scales' must be " + std::to_string(d) + " numbers, one per input");
+  }
+  for (const Json& s : scales->items) {
+    if (s.type != Json::kNumber || !std::isfinite(s.number) || !(s.number > 0)) {
+      invalid("'input_scales' must be positive and finite");
+    }
+  }
+}
+
 }  // namespace
 
 MblTable::MblTable(const std::string& path, const std::string& name, const std::vector<std::string>& inputs,
@@ -120,7 +157,10 @@ MblTable::MblTable(const std::string& path, const std::string& name, const std::
   const Json* meta_shape = meta.Member("shape");
   std::vector<long> declared;
   if (meta_shape->type == Json::kArray) {
-    for (const Json& n : meta_shape->items) declared.push_back(n.type == Json::kNumber ? static_cast<long>(n.number) : -1);
+    for (const Json& n : meta_shape->items) {  // whole numbers, as Python's check: 23, not 23.0
+      bool whole = n.type == Json::kNumber && n.raw.find_first_of(".eEnNiI") == std::string::npos;
+      declared.push_back(whole ? static_cast<long>(n.number) : -1);
+    }
   }
   if (declared != shape) {
     throw TableError(where + ": array 'values' has shape " + TupleText(shape) + ", expected " + TupleText(declared));
@@ -140,6 +180,7 @@ MblTable::MblTable(const std::string& path, const std::string& name, const std::
       if (!std::isfinite(v)) throw TableError(where + ": array '" + key + "' holds non-finite numbers");
     }
   }
+  CheckParams(where, *meta.Member("params"), d_);
   values_ = values.f8;
   long stride = 1;
   axes_.resize(d_);

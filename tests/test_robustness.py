@@ -186,6 +186,23 @@ def _(tmp):
     return call
 
 
+@case("command log", "a file beyond the size limit", r"log.csv: \d+ bytes; .* at most 100", error=ValueError)
+def _(tmp):
+    from hexgym.model import commandlog
+
+    write(tmp / "log.csv", LOG + "0.6,0,0,0,0\n" * 10)
+    original = commandlog.MAX_BYTES
+    commandlog.MAX_BYTES = 100
+
+    def call():
+        try:
+            commandlog.read_command_log(tmp / "log.csv")
+        finally:
+            commandlog.MAX_BYTES = original
+
+    return call
+
+
 @case("command log", "non-finite time in code", r"row 2, column 't': nan is not a finite time", error=ValueError)
 def _(tmp):
     from hexgym.model.commandlog import CommandLog
@@ -504,14 +521,19 @@ def _valid_chunk(tmp: Path, change: Callable[[dict], None]) -> Callable[[], Any]
     return lambda: c.collect(tmp / "data", samples_per_group=10, seed=0, workers=1, progress=False, config=config)
 
 
-@case("data chunk", "resume over a chunk lacking an array", r"chunk .* lacks \['boom_y'\]; delete it", error=ValueError)
+@case("data chunk", "resume over a chunk lacking an array", r"chunk .* lacks 'boom_y'; delete it", error=ValueError)
 def _(tmp):
     return _valid_chunk(tmp, lambda a: a.pop("boom_y"))
 
 
-@case("data chunk", "resume over a chunk with a NaN", r"holds non-finite numbers in \['boom_X'\]", error=ValueError)
+@case("data chunk", "resume over a chunk with a NaN", r"holds non-finite numbers in 'boom_X'", error=ValueError)
 def _(tmp):
     return _valid_chunk(tmp, lambda a: a["boom_X"].__setitem__((1, 2), np.nan))
+
+
+@case("data chunk", "resume over a chunk with text for numbers", r"has 'boom_X' of the wrong type", error=ValueError)
+def _(tmp):
+    return _valid_chunk(tmp, lambda a: a.update(boom_X=np.full((3, 4), "x")))
 
 
 def _dataset(tmp: Path, **arrays: Any) -> list[str]:
@@ -1215,6 +1237,22 @@ TABLE_DAMAGE: dict[str, tuple[Callable[[Path], None], str]] = {
     "inputs reordered (rehashed)": (
         lambda p: _rewrite_table(p, True, meta={"inputs": _meta(p)["inputs"][::-1]}),
         r"inputs",
+    ),
+    "a negative bandwidth (rehashed)": (
+        lambda p: _rewrite_table(p, True, meta={"params": {**_meta(p)["params"], "bandwidth": -1.0}}),
+        r"holds an invalid table",
+    ),
+    "input_scales of another length (rehashed)": (
+        lambda p: _rewrite_table(p, True, meta={"params": {**_meta(p)["params"], "input_scales": [1.0]}}),
+        r"holds an invalid table",
+    ),
+    "an unknown parameter (rehashed)": (
+        lambda p: _rewrite_table(p, True, meta={"params": {**_meta(p)["params"], "kernel": "box"}}),
+        r"holds an invalid table",
+    ),
+    "a shape of floats (rehashed)": (
+        lambda p: _rewrite_table(p, True, meta={"shape": [float(n) for n in _meta(p)["shape"]]}),
+        r"shape",
     ),
     "truncated": (lambda p: p.write_bytes(p.read_bytes()[: p.stat().st_size // 2]), r"is corrupt or not a table file"),
     "not a zip": (lambda p: p.write_text("swing table\n"), r"is corrupt or not a table file"),

@@ -592,12 +592,27 @@ def _load_chunk(path: Path, expected: dict[str, Any]) -> dict[str, np.ndarray]:
     return arrays
 
     tables = _config_from_json(json.dumps(expected["config"])).tables(expected["group"])
-    needed = [f"{t}_{k}" for t in tables for k in ("X", "y", "episode", "segment")] + ["episode_index"]
-    missing = [k for k in needed if k not in arrays]
-    bad = [k for k in needed if k in arrays and arrays[k].dtype.kind == "f" and not np.all(np.isfinite(arrays[k]))]
-    if missing or bad:
-        what = f"lacks {missing}" if missing else f"holds non-finite numbers in {bad}"
-        raise ValueError(f"chunk {path} {what}; delete it to recompute it")
+    problem = _chunk_problem(arrays, tables)
+    if problem:
+        raise ValueError(f"chunk {path} {problem}; delete it to recompute it")
+
+def _chunk_problem(arrays: dict[str, np.ndarray], tables: tuple[str, ...]) -> str:
+    """What is wrong with a chunk's arrays for ``tables`` ('' when nothing)."""
+    for t in tables:
+        for key, kind, ndim in (("X", "f", 2), ("y", "f", 1), ("episode", "iu", 1), ("segment", "iu", 1)):
+            name = f"{t}_{key}"
+            if name not in arrays:
+                return f"lacks {name!r}"
+            a = arrays[name]
+            if a.dtype.kind not in kind or a.ndim != ndim or len(a) != len(arrays.get(f"{t}_X", a)):
+                return f"has {name!r} of the wrong type or length ({a.dtype}, {a.shape})"
+            if kind == "f" and not np.all(np.isfinite(a)):
+                return f"holds non-finite numbers in {name!r}"
+    index = arrays.get("episode_index")
+    if index is None or index.dtype.kind not in "iu" or index.ndim != 1:
+        return "lacks a whole-number 'episode_index'"
+    return ""
+
 
 @dataclass
 class _GroupState:

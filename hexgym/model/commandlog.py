@@ -43,6 +43,7 @@ class CommandLog:
 
 
 MAX_ROWS = 1_000_000  # rows a command log may have (~40 MB of CSV): more is refused before it fills memory
+MAX_BYTES = 256 * 2**20  # a command log's file size (a line is read whole: one huge line could fill memory)
 
 
 def validate_commands(t: np.ndarray, spools_mm: np.ndarray, source: str = "command log") -> None:
@@ -78,9 +79,12 @@ def read_command_log(path: str | Path) -> CommandLog:
     the file's line. Every problem is a ValueError (FileNotFoundError for a missing file) naming the
     file: a directory, an unreadable or binary file, a header without the five columns, a row with
     more or fewer fields than the header, a value that is no finite number, times that do not start
-    at 0 or do not ascend, a spool beyond the stroke, more than :data:`MAX_ROWS` rows.
+    at 0 or do not ascend, a spool beyond the stroke, more than :data:`MAX_ROWS` rows or
+    :data:`MAX_BYTES` bytes.
     """
     path = check_input_file(path, "command log")
+    if path.stat().st_size > MAX_BYTES:
+        raise ValueError(f"{path}: {path.stat().st_size} bytes; a command log may have at most {MAX_BYTES} bytes")
     t: list[float] = []
     spools: list[list[float]] = []
     try:
