@@ -1315,7 +1315,7 @@ def test_both_loaders_agree_on_the_hash_of_unusual_metadata(workdir):
 
 
 # -- faults ----------------------------------------------------------------------------------------
-FAULTS = ["disk full", "no space (ENOSPC) at the rename", "interrupted", "internal error", "--debug", "HEXGYM_DEBUG"]
+FAULTS = ["disk full", "no space (ENOSPC) at the rename", "interrupted", "unexpected error", "--debug", "HEXGYM_DEBUG"]
 
 
 def test_full_disk_keeps_the_old_file(tmp_path):
@@ -1376,7 +1376,7 @@ def test_interrupt_is_one_line_and_keeps_the_old_file(workdir, capsys, monkeypat
     assert snapshot(workdir) == before
 
 
-def test_a_bug_is_one_line_with_exit_1_and_debug_shows_the_traceback(workdir, capsys, monkeypatch):
+def test_an_unexpected_error_is_one_line_and_debug_shows_the_traceback(workdir, capsys, monkeypatch):
     from hexgym.model import replay
     from hexgym.tools import cli
 
@@ -1386,9 +1386,9 @@ def test_a_bug_is_one_line_with_exit_1_and_debug_shows_the_traceback(workdir, ca
         raise TypeError("unsupported operand")
 
     monkeypatch.setattr(replay, "replay", bug)
-    assert cli.main(argv) == 1
+    assert cli.main(argv) == 2
     err = capsys.readouterr().err.strip()
-    assert err.count("\n") == 0 and "internal error: TypeError: unsupported operand" in err and "--debug" in err
+    assert err.count("\n") == 0 and "error: unexpected TypeError: unsupported operand" in err and "--debug" in err
     with pytest.raises(TypeError):
         cli.main([*argv, "--debug"])
     monkeypatch.undo()

@@ -6,7 +6,8 @@ written, a policy or table that does not fit) end as one line on stderr, ``hexgy
 ``--debug`` (anywhere on the line) or ``HEXGYM_DEBUG=1`` shows the traceback instead. Options and
 paths are checked before a command starts its work (:func:`check_arguments`): outputs that cannot
 be written (a directory, under a file, read-only, the same file as an input) are refused up front.
-An unexpected error (a bug) is one line too, with exit status 1 and a pointer to ``--debug``.
+An unexpected exception is one line with status 2 too, naming its type, with a pointer to ``--debug``
+(an input hexgym does not check yet, or a bug).
 """
 
 from __future__ import annotations
@@ -497,7 +498,7 @@ _USER_ERRORS = (ValueError, OSError, RuntimeError, MemoryError, LookupError, EOF
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``hexgym`` console command (exit status 0, 2 for a user's error, 1 for a bug)."""
+    """Entry point of the ``hexgym`` console command (exit status 0, 2 for an error, 130 for Ctrl-C)."""
     os.environ.setdefault("MUJOCO_GL", "egl")  # offscreen rendering without a display
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in argv or os.environ.get("HEXGYM_DEBUG", "") not in ("", "0")
@@ -513,10 +514,10 @@ def main(argv: list[str] | None = None) -> int:
             raise
         if isinstance(exc, _USER_ERRORS):
             print(f"hexgym {args.command}: error: {_one_line(exc)}", file=sys.stderr)
-            return 2
-        print(f"hexgym {args.command}: internal error: {type(exc).__name__}: {_one_line(exc)} "
-              "(run with --debug for the traceback, and please report it)", file=sys.stderr)  # fmt: skip
-        return 1
+        else:  # not a check's refusal: an input no check foresaw, or a bug
+            print(f"hexgym {args.command}: error: unexpected {type(exc).__name__}: {_one_line(exc)} (--debug "
+                  "shows the traceback; please report it if the input is right)", file=sys.stderr)  # fmt: skip
+        return 2
 
 
 if __name__ == "__main__":
