@@ -118,11 +118,11 @@ def evil_pickle(tmp: Path) -> bytes:
 
 # -- command logs (hexgym simulate) -----------------------------------------------------------------
 _LOG_CASES = {
-    "extra field": (LOG + "0.6,0,0,0,0,7\n", r"row 4 \(line 5\): 6 fields, the header has 5"),
-    "missing field": (LOG + "0.6,0,0,0\n", r"row 4 \(line 5\): 4 fields, the header has 5"),
+    "extra field": (LOG + "0.6,0,0,0,0,7\n", r"row 4: 6 fields, the header has 5 \(line 5\)"),
+    "missing field": (LOG + "0.6,0,0,0\n", r"row 4, column 'bucket': value missing \(line 5\)"),
     "blank lines, row and line": (
         "t,swing,boom,stick,bucket\n\n0,0,0,0,0\n\n\n0.1,0,0,0,0\n0.05,0,0,0,0\n",
-        r"row 3 \(line 7\), column 't': 0.05 s does not come after",
+        r"row 3, column 't': 0.05 s does not come after 0.1 s \(times must ascend\) \(line 7\)",
     ),
     "missing column": ("t,swing,boom,stick\n0,0,0,0\n", r"missing column\(s\) bucket"),
     "repeated column": ("t,swing,boom,stick,bucket,boom\n0,0,0,0,0,0\n", r"unexpected or repeated"),

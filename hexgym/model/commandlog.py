@@ -75,12 +75,12 @@ def read_command_log(path: str | Path) -> CommandLog:
     """Read and check a command log CSV (header ``t,swing,boom,stick,bucket``, any column order).
 
     The file must be UTF-8 text (a byte-order mark, as Excel's "CSV UTF-8" writes, is allowed). Blank
-    lines are skipped; errors name the row (data rows counted from 1, blank lines not counted) and
-    the file's line. Every problem is a ValueError (FileNotFoundError for a missing file) naming the
-    file: a directory, an unreadable or binary file, a header without the five columns, a row with
-    more or fewer fields than the header, a value that is no finite number, times that do not start
-    at 0 or do not ascend, a spool beyond the stroke, more than :data:`MAX_ROWS` rows or
-    :data:`MAX_BYTES` bytes.
+    lines are skipped; errors name the row and column (data rows counted from 1, blank lines not
+    counted) and, at the end, the file's line. Every problem is a ValueError (FileNotFoundError for a
+    missing file) naming the file: a directory, an unreadable or binary file, a header without the
+    five columns, a row with more fields than the header or a value missing, a value that is no
+    finite number, times that do not start at 0 or do not ascend, a spool beyond the stroke, more
+    than :data:`MAX_ROWS` rows or :data:`MAX_BYTES` bytes.
     """
     path = check_input_file(path, "command log")
     if path.stat().st_size > MAX_BYTES:
@@ -99,13 +99,16 @@ def read_command_log(path: str | Path) -> CommandLog:
                     raise ValueError(f"{path}: line {reader.line_num} holds a NUL byte: not a text file")
                 if not fields or all(not x.strip() for x in fields):
                     continue  # blank line
-                where = f"{path}: row {len(t) + 1} (line {reader.line_num})"
-                if len(fields) != len(header):
-                    raise ValueError(f"{where}: {len(fields)} fields, the header has {len(header)}")
                 if len(t) >= MAX_ROWS:
                     raise ValueError(f"{path}: more than {MAX_ROWS} rows; split the log")
-                values = [_number(where, name, fields, i) for name, i in index.items()]
-                _check_row(where, values[0], np.array(values[1:]), t[-1] if t else None)
+                where, line = f"{path}: row {len(t) + 1}", f" (line {reader.line_num})"
+                if len(fields) > len(header):
+                    raise ValueError(f"{where}: {len(fields)} fields, the header has {len(header)}{line}")
+                try:
+                    values = [_number(where, name, fields, i) for name, i in index.items()]
+                    _check_row(where, values[0], np.array(values[1:]), t[-1] if t else None)
+                except ValueError as exc:
+                    raise ValueError(f"{exc}{line}") from None
                 t.append(values[0])
                 spools.append(values[1:])
     except UnicodeDecodeError as exc:
