@@ -38,9 +38,9 @@ from hexgym.model.python_backend import LearnedModel
 # full scene.xml at 2 ms); on the lean machine the tables are asked every step
 PYTHON_CONTROL_PERIOD = 0.01
 STEP_PERIOD = 0.1  # s: one environment step, 10 Hz, an operator's reaction time scale
+MAX_TIME_LIMIT = 86_400.0  # s: an episode of at most a day (a longer one is a mistake that fills memory)
 # Control periods per dig (fill, pile cut and relaxation, spill) while the teeth may be in the pile: 4 = once
 # per 0.1 s step (fast; the digging force still follows the motion every period; `hexgym scripted` results
-MAX_TIME_LIMIT = 86_400.0  # s: an episode of at most a day (a longer one is a mistake that fills memory)
 # stay within 1 % of digging every period, see README), 1 = every 25 ms period.
 EARTHWORK_PERIODS = 4
 # Control periods between re-aims of the digging force while the edge cuts: 2 is ~15 % faster on random actions
@@ -292,6 +292,8 @@ class HexLoadingEnv(gym.Env):
             raise ValueError(
                 f"time_limit and truck_capacity_kg must be finite and > 0, got {time_limit}, {truck_capacity_kg}"
             )
+        if time_limit > MAX_TIME_LIMIT:
+            raise ValueError(f"time_limit must be at most {MAX_TIME_LIMIT:.0f} s (a day), got {time_limit}")
         for name, size in (("width", width), ("height", height)):
             if not _is_number(size) or int(size) != size or size < 1:
                 raise ValueError(f"{name} must be a whole number of pixels >= 1, got {size!r}")
@@ -313,8 +315,6 @@ class HexLoadingEnv(gym.Env):
             raise ValueError(
                 f"frames of {self.width} x {self.height} pixels exceed the scene's offscreen buffer "
                 f"({frame.offwidth} x {frame.offheight})"
-        if time_limit > MAX_TIME_LIMIT:
-            raise ValueError(f"time_limit must be at most {MAX_TIME_LIMIT:.0f} s (a day), got {time_limit}")
             )
         self.layout: Layout | None = None
         self.earth: Earthwork | None = None
