@@ -589,12 +589,12 @@ def _load_chunk(path: Path, expected: dict[str, Any]) -> dict[str, np.ndarray]:
                 f"chunk {path} was made with {key}={meta.get(key)!r}, this run has {value!r}: "
                 "use another output folder or delete its chunks/ folder"
             )
-    return arrays
-
     tables = _config_from_json(json.dumps(expected["config"])).tables(expected["group"])
     problem = _chunk_problem(arrays, tables)
     if problem:
         raise ValueError(f"chunk {path} {problem}; delete it to recompute it")
+    return arrays
+
 
 def _chunk_problem(arrays: dict[str, np.ndarray], tables: tuple[str, ...]) -> str:
     """What is wrong with a chunk's arrays for ``tables`` ('' when nothing)."""
