@@ -149,6 +149,7 @@ Triangle ReadTriangle(const mjModel* m, int instance, const char* key) {
 struct Instance {
   std::shared_ptr<const LoadedTables> tables;
   int boom_table, bucket_table, stick_table, swing_table, pump1_table, pump2_table;  // -1: not in the set
+  bool swing_torque;  // the swing table gives the motor torque (else the acceleration)
   Linkage linkage;
   double retracted[3], stroke[3], push_limit[3], pull_limit[3], rate_lo[4], rate_hi[4];
   double end_margin, swing_torque_limit, dead_band, swing_rest_rate;
@@ -198,6 +199,7 @@ struct Instance {
     dead_band = Number(m, instance, "dead_band");
     swing_rest_rate = Number(m, instance, "swing_rest_rate");
     const TableSchema& swing_spec = table_set.tables[swing_table];
+    swing_torque = std::strcmp(swing_spec.output, "swing_torque_nm") == 0;
     int rate_axis = 0;
     while (rate_axis < swing_spec.num_inputs && swing_spec.inputs[rate_axis] != kQSwingRateRadps) ++rate_axis;
     if (rate_axis == swing_spec.num_inputs) throw SetupError("the swing table does not read the swing rate");
@@ -341,6 +343,7 @@ struct Instance {
     double v_bucket = closed[3] ? 0.0 : Lookup(bucket_table, q);
     double v_stick = closed[2] ? 0.0 : Lookup(stick_table, q);
     swing_acceleration = Lookup(swing_table, q);
+    if (swing_torque) swing_acceleration /= inertia;  // a torque table (extended): through this inertia
     next_pressure[0] = q[kQPump1PressurePa], next_pressure[1] = q[kQPump2PressurePa];
     if (pump1_table >= 0) {  // the pumps' pressures for the next period, from this period's inputs
       next_pressure[0] = Lookup(pump1_table, q);

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from hexgym.machine import kinematics
+from hexgym.mbl.schema import DEFAULT_TABLE_SET
 from hexgym.tools import operator_logs as ol
 from hexgym.tools.cli import main
 from hexgym.tools.validate import interaction_cases, run_validation
@@ -116,7 +117,7 @@ def _check_suite_block(suite: dict, n: int, seed: int) -> None:
 def test_suite_block_on_a_short_real_run(tmp_path):
     """One 6 s log replayed on both models, in this process."""
     summary = run_validation(tmp_path, suite=1, suite_seed=5, workers=1, suite_only=True, suite_duration_s=6.0)
-    assert list(summary) == ["suite"]
+    assert list(summary) == ["tables", "suite"] and summary["tables"] == DEFAULT_TABLE_SET
     _check_suite_block(summary["suite"], 1, 5)
     assert summary["suite"]["per_log"][0]["duration_s"] == 6.0
     assert json.loads((tmp_path / "summary.json").read_text()) == summary

@@ -30,6 +30,8 @@ from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.machine.assets import SCENE_FILE, asset_path
 from hexgym.machine.render import ModelMirror
+from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS
+from hexgym.mbl.table import load_tables
 from hexgym.model.backend import resolve_backend
 from hexgym.model.base import LearnedModelBase
 from hexgym.model.python_backend import LearnedModel
@@ -75,22 +77,40 @@ _CLIP_LOW, _CLIP_HIGH = _OBS_LOW.astype(float), _OBS_HIGH.astype(float)  # the b
 PYTHON_SCENE = "scene_lean.xml"  # the learned model's default machine (hexgym.model.python_backend)
 
 
-def make_machine(backend: str = "auto", scene_path: str | Path | None = None) -> LearnedModelBase:
+def make_machine(
+    backend: str = "auto", scene_path: str | Path | None = None, table_set: str = DEFAULT_TABLE_SET
+) -> LearnedModelBase:
     """The machine model that drives the environment, on the loading site.
 
     ``"python"``: :class:`hexgym.model.python_backend.LearnedModel` on the lean machine (``scene_lean.xml``:
     no cylinder bodies, 25 ms step); ``"native"``: the ``hexgym.mbl`` MuJoCo plugin on
     ``cat325_mbl.xml`` (:mod:`hexgym.model.native_backend`, needs the built plugin). ``scene_path`` overrides
     the scene (e.g. the full ``scene.xml``). ``"auto"``: :func:`hexgym.model.backend.resolve_backend`.
+    ``table_set``: the learned model's tables, "extended" or "paper" (:mod:`hexgym.mbl.schema`).
     """
     backend = resolve_backend(backend)
     if backend == "native":
         from hexgym.model.native_backend import NativeLearnedModel
 
-        return NativeLearnedModel(model=build_world_model(scene_path, machine_file="cat325_mbl.xml"))
+        return NativeLearnedModel(model=native_world_model(scene_path, table_set))
     model = build_world_model(scene_path if scene_path is not None else asset_path(PYTHON_SCENE))
     step = model.opt.timestep  # on a finer model than the lean machine's, the tables are asked every 10 ms
-    return LearnedModel(model=model, control_period=step * max(1, round(PYTHON_CONTROL_PERIOD / step)))
+    tables = load_tables(table_set=table_set)
+    return LearnedModel(tables, model=model, control_period=step * max(1, round(PYTHON_CONTROL_PERIOD / step)))
+
+
+def native_world_model(
+    scene_path: str | Path | None = None, table_set: str = DEFAULT_TABLE_SET, tool_contact_slots: int = 0
+) -> mujoco.MjModel:
+    """The loading site around the lean machine driven by the native plugin with ``table_set``'s tables."""
+    from hexgym.model.plugin import require_plugin
+    from hexgym.model.plugin_mjcf import MBL_MODEL_FILE, mbl_model_xml
+
+    require_plugin()
+    if table_set == DEFAULT_TABLE_SET:  # the packaged machine file
+        return build_world_model(scene_path, machine_file=MBL_MODEL_FILE, tool_contact_slots=tool_contact_slots)
+    xml = mbl_model_xml(table_set=table_set)
+    return build_world_model(scene_path, machine_xml=xml, tool_contact_slots=tool_contact_slots)
 
 
 def _display_available() -> bool:
@@ -249,6 +269,7 @@ class HexLoadingEnv(gym.Env):
     | scene_path | None | MJCF scene to build the site on (default: the lean machine's ``scene_lean.xml``) |
     | backend | ``"auto"`` | ``"native"`` (MuJoCo plugin), ``"python"`` (LearnedModel), ``"auto"`` (native if built) |
     | earthwork_periods | 4 | control periods (25 ms) per dig (fill, pile cut, spill) near the pile; 1: every period |
+    | tables | the default set | the learned model's tables: ``"extended"`` (both pumps) or ``"paper"`` (the paper's four) |
 
     Metadata: ``render_fps`` = 10, the control rate.
     """
@@ -276,6 +297,7 @@ class HexLoadingEnv(gym.Env):
         scene_path: str | Path | None = None,
         backend: str = "auto",
         earthwork_periods: int = EARTHWORK_PERIODS,
+        tables: str = DEFAULT_TABLE_SET,
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             why = " ('human' needs a display: DISPLAY is unset)" if render_mode == "human" else ""
@@ -306,7 +328,9 @@ class HexLoadingEnv(gym.Env):
         for name, weight in self.weights.items():
             if not _is_number(weight) or not math.isfinite(weight):
                 raise ValueError(f"{name}_weight must be a finite number, got {weight!r}")
-        self._scene_path, self._backend = scene_path, backend
+        if tables not in TABLE_SETS:
+            raise ValueError(f"tables must be one of {tuple(TABLE_SETS)}, got {tables!r}")
+        self._scene_path, self._backend, self.tables = scene_path, backend, tables
         self.observation_space, self.action_space = task_spaces()
         self._build()
         frame = self.physics.model.vis.global_
@@ -321,7 +345,7 @@ class HexLoadingEnv(gym.Env):
 
     # -- simulation ----------------------------------------------------------------------------
     def _build(self) -> None:
-        self.machine = make_machine(self._backend, self._scene_path)
+        self.machine = make_machine(self._backend, self._scene_path, self.tables)
         self.physics = self.machine.physics
         model = self.physics.model
         self._period = self.machine.control_period  # s, one control period of the machine model

@@ -30,8 +30,8 @@ HOLDOUT_FRACTION = 0.2  # of the episodes
 # tables' extra pressure axis shares the budget, which keeps all tables within ~20 MB.
 MAX_GRID_NODES = {
     "paper": {"boom": 60_000, "bucket": 60_000, "stick": 60_000, "swing": 200_000},
-    "extended": {"boom": 120_000, "bucket": 120_000, "pump1": 120_000, "stick": 120_000, "swing": 300_000,
-                 "pump2": 120_000},
+    "extended": {"boom": 150_000, "bucket": 150_000, "pump1": 150_000, "stick": 150_000, "swing": 300_000,
+                 "pump2": 150_000},
 }  # fmt: skip
 MAX_POINTS = 12_000  # a seeded subsample above this: LOO selection and the grid stay minutes, not hours
 
@@ -109,10 +109,11 @@ def fitted_points(data: TableData, seed: int = 0) -> TableData:
     return TableData(data.X[keep], data.y[keep], data.episode[keep])
 
 
-def tables_summary(directory: str | Path | None = None) -> list[dict[str, object]]:
-    """Per table: inputs, output, n_points, chosen parameters and the accuracy figures."""
+def tables_summary(directory: str | Path | None = None, table_set: str = DEFAULT_TABLE_SET) -> list[dict[str, object]]:
+    """Per table: inputs, output, n_points, chosen parameters and the accuracy figures (``holdout``: how the
+    held-out rows were chosen, whole ``episodes`` or single ``rows``)."""
     out = []
-    for name, table in load_tables(directory).items():
+    for name, table in load_tables(directory, table_set).items():
         metrics = table.metrics
         out.append(
             {
@@ -129,6 +130,7 @@ def tables_summary(directory: str | Path | None = None) -> list[dict[str, object
                     for k, v in metrics.items()
                     if k.startswith("baseline_")
                 },
+                "holdout": metrics.get("holdout", "rows"),
                 "grid_shape": list(table.shape),
                 "data_hash": table.data_hash,
             }
@@ -136,14 +138,16 @@ def tables_summary(directory: str | Path | None = None) -> list[dict[str, object
     return out
 
 
-def lookup_benchmark(data_dir: str | Path, directory: str | Path | None = None, seed: int = 0) -> dict[str, dict]:
+def lookup_benchmark(
+    data_dir: str | Path, directory: str | Path | None = None, seed: int = 0, table_set: str = DEFAULT_TABLE_SET
+) -> dict[str, dict]:
     """Seconds per query of each table against its direct LWR, at held-out data points."""
     from hexgym.mbl.grid import benchmark_lookup
     from hexgym.mbl.lwr import LocallyWeightedRegression
 
     out = {}
-    for name, table in load_tables(directory).items():
-        data = load_table_data(Path(data_dir) / f"{name}.npz", name)
+    for name, table in load_tables(directory, table_set).items():
+        data = load_table_data(Path(data_dir) / f"{name}.npz", name, table_set)
         X, y = data.X, data.y
         train, test = episode_split(data.episode, HOLDOUT_FRACTION, seed)
         lwr = LocallyWeightedRegression(table.params).fit(X[train][:MAX_POINTS], y[train][:MAX_POINTS])

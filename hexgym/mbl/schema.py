@@ -20,7 +20,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-UNITS = {"_m": "m", "_n": "N", "_kgm2": "kg m^2", "_radps": "rad/s", "_mps": "m/s", "_radps2": "rad/s^2", "_pa": "Pa"}
+UNITS = {
+    "_m": "m", "_n": "N", "_nm": "N m", "_kgm2": "kg m^2", "_radps": "rad/s", "_mps": "m/s", "_radps2": "rad/s^2",
+    "_pa": "Pa",
+}  # fmt: skip
 
 # Every quantity a table may read, in a fixed order (the plugin's query vector uses this order).
 QUANTITIES = (
@@ -77,7 +80,15 @@ TABLE_SETS: dict[str, dict[str, TableSchema]] = {
         TableSchema("bucket", "boom_bucket", (*_BOOM_BUCKET, "pump2_pressure_pa"), "bucket_velocity_mps"),
         TableSchema("pump1", "boom_bucket", (*_BOOM_BUCKET, "pump2_pressure_pa"), "pump1_pressure_pa"),
         TableSchema("stick", "stick_swing", (*_STICK, "pump1_pressure_pa"), "stick_velocity_mps"),
-        TableSchema("swing", "stick_swing", (*_SWING, "pump1_pressure_pa"), "swing_acceleration_radps2", "trajectory"),
+        # the swing's motor torque, not its acceleration: the torque follows the line pressure, which the
+        # valve and pump set whatever the inertia; the model divides by the inertia (MuJoCo's mass matrix)
+        TableSchema(
+            "swing",
+            "stick_swing",
+            ("swing_spool_m", "stick_spool_m", "stick_force_n", "swing_rate_radps", "pump1_pressure_pa"),
+            "swing_torque_nm",
+            "trajectory",
+        ),
         TableSchema(
             "pump2",
             "stick_swing",

@@ -64,6 +64,7 @@ class LearnedModel(LearnedModelBase):
         self.table_set = table_set_of(tables)
         self.tables = tables
         self._schema = TABLE_SETS[self.table_set]
+        self._swing_torque = self._schema["swing"].output == "swing_torque_nm"
         self._substeps = int(round(control_period / self.physics.timestep))
         if self._substeps < 1 or abs(self._substeps * self.physics.timestep - control_period) > 1e-9:
             raise ValueError(f"control_period must be a multiple of the model step, got {control_period}")
@@ -196,6 +197,8 @@ class LearnedModel(LearnedModelBase):
         v_bucket = 0.0 if closed[3] else table("bucket")
         v_stick = 0.0 if closed[2] else table("stick")
         self._swing_acceleration = table("swing")
+        if self._swing_torque:  # a torque table (extended): the acceleration through this inertia
+            self._swing_acceleration /= inertia
         if not self._slowest_swing < rate < self._fastest_swing and self.swing_acceleration * rate > 0.0:
             # the table clamps the rate to its grid, the fastest swing in its data: beyond it, it
             # would keep accelerating the swing at that edge's value; it must not go faster

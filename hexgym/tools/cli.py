@@ -77,9 +77,9 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
         model = ReferenceModel()
     else:
-        from hexgym.model.native_backend import make_learned_model
+        from hexgym.model.backend import make_learned_model
 
-        model = make_learned_model(args.backend)
+        model = make_learned_model(args.backend, table_set=args.tables)
     trajectory = replay(model, commands, start=args.start, payload_kg=args.payload_kg, dt_out=args.dt_out)
     write_trajectory_csv(args.out, trajectory)
     print(f"wrote {args.out}: {len(trajectory)} rows, {commands.duration:g} s simulated")
@@ -96,14 +96,17 @@ def _cmd_reference_report(args: argparse.Namespace) -> int:
 
 def _cmd_fit(args: argparse.Namespace) -> int:
     from hexgym.mbl.fit import fit_all
-    from hexgym.mbl.schema import TABLES
+    from hexgym.mbl.schema import TABLE_SETS
+    from hexgym.mbl.table import packaged_tables_dir
 
-    names = tuple(args.tables.split(",")) if args.tables else tuple(TABLES)
-    unknown = set(names) - set(TABLES)
+    tables = TABLE_SETS[args.tables]
+    names = tuple(args.only.split(",")) if args.only else tuple(tables)
+    unknown = set(names) - set(tables)
     if unknown:
-        raise ValueError(f"unknown table(s) {sorted(unknown)}; choose from {list(TABLES)}")
+        raise ValueError(f"--only: unknown table(s) {sorted(unknown)}; the {args.tables} tables are {list(tables)}")
     _check_data_files(args.data, names)
-    for name, path in fit_all(args.data, args.out, seed=args.seed, names=names).items():
+    out = args.out or packaged_tables_dir(args.tables)
+    for name, path in fit_all(args.data, out, seed=args.seed, names=names, table_set=args.tables).items():
         print(f"{name}: {path}")
     return 0
 
@@ -111,12 +114,12 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 def _cmd_tables(args: argparse.Namespace) -> int:
     from hexgym.mbl.fit import tables_summary
 
-    summary = tables_summary(args.dir)
+    summary = tables_summary(args.dir, args.tables)
     if args.bench:
         _check_data_files(args.bench, [t["name"] for t in summary])
         from hexgym.mbl.fit import lookup_benchmark
 
-        timings = lookup_benchmark(args.bench, args.dir)
+        timings = lookup_benchmark(args.bench, args.dir, table_set=args.tables)
         for item in summary:
             item["seconds_per_query"] = timings[item["name"]]
     if args.json:
@@ -134,7 +137,13 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     from hexgym.tools.validate import run_validation
 
     summary = run_validation(
-        args.out, suite=args.suite, suite_seed=args.suite_seed, workers=args.workers, suite_only=args.suite_only
+        args.out,
+        suite=args.suite,
+        suite_seed=args.suite_seed,
+        workers=args.workers,
+        suite_only=args.suite_only,
+        table_set=args.tables,
+        tables_dir=args.tables_dir,
     )
     print(json.dumps(summary, indent=2))
     plots = [] if args.suite_only else ["test1.png", "test2.png", "test3.png", "interactions.png"]
@@ -162,6 +171,9 @@ def _cmd_build_assets(args: argparse.Namespace) -> int:
     with atomic_path(directory / LEAN_SCENE_FILE) as tmp:
         tmp.write_text(mjcf.scene_xml_around((directory / SCENE_FILE).read_text(), LEAN_MODEL_FILE))
     print(f"wrote {directory / LEAN_SCENE_FILE}")
+    from hexgym.model.plugin import HEADER, write_interface_header
+
+    print(f"wrote {write_interface_header(directory.parent / HEADER)}")
     return 0
 
 
@@ -210,6 +222,19 @@ def _cmd_video(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_view(args: argparse.Namespace) -> int:
+    from hexgym.tools.view import ViewSite, key_help, parse_start, run_viewer
+
+    site = ViewSite(parse_start(args.start), payload_kg=args.payload_kg, seed=args.seed)
+    print(key_help())
+    result = run_viewer(site, seconds=args.seconds, frames=args.frames, screenshot=args.screenshot, camera=args.camera)
+    spools = ", ".join(f"{v:+.2f}" for v in result["spools_mm"])
+    print(f"viewer closed after {result['sim_seconds']:.2f} s simulated, {result['frames']} frames; spools {spools} mm")
+    if args.screenshot:
+        print(f"screenshot: {args.screenshot}")
+    return 0
+
+
 def _cmd_convert_normalizer(args: argparse.Namespace) -> int:
     from hexgym.agents.policy_files import convert_pickled_normalizer
 
@@ -234,17 +259,18 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {' '.join(message.split())} (see {self.prog} --help)\n")
 
 
-def _cmd_view(args: argparse.Namespace) -> int:
-    from hexgym.tools.view import ViewSite, key_help, parse_start, run_viewer
+def _table_sets() -> tuple[str, ...]:
+    from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS
 
-    site = ViewSite(parse_start(args.start), payload_kg=args.payload_kg, seed=args.seed)
-    print(key_help())
-    result = run_viewer(site, seconds=args.seconds, frames=args.frames, screenshot=args.screenshot, camera=args.camera)
-    spools = ", ".join(f"{v:+.2f}" for v in result["spools_mm"])
-    print(f"viewer closed after {result['sim_seconds']:.2f} s simulated, {result['frames']} frames; spools {spools} mm")
-    if args.screenshot:
-        print(f"screenshot: {args.screenshot}")
-    return 0
+    return DEFAULT_TABLE_SET, tuple(TABLE_SETS)
+
+
+_TABLES_OPTION = {
+    "choices": _table_sets()[1],
+    "default": _table_sets()[0],
+    "help": f"the learned model's table set: extended (both pumps) or paper (the paper's four tables) "
+    f"(default: {_table_sets()[0]})",
+}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -292,6 +318,7 @@ def build_parser() -> argparse.ArgumentParser:
     simulate.add_argument("--start", default="home", help="keyframe to start from (default: home)")
     simulate.add_argument("--payload-kg", type=float, default=0.0, help="material in the bucket, kg (default: 0)")
     simulate.add_argument("--dt-out", type=float, default=0.05, help="output row interval, s (default: 0.05)")
+    simulate.add_argument("--tables", **_TABLES_OPTION)
     simulate.add_argument(
         "--backend",
         choices=("auto", "python", "native"),
@@ -312,12 +339,14 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--data", default="data", help="directory with <table>.npz data sets (default: data)")
     fit.add_argument("--out", default=None, help="where to write the tables (default: the packaged tables)")
     fit.add_argument("--seed", type=int, default=0, help="seed of the held-out split and the search (default: 0)")
-    fit.add_argument("--tables", default="", help="comma-separated subset, e.g. boom,stick (default: all)")
+    fit.add_argument("--tables", **_TABLES_OPTION)
+    fit.add_argument("--only", default="", help="comma-separated subset, e.g. boom,stick (default: all)")
     fit.set_defaults(func=_cmd_fit)
 
     tables = sub.add_parser("tables", help="the fitted tables: inputs, output, points, parameters, accuracy")
     tables.add_argument("--json", action="store_true", help="print JSON")
     tables.add_argument("--dir", default=None, help="table directory (default: the packaged tables)")
+    tables.add_argument("--tables", **_TABLES_OPTION)
     tables.add_argument("--bench", metavar="DATA", default=None, help="also time lookups vs direct LWR on DATA")
     tables.set_defaults(func=_cmd_tables)
 
@@ -331,6 +360,8 @@ def build_parser() -> argparse.ArgumentParser:
     validate.add_argument("--suite-seed", type=int, default=0, help="seed of the suite's logs (default: 0)")
     validate.add_argument("--workers", type=int, default=None, help="processes (default: one per CPU)")
     validate.add_argument("--suite-only", action="store_true", help="run the suite alone (no tests, interactions)")
+    validate.add_argument("--tables", **_TABLES_OPTION)
+    validate.add_argument("--tables-dir", default=None, help="the tables' directory (default: the packaged ones)")
     validate.set_defaults(func=_cmd_validate)
 
     build = sub.add_parser("build-assets", help="regenerate assets/meshes and assets/cat325.xml (developers)")

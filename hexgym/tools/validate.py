@@ -34,6 +34,8 @@ from hexgym.files import save_figure, write_json
 from hexgym.hydraulics.reference import ReferenceModel
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
+from hexgym.mbl.schema import DEFAULT_TABLE_SET
+from hexgym.mbl.table import load_tables
 from hexgym.model.commandlog import CommandLog
 from hexgym.model.python_backend import LearnedModel
 from hexgym.model.replay import replay
@@ -270,13 +272,17 @@ def run_validation(
     workers: int | None = None,
     suite_only: bool = False,
     suite_duration_s: float | None = None,
+    table_set: str = DEFAULT_TABLE_SET,
+    tables_dir: str | Path | None = None,
 ) -> dict[str, object]:
     """The three tests, the interactions and ``suite`` random operator logs; plots and ``summary.json``
     in ``out_dir``; returns the summary.
 
     ``suite_seed``: log ``i`` is :func:`hexgym.tools.operator_logs.suite_log` ``(suite_seed, i)``;
     ``workers``: processes for the interactions and the suite (default: one per CPU);
-    ``suite_only``: the suite alone; ``suite_duration_s``: every suite log this long (default 30-60 s).
+    ``suite_only``: the suite alone; ``suite_duration_s``: every suite log this long (default 30-60 s);
+    ``table_set``, ``tables_dir``: the learned model's tables (default: the packaged ones of the set), unless
+    ``learned`` is given.
     """
     if suite < 0 or (suite_only and suite == 0):
         raise ValueError(f"suite must be a number of logs >= 0 (> 0 with suite_only), got {suite}")
@@ -285,8 +291,8 @@ def run_validation(
         raise ValueError(f"workers must be >= 1, got {workers}")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    learned = learned or LearnedModel()
-    summary: dict[str, object] = {}
+    learned = learned or LearnedModel(load_tables(tables_dir, table_set))
+    summary: dict[str, object] = {"tables": learned.table_set}
     if not suite_only:
         reference = ReferenceModel()
         for name, (log, pose) in scenarios().items():
