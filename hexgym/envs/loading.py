@@ -269,7 +269,7 @@ class HexLoadingEnv(gym.Env):
     | scene_path | None | MJCF scene to build the site on (default: the lean machine's ``scene_lean.xml``) |
     | backend | ``"auto"`` | ``"native"`` (MuJoCo plugin), ``"python"`` (LearnedModel), ``"auto"`` (native if built) |
     | earthwork_periods | 4 | control periods (25 ms) per dig (fill, pile cut, spill) near the pile; 1: every period |
-    | tables | the default set | the learned model's tables: ``"extended"`` (both pumps) or ``"paper"`` (the paper's four) |
+    | tables | ``"paper"`` | the learned model's tables: ``"paper"`` (the paper's four) or ``"extended"`` (both pumps) |
 
     Metadata: ``render_fps`` = 10, the control rate.
     """

@@ -121,8 +121,6 @@ class CollectConfig:
     table_set: str = "paper"  # which tables' data sets to write (hexgym.mbl.schema.TABLE_SETS)
     # extended tables: the other pump's spools move too (both idle with this probability per segment)
     other_pump_idle_probability: float = 0.3
-    # spool changes ramp over a time drawn from this range, as an operator's joystick (0, 0: steps, the paper's)
-    spool_ramp_s: tuple[float, float] = (0.0, 0.0)
 
     @property
     def both_pumps(self) -> bool:
@@ -161,7 +159,7 @@ class SegmentResult:
     spools: np.ndarray  # m, order swing, boom, stick, bucket
     limited: bool = False  # ran within the margin of a stroke end (cut short there)
     windows: list[WindowMean] = field(default_factory=list)  # the windows completed before that
-    swing_rows: list[tuple[float, ...]] = field(default_factory=list)  # F_stick, I, w, p1, p2, T, 4 spools, dw/dt
+    swing_rows: list[tuple[float, ...]] = field(default_factory=list)  # F_stick, I, w, p1, p2, T, dw/dt
     swing_rejected: int = 0
     windows_rejected: int = 0
     steps: int = 0
@@ -197,8 +195,6 @@ def run_segment(
     config: CollectConfig,
     tip_force_arm: np.ndarray | None = None,
     swing_samples: bool = False,
-    previous_m: np.ndarray | None = None,
-    ramp_s: float = 0.0,
 ) -> SegmentResult:
     """Hold ``spools_m`` for ``steps`` model steps on ``sim`` (a ReferenceModel) and sample it.
 
@@ -206,10 +202,8 @@ def run_segment(
     gives the means of the cylinder velocities, forces and swing inertia. ``tip_force_arm``
     (radial, vertical; N) is re-applied at the teeth before every step (MuJoCo keeps
     ``qfrc_applied``, but the lever follows the bucket and the arm plane the swing). With
-    ``swing_samples`` the swing table's rows are taken along the way, with the spools of that instant.
-    ``ramp_s`` > 0: the spools move from ``previous_m`` to ``spools_m`` linearly over that time. A
-    segment that runs a cylinder within ``margin_m`` of a stroke end stops there, keeping what was
-    complete.
+    ``swing_samples`` the swing table's rows are taken along the way. A segment that runs a
+    cylinder within ``margin_m`` of a stroke end stops there, keeping what was complete.
     """
     ph, dt = sim.physics, sim.timestep
     spools = np.asarray(spools_m, dtype=float)
@@ -217,15 +211,14 @@ def run_segment(
     plan, edges = _segment_plan(steps, config, half, dt, swing_samples)
     rates = np.empty(steps + 1)
     rates[0] = ph.joint_velocities()[0]
-    pending: dict[int, tuple[float, ...]] = {}  # centre step -> (F_stick, I, w, p1, p2, T, 4 spools)
+    pending: dict[int, tuple[float, ...]] = {}  # centre step -> (F_stick, I, w, p1, p2, T)
     result = SegmentResult(spools=spools.copy())
     ext_edge = ph.cylinder_extensions() if edges[0] == 0 else None
     records: list[tuple[np.ndarray, float, np.ndarray]] = []
     for k in range(1, steps + 1):
         if tip_force_arm is not None:
             ph.apply_tip_force(tip_force_world(tip_force_arm, float(ph.joint_positions()[0])))
-        now = spools if k * dt >= ramp_s else previous_m + (k * dt / ramp_s) * (spools - previous_m)
-        sim.step(now)
+        sim.step(spools)
         rates[k] = ph.joint_velocities()[0]
         if pending:
             result.swing_rows.extend(_finish_swing(pending, rates, k, half, dt))
@@ -243,8 +236,7 @@ def run_segment(
         if action & _CENTRE:
             p1, p2 = (float(v) for v in sim.state[:2])
             torque = sim.circuit.swing_torque(sim.state, float(rates[k]))  # the motor's, on the swing axis
-            inputs = (float(_forces(sim)[_CYL["stick"]]), ph.swing_inertia(), float(rates[k]), p1, p2, torque)
-            pending[k] = (*inputs, *now)
+            pending[k] = (float(_forces(sim)[_CYL["stick"]]), ph.swing_inertia(), float(rates[k]), p1, p2, torque)
         if action & _EDGE:
             if ext_edge is not None and records:
                 velocity = (ext - ext_edge) / (config.window_s_steps(dt) * dt)
@@ -417,12 +409,9 @@ def collect_episode(sim: Any, group: str, episode: int, seed: int, config: Colle
     result = EpisodeResult(rows={t: [] for t in config.tables(group)})
     spools = np.zeros(4)
     for seg in range(config.segments_per_episode):
-        previous = spools
         spools, steps = plan_segment(rng, group, spools, sim.physics.cylinder_extensions(), sim.timestep, config)
-        ramp = rng.uniform(*config.spool_ramp_s) if config.spool_ramp_s[1] > 0 else 0.0
         try:
-            swing = group == "stick_swing"
-            seg_result = run_segment(sim, spools, steps, config, setup.tip_force_arm, swing, previous, ramp)
+            seg_result = run_segment(sim, spools, steps, config, setup.tip_force_arm, group == "stick_swing")
         except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:  # a diverged model: end it here
             result.error = f"segment {seg}: {exc}"
             break
@@ -448,9 +437,9 @@ def _add_rows(result: EpisodeResult, group: str, seg: int, r: SegmentResult, con
         pressures = {"pump1_pressure_pa": float(w.pressures[0]), "pump2_pressure_pa": float(w.pressures[1])}
         samples["window"].append(spools | forces | velocities | pressures | {"swing_inertia_kgm2": w.inertia})
     if group == "stick_swing":
-        for force, inertia, rate, p1, p2, torque, *now, accel in r.swing_rows:
+        for force, inertia, rate, p1, p2, torque, accel in r.swing_rows:
             samples["trajectory"].append(
-                {f"{name}_spool_m": float(now[i]) for name, i in _SPOOL.items()}
+                spools
                 | {"stick_force_n": force, "swing_inertia_kgm2": inertia, "swing_rate_radps": rate}
                 | {"pump1_pressure_pa": p1, "pump2_pressure_pa": p2}
                 | {"swing_torque_nm": torque, "swing_acceleration_radps2": accel}

@@ -394,6 +394,19 @@ def packaged_tables_dir(table_set: str = DEFAULT_TABLE_SET) -> Path:
     return Path(str(resources.files("hexgym") / "mbl_tables" / table_set))
 
 
+def require_packaged(table_set: str) -> Path:
+    """The packaged tables' directory of ``table_set``; FileNotFoundError saying how to make them if the
+    package has none (the ``extended`` set is not shipped)."""
+    directory = packaged_tables_dir(table_set)
+    if not directory.is_dir():
+        raise FileNotFoundError(
+            f"the {table_set} tables are not shipped: make them with `hexgym collect --tables {table_set} --out DATA`"
+            f" then `hexgym fit --tables {table_set} --data DATA` (which writes them into the package), or pass"
+            " the directory `hexgym fit --out` wrote"
+        )
+    return directory
+
+
 def table_path(name: str, directory: str | Path | None = None, table_set: str = DEFAULT_TABLE_SET) -> Path:
     """The file of table ``name`` (in ``directory``, default the packaged tables of ``table_set``)."""
     return Path(directory or packaged_tables_dir(table_set)) / f"{name}.npz"
@@ -405,6 +418,8 @@ def load_tables(directory: str | Path | None = None, table_set: str = DEFAULT_TA
     naming the file and what differs (e.g. a ``paper`` file where an ``extended`` one is expected)."""
     if table_set not in TABLE_SETS:
         raise ValueError(f"table set must be one of {tuple(TABLE_SETS)}, got {table_set!r}")
+    if directory is None:
+        require_packaged(table_set)
     tables = {}
     for name in TABLE_SETS[table_set]:
         path = table_path(name, directory, table_set)

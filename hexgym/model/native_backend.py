@@ -22,6 +22,7 @@ from hexgym.machine import kinematics
 from hexgym.machine.assets import AssetError, asset_path
 from hexgym.machine.physics import ExcavatorPhysics, contiguous_index
 from hexgym.mbl.schema import DEFAULT_TABLE_SET
+from hexgym.mbl.table import require_packaged
 from hexgym.model.base import LearnedModelBase
 from hexgym.model.plugin import CTRL_PER_SPOOL_M, STATE, STATE_SIZE, plugin_config_values, require_plugin
 
@@ -48,6 +49,8 @@ def load_mbl_model(
             raise AssetError(f"cannot load model {path}: {exc}") from exc
     from hexgym.model.plugin_mjcf import mbl_model_xml
 
+    if tables_dir is None:
+        require_packaged(table_set)  # the plugin would name only the first missing file
     if tables_dir is not None and not Path(tables_dir).is_dir():
         raise FileNotFoundError(f"MBL table directory {tables_dir} does not exist")
     spec = mujoco.MjSpec.from_string(mbl_model_xml(tables_dir, control_period, full=full, table_set=table_set))
