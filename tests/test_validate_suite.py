@@ -136,7 +136,7 @@ def test_full_validation_with_two_suite_logs(tmp_path, capsys):
     """``hexgym validate --suite 2``: the tests, the interactions and two full-length logs, in workers."""
     assert main(["validate", "--out", str(tmp_path), "--suite", "2", "--suite-seed", "1", "--workers", "2"]) == 0
     summary = json.loads((tmp_path / "summary.json").read_text())
-    assert set(summary) == {"test1", "test2", "test3", "speed", "interactions", "suite"}
+    assert set(summary) == {"tables", "test1", "test2", "test3", "speed", "interactions", "suite"}
     assert set(summary["interactions"]) == set(interaction_cases())
     _check_suite_block(summary["suite"], 2, 1)
     for name in ("test1", "test2", "test3", "interactions", "suite_worst"):
