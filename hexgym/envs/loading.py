@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import numbers
 import os
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -100,17 +101,23 @@ def make_machine(
 
 
 def native_world_model(
-    scene_path: str | Path | None = None, table_set: str = DEFAULT_TABLE_SET, tool_contact_slots: int = 0
+    scene_path: str | Path | None = None,
+    table_set: str = DEFAULT_TABLE_SET,
+    tool_contact_slots: int = 0,
+    customise: Callable[[mujoco.MjSpec], None] | None = None,
 ) -> mujoco.MjModel:
-    """The loading site around the lean machine driven by the native plugin with ``table_set``'s tables."""
+    """The loading site around the lean machine driven by the native plugin with ``table_set``'s tables
+    (``customise``: see :func:`hexgym.envs.world.build_world_model`)."""
     from hexgym.model.plugin import require_plugin
     from hexgym.model.plugin_mjcf import MBL_MODEL_FILE, mbl_model_xml
 
     require_plugin()
     if table_set == DEFAULT_TABLE_SET:  # the packaged machine file
-        return build_world_model(scene_path, machine_file=MBL_MODEL_FILE, tool_contact_slots=tool_contact_slots)
+        return build_world_model(
+            scene_path, machine_file=MBL_MODEL_FILE, tool_contact_slots=tool_contact_slots, customise=customise
+        )
     xml = mbl_model_xml(table_set=table_set)
-    return build_world_model(scene_path, machine_xml=xml, tool_contact_slots=tool_contact_slots)
+    return build_world_model(scene_path, machine_xml=xml, tool_contact_slots=tool_contact_slots, customise=customise)
 
 
 def _display_available() -> bool:

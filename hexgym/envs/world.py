@@ -183,13 +183,15 @@ def build_world_model(
     machine_file: str | None = None,
     tool_contact_slots: int = 0,
     machine_xml: str | None = None,
+    customise: Callable[[mujoco.MjSpec], None] | None = None,
 ) -> mujoco.MjModel:
     """Compile the machine's scene (default: the packaged ``scene.xml``) with the pile, the truck and the loads.
 
     ``machine_file``: another packaged machine MJCF (e.g. ``cat325_mbl.xml``, the native plugin's)
     to include in place of the one the scene names; ``machine_xml``: a machine MJCF's text to include
     instead (e.g. the plugin's machine for other tables). ``tool_contact_slots`` > 0 adds a contact
-    sensor ``tool_contacts`` (:func:`_add_tool_contact_sensor`) with that many slots.
+    sensor ``tool_contacts`` (:func:`_add_tool_contact_sensor`) with that many slots. ``customise``: called
+    with the site's spec before it compiles (e.g. the planner's clearance sensors, :mod:`hexgym.planning`).
     """
     path = Path(scene_path) if scene_path is not None else asset_path(SCENE_FILE)
     try:
@@ -206,6 +208,8 @@ def build_world_model(
         _add_bucket_load(spec)
         if tool_contact_slots > 0:
             _add_tool_contact_sensor(spec, tool_contact_slots)
+        if customise is not None:
+            customise(spec)
         return spec.compile()
     except ValueError as exc:
         raise AssetError(f"cannot build the loading site on {path}: {exc}") from exc

@@ -209,6 +209,16 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_shield(args: argparse.Namespace) -> int:
+    from hexgym.tools.shield import compare, print_comparison
+
+    result = compare(args.policy, args.episodes, args.seed, args.seconds, args.horizon, json_out=args.json)
+    print_comparison(result)
+    if args.json:
+        print(f"wrote {args.json}")
+    return 0
+
+
 def _cmd_video(args: argparse.Namespace) -> int:
     from hexgym.agents.video import record_video
 
@@ -383,7 +393,21 @@ def build_parser() -> argparse.ArgumentParser:
     view.set_defaults(func=_cmd_view)
 
     _add_agent_parsers(sub)
+    _add_planning_parsers(sub)
     return parser
+
+
+def _add_planning_parsers(sub: argparse._SubParsersAction) -> None:
+    """``shield``: the collision shield (:mod:`hexgym.wrappers`) on seeded episodes of a policy."""
+    shield = sub.add_parser("shield", help="the same seeded episodes of a policy with and without the collision shield")
+    shield.add_argument("--policy", default="random", help="'random', 'shipped', 'scripted' or a model .zip "
+                        "(default: random)")  # fmt: skip
+    shield.add_argument("--episodes", type=int, default=4, help="episodes, seeds seed..seed+N-1 (default: 4)")
+    shield.add_argument("--seed", type=int, default=0, help="first seed (default: 0)")
+    shield.add_argument("--seconds", type=float, default=None, help="episode time limit, s (default: the env's)")
+    shield.add_argument("--horizon", type=float, default=1.5, help="prediction horizon, s (default: 1.5)")
+    shield.add_argument("--json", metavar="OUT", default=None, help="also write the figures to this JSON file")
+    shield.set_defaults(func=_cmd_shield)
 
 
 def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
@@ -460,7 +484,7 @@ _POSITIVE = {"seconds": "s", "fps": "frames/s", "dt_out": "s"}
 # Paths, by (command, option): files and directories written, files and directories read.
 _OUTPUT_FILES = {("simulate", "out"), ("video", "out"), ("video", "snapshot"), ("evaluate", "json"),
                  ("bench", "json"), ("scripted", "json"), ("clone", "out"), ("view", "screenshot"),
-                 ("convert-normalizer", "out")}  # fmt: skip
+                 ("convert-normalizer", "out"), ("shield", "json")}  # fmt: skip
 _OUTPUT_DIRS = {("demo", "out"), ("reference-report", "out"), ("validate", "out"), ("collect", "out"),
                 ("fit", "out"), ("build-assets", "dir"), ("clone", "rounds_dir"), ("train", "log_dir")}  # fmt: skip
 _INPUT_FILES = {("simulate", "commands"), ("train", "hyperparams"), ("train", "init_from"), ("clone", "hyperparams"),

@@ -1,0 +1,15 @@
+"""Planning and prediction on batched rollouts of the fast learned model (the paper's two uses of it).
+
+- :mod:`hexgym.planning.rollouts`: :class:`RolloutModel`, batched ``mujoco.rollout`` runs of the native
+  learned model on the loading site (truck, ground) from a :class:`MachineState`, returning the teeth's
+  path and the bucket's and stick's clearance to truck and ground (negative = contact).
+- :mod:`hexgym.planning.predict`: :func:`predict`, the motion under a spool command and its first
+  predicted contact (time, bodies, point, depth); :class:`hexgym.wrappers.CollisionShield` builds on it.
+
+Needs the native plugin (``hexgym.mbl``). Imports nothing above the environments' layer.
+"""
+
+from hexgym.planning.predict import Contact, Prediction, predict
+from hexgym.planning.rollouts import PAIRS, MachineState, RolloutBatch, RolloutModel
+
+__all__ = ["PAIRS", "Contact", "MachineState", "Prediction", "RolloutBatch", "RolloutModel", "predict"]

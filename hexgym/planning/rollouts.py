@@ -1,0 +1,300 @@
+"""Batched rollouts of the native learned model on the loading site, with the tool's clearance to truck and ground.
+
+:class:`RolloutModel` compiles the site of ``HexLoading-v0`` (pile, truck) around the lean machine driven
+by the ``hexgym.mbl`` plugin (:func:`hexgym.envs.loading.native_world_model`) with, added for prediction:
+
+- a ``framepos`` sensor of the teeth (site ``tip``);
+- a ``geomdist`` sensor (cutoff ``detection_m``) per pair of a tool collision geom (the bucket's, the
+  stick's) and an obstacle's (the ground, each solid geom of the truck): the signed distance between them
+  (negative = penetration). Sensors only: the contacts and the motion are the environment's.
+
+:meth:`RolloutModel.rollout` runs a batch of spool sequences from one :class:`MachineState` with
+``mujoco.rollout`` (``nthread`` threads, a persistent pool) and returns a :class:`RolloutBatch`: per
+rollout and control period, the joint angles, the teeth's position, the four pairs' clearances and the
+physics states (:meth:`RolloutModel.closest_point` finds a pair's closest point at one). The state is the
+machine's full physics state when taken from a native environment (:meth:`MachineState.from_env`), else
+built at the given joint angles and rates.
+
+What the prediction leaves out: the digging force (the pile is no collision geom; a bucket in the pile is
+predicted as if in air) and changes of the payload during the horizon.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from hexgym.envs.loading import native_world_model
+from hexgym.envs.world import Layout, World
+from hexgym.machine import kinematics
+from hexgym.machine import parameters as p
+from hexgym.mbl.schema import DEFAULT_TABLE_SET
+from hexgym.model.native_backend import NativeLearnedModel
+from hexgym.model.plugin import CTRL_PER_SPOOL_M
+
+PAIRS = (("bucket", "truck"), ("bucket", "ground"), ("stick", "truck"), ("stick", "ground"))
+"""The (tool, obstacle) pairs whose clearance is predicted, in the order of :attr:`RolloutBatch.clearance_m`."""
+DETECTION_M = 1.0  # m: contacts are reported this far apart; clearances beyond read as this
+HARD_CONTACT_DEPTH_M = p.HARD_CONTACT_FORCE / p.CONTACT_STIFFNESS  # m: the env counts hard contact beyond this depth
+MAX_ROLLOUT_BYTES = 2 * 2**30  # the states a batch holds at once, at most (a longer horizon is a mistake)
+JOINT_TOLERANCE = 1e-3  # rad: a state this far outside a joint's range still counts as inside (rounding)
+_TOOL_GEOMS = {"bucket": "bucket_collision", "stick": "planning_stick_collision"}  # the latter named here
+_TRUCK_GEOMS = (
+    "truck_floor", "truck_headboard", "truck_tailgate", "truck_left_wall", "truck_right_wall", "truck_chassis",
+    "truck_cab",
+)  # fmt: skip
+
+
+@dataclasses.dataclass(frozen=True)
+class MachineState:
+    """The machine on its site: joint angles (rad) and rates (rad/s) in the order swing, boom, stick,
+    bucket; the payload (kg); the site's layout; optionally the full physics state of a native
+    environment's model (``mjSTATE_FULLPHYSICS``), which then stands for the rest."""
+
+    q: np.ndarray
+    qd: np.ndarray
+    payload_kg: float
+    layout: Layout
+    physics_state: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        q, qd = np.asarray(self.q, float), np.asarray(self.qd, float)
+        if q.shape != (4,) or qd.shape != (4,):
+            raise ValueError(f"state q and qd must have shape (4,), got {q.shape} and {qd.shape}")
+        if not (np.isfinite(q).all() and np.isfinite(qd).all()):
+            raise ValueError(f"state q and qd must be finite, got q={q}, qd={qd}")
+        for name, angle in zip(kinematics.JOINTS, q, strict=True):
+            low, high = kinematics.joint_range(name)
+            if not low - JOINT_TOLERANCE <= angle <= high + JOINT_TOLERANCE:
+                raise ValueError(
+                    f"state outside the joint ranges: {name} angle {angle:.4f} rad is outside [{low:.4f}, {high:.4f}]"
+                )
+        if not (math.isfinite(self.payload_kg) and self.payload_kg >= 0.0):
+            raise ValueError(f"payload_kg must be finite and >= 0, got {self.payload_kg}")
+        object.__setattr__(self, "q", q)
+        object.__setattr__(self, "qd", qd)
+
+    @classmethod
+    def from_env(cls, env: Any) -> MachineState:
+        """The present state of a ``HexLoading-v0`` environment (wrapped or not; after ``reset``)."""
+        env = getattr(env, "unwrapped", env)
+        if getattr(env, "layout", None) is None:
+            raise RuntimeError("the environment has no state yet: call reset() first")
+        ph = env.physics
+        physics_state = None
+        if isinstance(env.machine, NativeLearnedModel):
+            kind = mujoco.mjtState.mjSTATE_FULLPHYSICS
+            physics_state = np.empty(mujoco.mj_stateSize(ph.model, kind))
+            mujoco.mj_getState(ph.model, ph.data, physics_state, kind)
+        return cls(ph.joint_positions().copy(), ph.joint_velocities().copy(), ph.payload_kg, env.layout, physics_state)
+
+
+@dataclasses.dataclass(frozen=True)
+class RolloutBatch:
+    """Predicted motions: B rollouts of T control periods (the state at the end of each period).
+
+    ``times_s`` (T,); ``q`` (B, T, 4) rad; ``tip`` (B, T, 3) world m; ``clearance_m`` (B, T, 4): per
+    pair of :data:`PAIRS`, the closest distance (m; negative: penetration; ``detection_m`` when farther);
+    ``states`` (B, T, nstate): the physics states (``mjSTATE_FULLPHYSICS``).
+    """
+
+    times_s: np.ndarray
+    q: np.ndarray
+    tip: np.ndarray
+    clearance_m: np.ndarray
+    states: np.ndarray
+    detection_m: float
+
+    @property
+    def min_clearance_m(self) -> np.ndarray:
+        """(B,): each rollout's least clearance of bucket and stick to truck and ground (negative = contact)."""
+        return self.clearance_m.min(axis=(1, 2))
+
+    @property
+    def bucket_clearance_m(self) -> np.ndarray:
+        """(B,): each rollout's least clearance of the bucket to truck and ground."""
+        return self.clearance_m[:, :, :2].min(axis=(1, 2))
+
+    @property
+    def stick_clearance_m(self) -> np.ndarray:
+        """(B,): each rollout's least clearance of the stick to truck and ground."""
+        return self.clearance_m[:, :, 2:].min(axis=(1, 2))
+
+
+def _periods(horizon_s: float, period: float) -> int:
+    if not (isinstance(horizon_s, int | float) and math.isfinite(horizon_s) and horizon_s > 0):
+        raise ValueError(f"horizon_s must be finite and > 0, got {horizon_s!r}")
+    return max(1, math.ceil(horizon_s / period - 1e-9))
+
+
+class RolloutModel:
+    """The native learned model on the loading site, for batched predictions (see the module docstring).
+
+    Args:
+        table_set: the learned model's tables (as ``HexLoading-v0``'s ``tables``).
+        nthread: threads of ``mujoco.rollout`` (1: in this thread).
+        detection_m: how far apart contacts are reported (m, > 0).
+    """
+
+    def __init__(self, table_set: str = DEFAULT_TABLE_SET, nthread: int = 1, detection_m: float = DETECTION_M) -> None:
+        if isinstance(nthread, bool) or not isinstance(nthread, int) or nthread < 1:
+            raise ValueError(f"nthread must be an integer >= 1, got {nthread!r}")
+        if not (math.isfinite(detection_m) and detection_m > 0):
+            raise ValueError(f"detection_m must be finite and > 0, got {detection_m!r}")
+        self.table_set, self.nthread, self.detection_m = table_set, nthread, float(detection_m)
+        self.machine = NativeLearnedModel(model=native_world_model(table_set=table_set, customise=self._customise))
+        self.physics = self.machine.physics
+        m = self.model = self.physics.model
+        self.world = World(m)
+        self.control_period = self.machine.control_period
+        self._steps_per_period = round(self.control_period / m.opt.timestep)
+        if abs(self._steps_per_period * m.opt.timestep - self.control_period) > 1e-9:
+            raise ValueError("the rollout model's control period must be a whole number of steps")
+        self._ctrl = np.array([m.actuator(n).id for n in kinematics.JOINTS])
+        self._swing_act = int(m.actuator_actadr[self._ctrl[0]])
+        self._kind = mujoco.mjtState.mjSTATE_FULLPHYSICS
+        self.state_size = mujoco.mj_stateSize(m, self._kind)
+        self._tip = slice(m.sensor("planning_tip").adr[0], m.sensor("planning_tip").adr[0] + 3)
+        self._pair_adr = [
+            np.array([m.sensor(f"planning_{a}_{g}").adr[0] for g in (("ground",) if b == "ground" else _TRUCK_GEOMS)])
+            for a, b in PAIRS
+        ]
+        self._pair_geoms = [
+            (m.geom(_TOOL_GEOMS[a]).id, [m.geom(g).id for g in (("ground",) if b == "ground" else _TRUCK_GEOMS)])
+            for a, b in PAIRS
+        ]
+        self._datas = [mujoco.MjData(m) for _ in range(nthread)]
+        self._pool: Any = None
+
+    def _customise(self, spec: mujoco.MjSpec) -> None:
+        """The teeth's position sensor and the clearance sensors (see the module docstring)."""
+        stick = [g for g in spec.body("stick").geoms if g.contype or g.conaffinity]
+        if len(stick) != 1:
+            raise ValueError(f"the machine's stick must have one collision geom, found {len(stick)}")
+        stick[0].name = _TOOL_GEOMS["stick"]
+        spec.add_sensor(
+            name="planning_tip", type=mujoco.mjtSensor.mjSENS_FRAMEPOS, objtype=mujoco.mjtObj.mjOBJ_SITE, objname="tip"
+        )
+        geom = mujoco.mjtObj.mjOBJ_GEOM
+        for tool, obstacle in PAIRS:
+            for other in ("ground",) if obstacle == "ground" else _TRUCK_GEOMS:
+                spec.add_sensor(
+                    name=f"planning_{tool}_{other}", type=mujoco.mjtSensor.mjSENS_GEOMDIST, objtype=geom,
+                    objname=_TOOL_GEOMS[tool], reftype=geom, refname=other, cutoff=self.detection_m,
+                )  # fmt: skip
+
+    def initial_state(self, state: MachineState) -> np.ndarray:
+        """The physics state (``mjSTATE_FULLPHYSICS``) this model starts a rollout from; sets the payload."""
+        ph, m, d = self.physics, self.model, self.physics.data
+        if abs(ph.payload_kg - state.payload_kg) > 1e-6:
+            ph.set_payload(state.payload_kg)
+        x0 = np.empty(self.state_size)
+        if state.physics_state is not None and state.physics_state.shape == (self.state_size,):
+            x0[:] = state.physics_state
+            return x0
+        mujoco.mj_resetData(m, d)
+        self.machine.reset(state.q, payload_kg=state.payload_kg)
+        ph.set_joint_state(state.q, state.qd)
+        d.act[self._swing_act] = state.qd[0]  # the lean swing servo's rate target
+        self.world.place(d, state.layout)
+        mujoco.mj_forward(m, d)
+        mujoco.mj_getState(m, d, x0, self._kind)
+        return x0
+
+    def spool_controls(self, spools_m: np.ndarray, horizon_s: float) -> np.ndarray:
+        """(B, T, nu) plugin controls (mm) from spools (m): (4,) held, (T', 4) per control period or
+        (B, T', 4); a sequence shorter than the horizon holds its last row."""
+        spools = np.asarray(spools_m, float)
+        if spools.ndim == 1:
+            spools = spools[None, None]
+        elif spools.ndim == 2:
+            spools = spools[None]
+        if spools.ndim != 3 or spools.shape[-1] != 4 or spools.shape[1] == 0 or spools.shape[0] == 0:
+            raise ValueError(f"spools must have shape (4,), (T, 4) or (B, T, 4) with T, B >= 1, got {spools.shape}")
+        if not np.isfinite(spools).all():
+            raise ValueError("spools must be finite")
+        if np.abs(spools).max() > p.SPOOL_STROKE + 1e-12:
+            raise ValueError(f"spools must be within +-{p.SPOOL_STROKE} m, got up to {np.abs(spools).max():.4g} m")
+        periods = _periods(horizon_s, self.control_period)
+        per_step = self.state_size + self.model.nsensordata + self.model.nu  # values held per rollout step
+        if spools.shape[0] * periods * self._steps_per_period * per_step * 8 > MAX_ROLLOUT_BYTES:
+            raise ValueError(
+                f"horizon_s {horizon_s} s with {spools.shape[0]} rollouts is too long for memory "
+                f"(at most {MAX_ROLLOUT_BYTES // 2**30} GiB of states and sensors at once)"
+            )
+        if spools.shape[1] < periods:
+            pad = np.repeat(spools[:, -1:], periods - spools.shape[1], axis=1)
+            spools = np.concatenate([spools, pad], axis=1)
+        spools = spools[:, :periods]
+        per_step = np.repeat(spools, self._steps_per_period, axis=1) if self._steps_per_period > 1 else spools
+        controls = np.zeros((*per_step.shape[:2], self.model.nu))
+        controls[:, :, self._ctrl] = per_step * CTRL_PER_SPOOL_M
+        return controls
+
+    def rollout(self, state: MachineState, spools_m: np.ndarray, horizon_s: float) -> RolloutBatch:
+        """Roll out spool sequences (see :meth:`spool_controls`) from ``state`` for ``horizon_s`` seconds."""
+        controls = self.spool_controls(spools_m, horizon_s)
+        nbatch, nstep = controls.shape[:2]
+        x0 = self.initial_state(state)
+        from mujoco import rollout
+
+        states = np.empty((nbatch, nstep, self.state_size))
+        sensors = np.empty((nbatch, nstep, self.model.nsensordata))
+        if self.nthread == 1:
+            rollout.rollout(self.model, self._datas[0], x0[None], controls, state=states, sensordata=sensors)
+        else:
+            if self._pool is None:
+                self._pool = rollout.Rollout(nthread=self.nthread)
+            self._pool.rollout(self.model, self._datas, x0[None], controls, state=states, sensordata=sensors)
+        return self._batch(states, sensors)
+
+    def _batch(self, states: np.ndarray, sensors: np.ndarray) -> RolloutBatch:
+        """Sample the end of each control period. Sensors lag the state by one step (mj_step computes them before
+        integrating), so a period's end is read from the next step's sensors (the last: from its own)."""
+        k = self._steps_per_period
+        ends = np.arange(k - 1, states.shape[1], k)
+        reads = np.minimum(ends + 1, states.shape[1] - 1)
+        m = self.model
+        qadr = np.array([m.jnt_qposadr[m.joint(n).id] for n in kinematics.JOINTS]) + 1  # state[0] is the time
+        q = states[:, ends][:, :, qadr]
+        s = sensors[:, reads]
+        tip = s[:, :, self._tip]
+        clearance = np.stack([s[:, :, adr].min(axis=2) for adr in self._pair_adr], axis=2)
+        times = (np.arange(len(ends)) + 1) * self.control_period
+        return RolloutBatch(times, q, tip, clearance, states[:, ends], self.detection_m)
+
+    def closest_point(self, physics_state: np.ndarray, pair: int) -> tuple[np.ndarray, float]:
+        """The middle of the closest points of pair ``pair`` of :data:`PAIRS` at a physics state, and their distance."""
+        m, d = self.model, self.physics.data
+        mujoco.mj_setState(m, d, physics_state, self._kind)
+        mujoco.mj_kinematics(m, d)
+        tool, obstacles = self._pair_geoms[pair]
+        best, point = math.inf, np.full(3, np.nan)
+        fromto = np.empty(6)
+        for other in obstacles:
+            dist = mujoco.mj_geomDistance(m, d, tool, other, self.detection_m, fromto)
+            if dist < best:
+                best, point = dist, (fromto[:3] + fromto[3:]) / 2.0
+        return point, float(min(best, self.detection_m))
+
+    def clearance_at(self, physics_state: np.ndarray) -> np.ndarray:
+        """(4,) the clearance (m) of each pair of :data:`PAIRS` at a physics state (``detection_m`` when farther)."""
+        return np.array([self.closest_point(physics_state, pair)[1] for pair in range(len(PAIRS))])
+
+    def close(self) -> None:
+        """Shut the rollout threads down."""
+        if self._pool is not None:
+            self._pool.close()
+            self._pool = None
+
+
+def pair_names(index: int | Sequence[int]) -> tuple[str, str] | list[tuple[str, str]]:
+    """The (tool, obstacle) names of a pair index (or indices) of :data:`PAIRS`."""
+    if isinstance(index, int | np.integer):
+        return PAIRS[int(index)]
+    return [PAIRS[int(i)] for i in index]
