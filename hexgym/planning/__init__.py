@@ -5,11 +5,17 @@
   path and the bucket's and stick's clearance to truck and ground (negative = contact).
 - :mod:`hexgym.planning.predict`: :func:`predict`, the motion under a spool command and its first
   predicted contact (time, bodies, point, depth); :class:`hexgym.wrappers.CollisionShield` builds on it.
+- :mod:`hexgym.planning.planner`: :func:`plan_motion`, time-and-fuel-optimal spool sequences to a
+  :class:`Goal` (``dump``, ``return``, a teeth target) by the cross-entropy method on batched rollouts.
 
 Needs the native plugin (``hexgym.mbl``). Imports nothing above the environments' layer.
 """
 
+from hexgym.planning.planner import Goal, Plan, dump_goal, plan_motion, return_goal, tip_goal
 from hexgym.planning.predict import Contact, Prediction, predict
 from hexgym.planning.rollouts import PAIRS, MachineState, RolloutBatch, RolloutModel
 
-__all__ = ["PAIRS", "Contact", "MachineState", "Prediction", "RolloutBatch", "RolloutModel", "predict"]
+__all__ = [
+    "PAIRS", "Contact", "Goal", "MachineState", "Plan", "Prediction", "RolloutBatch", "RolloutModel", "dump_goal",
+    "plan_motion", "predict", "return_goal", "tip_goal",
+]  # fmt: skip

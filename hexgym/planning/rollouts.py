@@ -3,7 +3,8 @@
 :class:`RolloutModel` compiles the site of ``HexLoading-v0`` (pile, truck) around the lean machine driven
 by the ``hexgym.mbl`` plugin (:func:`hexgym.envs.loading.native_world_model`) with, added for prediction:
 
-- a ``framepos`` sensor of the teeth (site ``tip``);
+- ``framepos`` sensors of the teeth (site ``tip``) and of the mouth's centre (a site added to the bucket);
+  the bucket's x and z axes, the joints' rates and the actuators' forces (the mouth's tilt and the power);
 - a ``geomdist`` sensor (cutoff ``detection_m``) per pair of a tool collision geom (the bucket's, the
   stick's) and an obstacle's (the ground, each solid geom of the truck): the signed distance between them
   (negative = penetration). Sensors only: the contacts and the motion are the environment's.
@@ -29,6 +30,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from hexgym.envs.earthwork import mouth_normal
 from hexgym.envs.loading import native_world_model
 from hexgym.envs.world import Layout, World
 from hexgym.machine import kinematics
@@ -37,12 +39,14 @@ from hexgym.mbl.schema import DEFAULT_TABLE_SET
 from hexgym.model.native_backend import NativeLearnedModel
 from hexgym.model.plugin import CTRL_PER_SPOOL_M
 
+_MOUTH_NORMAL = mouth_normal()  # bucket frame (x, z)
+_MOUTH_CENTRE = ((p.BUCKET_LIP[0] + p.BUCKET_EDGE[0]) / 2, 0.0, (p.BUCKET_LIP[1] + p.BUCKET_EDGE[1]) / 2)
 PAIRS = (("bucket", "truck"), ("bucket", "ground"), ("stick", "truck"), ("stick", "ground"))
 """The (tool, obstacle) pairs whose clearance is predicted, in the order of :attr:`RolloutBatch.clearance_m`."""
 DETECTION_M = 1.0  # m: contacts are reported this far apart; clearances beyond read as this
 HARD_CONTACT_DEPTH_M = p.HARD_CONTACT_FORCE / p.CONTACT_STIFFNESS  # m: the env counts hard contact beyond this depth
 MAX_ROLLOUT_BYTES = 2 * 2**30  # the states a batch holds at once, at most (a longer horizon is a mistake)
-JOINT_TOLERANCE = 1e-3  # rad: a state this far outside a joint's range still counts as inside (rounding)
+JOINT_TOLERANCE = 0.05  # rad: a state this far past a stop still counts as inside (MuJoCo's limits are soft)
 _TOOL_GEOMS = {"bucket": "bucket_collision", "stick": "planning_stick_collision"}  # the latter named here
 _TRUCK_GEOMS = (
     "truck_floor", "truck_headboard", "truck_tailgate", "truck_left_wall", "truck_right_wall", "truck_chassis",
@@ -100,7 +104,9 @@ class RolloutBatch:
 
     ``times_s`` (T,); ``q`` (B, T, 4) rad; ``tip`` (B, T, 3) world m; ``clearance_m`` (B, T, 4): per
     pair of :data:`PAIRS`, the closest distance (m; negative: penetration; ``detection_m`` when farther);
-    ``states`` (B, T, nstate): the physics states (``mjSTATE_FULLPHYSICS``).
+    ``states`` (B, T, nstate): the physics states (``mjSTATE_FULLPHYSICS``); ``qd`` (B, T, 4) rad/s;
+    ``mouth`` (B, T, 3): the mouth's centre, world m; ``tilt`` (B, T): the mouth's normal from straight up,
+    rad; ``power_w`` (B, T): the actuators' mechanical power, sum of |force x rate| (W).
     """
 
     times_s: np.ndarray
@@ -109,6 +115,10 @@ class RolloutBatch:
     clearance_m: np.ndarray
     states: np.ndarray
     detection_m: float
+    qd: np.ndarray
+    mouth: np.ndarray
+    tilt: np.ndarray
+    power_w: np.ndarray
 
     @property
     def min_clearance_m(self) -> np.ndarray:
@@ -159,7 +169,12 @@ class RolloutModel:
         self._swing_act = int(m.actuator_actadr[self._ctrl[0]])
         self._kind = mujoco.mjtState.mjSTATE_FULLPHYSICS
         self.state_size = mujoco.mj_stateSize(m, self._kind)
-        self._tip = slice(m.sensor("planning_tip").adr[0], m.sensor("planning_tip").adr[0] + 3)
+        adr = {m.sensor(i).name: int(m.sensor_adr[i]) for i in range(m.nsensor)}
+        self._tip = slice(adr["planning_tip"], adr["planning_tip"] + 3)
+        self._mouth = slice(adr["planning_mouth"], adr["planning_mouth"] + 3)
+        self._bucket_x, self._bucket_z = adr["planning_bucket_x"], adr["planning_bucket_z"]
+        self._qd = np.array([adr[f"planning_qd_{j}"] for j in kinematics.JOINTS])
+        self._force = np.array([adr[f"planning_force_{j}"] for j in kinematics.JOINTS])
         self._pair_adr = [
             np.array([m.sensor(f"planning_{a}_{g}").adr[0] for g in (("ground",) if b == "ground" else _TRUCK_GEOMS)])
             for a, b in PAIRS
@@ -177,9 +192,19 @@ class RolloutModel:
         if len(stick) != 1:
             raise ValueError(f"the machine's stick must have one collision geom, found {len(stick)}")
         stick[0].name = _TOOL_GEOMS["stick"]
-        spec.add_sensor(
-            name="planning_tip", type=mujoco.mjtSensor.mjSENS_FRAMEPOS, objtype=mujoco.mjtObj.mjOBJ_SITE, objname="tip"
-        )
+        site, sensor = mujoco.mjtObj.mjOBJ_SITE, mujoco.mjtSensor
+        spec.body("bucket").add_site(name="planning_mouth", pos=list(_MOUTH_CENTRE), group=5)
+        spec.add_sensor(name="planning_tip", type=sensor.mjSENS_FRAMEPOS, objtype=site, objname="tip")
+        spec.add_sensor(name="planning_mouth", type=sensor.mjSENS_FRAMEPOS, objtype=site, objname="planning_mouth")
+        for axis, kind in (("x", sensor.mjSENS_FRAMEXAXIS), ("z", sensor.mjSENS_FRAMEZAXIS)):
+            spec.add_sensor(
+                name=f"planning_bucket_{axis}", type=kind, objtype=mujoco.mjtObj.mjOBJ_XBODY, objname="bucket"
+            )
+        for joint in kinematics.JOINTS:
+            spec.add_sensor(name=f"planning_qd_{joint}", type=sensor.mjSENS_JOINTVEL, objtype=mujoco.mjtObj.mjOBJ_JOINT,
+                            objname=joint)  # fmt: skip
+            spec.add_sensor(name=f"planning_force_{joint}", type=sensor.mjSENS_ACTUATORFRC,
+                            objtype=mujoco.mjtObj.mjOBJ_ACTUATOR, objname=joint)  # fmt: skip
         geom = mujoco.mjtObj.mjOBJ_GEOM
         for tool, obstacle in PAIRS:
             for other in ("ground",) if obstacle == "ground" else _TRUCK_GEOMS:
@@ -193,6 +218,7 @@ class RolloutModel:
         ph, m, d = self.physics, self.model, self.physics.data
         if abs(ph.payload_kg - state.payload_kg) > 1e-6:
             ph.set_payload(state.payload_kg)
+        self._place_truck(state.layout)
         x0 = np.empty(self.state_size)
         if state.physics_state is not None and state.physics_state.shape == (self.state_size,):
             x0[:] = state.physics_state
@@ -205,6 +231,15 @@ class RolloutModel:
         mujoco.mj_forward(m, d)
         mujoco.mj_getState(m, d, x0, self._kind)
         return x0
+
+    def _place_truck(self, layout: Layout) -> None:
+        """Put the truck where ``layout`` says in the model (``body_pos``, which ``mj_resetData`` copies to the mocap)
+        and in every thread's data: the mocap pose is no part of the ``mjSTATE_FULLPHYSICS`` state a rollout sets."""
+        m, body = self.model, self.model.body("truck").id
+        for d in (self.physics.data, *self._datas):
+            self.world.place(d, layout)
+        m.body_pos[body] = self.physics.data.mocap_pos[self.world.truck_mocap]
+        m.body_quat[body] = self.physics.data.mocap_quat[self.world.truck_mocap]
 
     def spool_controls(self, spools_m: np.ndarray, horizon_s: float) -> np.ndarray:
         """(B, T, nu) plugin controls (mm) from spools (m): (4,) held, (T', 4) per control period or
@@ -266,7 +301,13 @@ class RolloutModel:
         tip = s[:, :, self._tip]
         clearance = np.stack([s[:, :, adr].min(axis=2) for adr in self._pair_adr], axis=2)
         times = (np.arange(len(ends)) + 1) * self.control_period
-        return RolloutBatch(times, q, tip, clearance, states[:, ends], self.detection_m)
+        up = s[:, :, self._bucket_x + 2] * _MOUTH_NORMAL[0] + s[:, :, self._bucket_z + 2] * _MOUTH_NORMAL[1]
+        qd = s[:, :, self._qd]
+        power = np.abs(s[:, :, self._force] * qd).sum(axis=2)
+        return RolloutBatch(
+            times, q, tip, clearance, states[:, ends], self.detection_m, qd, s[:, :, self._mouth],
+            np.arccos(np.clip(up, -1.0, 1.0)), power,
+        )  # fmt: skip
 
     def closest_point(self, physics_state: np.ndarray, pair: int) -> tuple[np.ndarray, float]:
         """The middle of the closest points of pair ``pair`` of :data:`PAIRS` at a physics state, and their distance."""
@@ -281,6 +322,28 @@ class RolloutModel:
             if dist < best:
                 best, point = dist, (fromto[:3] + fromto[3:]) / 2.0
         return point, float(min(best, self.detection_m))
+
+    def at_angles(self, q: np.ndarray, layout: Layout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Teeth (N, 3), mouth centre (N, 3) and the pairs' clearances (N, 4) at joint angles ``q`` (N, 4) on a site
+        laid out as ``layout`` (kinematics only: e.g. another model's trajectory)."""
+        m, d = self.model, self.physics.data
+        q = np.atleast_2d(np.asarray(q, float))
+        qadr = np.array([m.jnt_qposadr[m.joint(n).id] for n in kinematics.JOINTS])
+        mujoco.mj_resetData(m, d)
+        self.world.place(d, layout)
+        tips, mouths, clearance = np.empty((len(q), 3)), np.empty((len(q), 3)), np.empty((len(q), len(PAIRS)))
+        tip_site, mouth_site = m.site("tip").id, m.site("planning_mouth").id
+        fromto = np.empty(6)
+        for k, angles in enumerate(q):
+            d.qpos[qadr] = angles
+            mujoco.mj_kinematics(m, d)
+            tips[k], mouths[k] = d.site_xpos[tip_site], d.site_xpos[mouth_site]
+            for j, (tool, obstacles) in enumerate(self._pair_geoms):
+                clearance[k, j] = min(
+                    min(mujoco.mj_geomDistance(m, d, tool, o, self.detection_m, fromto) for o in obstacles),
+                    self.detection_m,
+                )
+        return tips, mouths, clearance
 
     def clearance_at(self, physics_state: np.ndarray) -> np.ndarray:
         """(4,) the clearance (m) of each pair of :data:`PAIRS` at a physics state (``detection_m`` when farther)."""

@@ -219,6 +219,19 @@ def _cmd_shield(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_plan(args: argparse.Namespace) -> int:
+    from hexgym.tools.plan import parse_seeds, run_plan
+
+    seeds = parse_seeds(args.seeds) if args.seeds is not None else [args.seed]
+    result = run_plan(args.task, seeds, w_fuel=args.w_fuel, budget=args.budget, nthread=args.threads,
+                      json_out=args.json)  # fmt: skip
+    shown = result.get("summary", {k: v for k, v in result.items() if k != "planned_spools_mm"})
+    print(json.dumps(shown, indent=2))
+    if args.json:
+        print(f"wrote {args.json}")
+    return 0
+
+
 def _cmd_video(args: argparse.Namespace) -> int:
     from hexgym.agents.video import record_video
 
@@ -409,6 +422,19 @@ def _add_planning_parsers(sub: argparse._SubParsersAction) -> None:
     shield.add_argument("--json", metavar="OUT", default=None, help="also write the figures to this JSON file")
     shield.set_defaults(func=_cmd_shield)
 
+    plan = sub.add_parser("plan", help="plan a time-and-fuel-optimal dump or return move on the fast model; replay "
+                          "it on the reference; compare with the scripted loader")  # fmt: skip
+    plan.add_argument("--task", choices=("dump", "return"), required=True, help="the move to plan")
+    plan.add_argument("--seed", type=int, default=0, help="the HexLoading-v0 seed of the site (default: 0)")
+    plan.add_argument(
+        "--seeds", default=None, metavar="A-B", help="plan on seeds A..B and summarise (overrides --seed)"
+    )
+    plan.add_argument("--w-fuel", type=float, default=1.0, help="seconds per litre in the cost (default: 1)")
+    plan.add_argument("--budget", type=int, default=2000, help="rollouts the planner may simulate (default: 2000)")
+    plan.add_argument("--threads", type=int, default=2, help="rollout threads (default: 2)")
+    plan.add_argument("--json", metavar="OUT", default=None, help="also write the figures to this JSON file")
+    plan.set_defaults(func=_cmd_plan)
+
 
 def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
     """``train``, ``clone``, ``evaluate`` and ``video``: agents for HexLoading-v0."""
@@ -484,7 +510,8 @@ _POSITIVE = {"seconds": "s", "fps": "frames/s", "dt_out": "s"}
 # Paths, by (command, option): files and directories written, files and directories read.
 _OUTPUT_FILES = {("simulate", "out"), ("video", "out"), ("video", "snapshot"), ("evaluate", "json"),
                  ("bench", "json"), ("scripted", "json"), ("clone", "out"), ("view", "screenshot"),
-                 ("convert-normalizer", "out"), ("shield", "json")}  # fmt: skip
+                 ("convert-normalizer", "out"), ("shield", "json"),
+                 ("plan", "json")}  # fmt: skip
 _OUTPUT_DIRS = {("demo", "out"), ("reference-report", "out"), ("validate", "out"), ("collect", "out"),
                 ("fit", "out"), ("build-assets", "dir"), ("clone", "rounds_dir"), ("train", "log_dir")}  # fmt: skip
 _INPUT_FILES = {("simulate", "commands"), ("train", "hyperparams"), ("train", "init_from"), ("clone", "hyperparams"),

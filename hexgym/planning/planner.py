@@ -1,0 +1,251 @@
+"""Time-and-fuel motion planning on batched rollouts of the fast learned model (the paper's first use of it).
+
+:func:`plan_motion` searches spool sequences held piecewise constant between knots (every ``knot_s``,
+0.5 s by default) that bring the machine from a :class:`~hexgym.planning.rollouts.MachineState` to a
+:class:`Goal` in least ``time + w_fuel x fuel``, with no contact of bucket or stick with truck or ground
+(clearance >= ``margin_m``) and, while loaded, the mouth within the material's repose angle of facing up
+(no spill). Candidates are rolled out in batches on the native model (:class:`RolloutModel`) and
+improved by the cross-entropy method (a Gaussian per knot refitted to the best tenth, seeded with a
+heuristic move towards the goal).
+
+Goals (:func:`dump_goal`, :func:`return_goal`, :func:`tip_goal`): ``dump``: the mouth's centre over the
+truck's bed (inside its walls by ``BED_MARGIN_M``), between 0.3 and 2.5 m above the rim, the swing at
+rest (< 0.1 rad/s): ready to open; ``return`` / ``tip``: the teeth within ``tolerance_m`` of a point
+(``return``: above the pile's fullest cut at the scripted loader's dig start), the swing at rest.
+
+A plan that found no collision-free motion says so (:attr:`Plan.collision_free` False, its clearance):
+it is never reported as safe.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+
+from hexgym.envs.world import Layout, bed_frame, entry_radius
+from hexgym.hydraulics import fuel
+from hexgym.machine import parameters as p
+from hexgym.planning.rollouts import MachineState, RolloutBatch, RolloutModel
+
+TASKS = ("dump", "return", "tip")
+BED_MARGIN_M = 0.5  # m: the mouth's centre this far inside the bed's walls
+DUMP_HEIGHT_M = (0.3, 2.5)  # m above the rim: where the mouth may be to dump
+APPROACH_HEIGHT_M = 0.6  # m above the pile's top: the dig start (as the scripted loader's)
+REST_RATE = 0.1  # rad/s: the swing slower than this is at rest
+MARGIN_M = 0.1  # m of clearance the plan keeps from truck and ground
+MAX_REACH_M = 10.5  # m from the swing axis: beyond the teeth's reach (Cat 325 class: ~10.2 m at full reach)
+MAX_HEIGHT_M = 10.0  # m: above the teeth's highest point (~9.5 m)
+MAX_HORIZON_S = 30.0  # s: a longer move is no single loading motion
+_UNREACHED_S = 10.0  # s added to the cost of a rollout that does not reach the goal, plus 5 s per metre short
+_CONTACT_COST = 100.0  # s per metre of clearance short of the margin
+_SPILL_COST = 20.0  # s per rad-second of tilt beyond the repose angle while loaded
+
+
+@dataclasses.dataclass(frozen=True)
+class Goal:
+    """A planning goal: ``task`` (:data:`TASKS`), ``point`` (world m: the bed's centre at the rim for ``dump``,
+    the teeth's target otherwise), ``tolerance_m`` (``return``/``tip``) and the site's ``layout``."""
+
+    task: str
+    point: np.ndarray
+    layout: Layout
+    tolerance_m: float = 0.3
+
+    def __post_init__(self) -> None:
+        if self.task not in TASKS:
+            raise ValueError(f"goal task must be one of {TASKS}, got {self.task!r}")
+        point = np.asarray(self.point, float)
+        if point.shape != (3,) or not np.isfinite(point).all():
+            raise ValueError(f"goal point must be 3 finite coordinates (m), got {self.point!r}")
+        if math.hypot(point[0], point[1]) > MAX_REACH_M or not -1.0 <= point[2] <= MAX_HEIGHT_M:
+            raise ValueError(f"goal point {point.round(2).tolist()} is out of the machine's reach")
+        if not (math.isfinite(self.tolerance_m) and self.tolerance_m > 0):
+            raise ValueError(f"goal tolerance_m must be > 0, got {self.tolerance_m}")
+        object.__setattr__(self, "point", point)
+
+    def error_m(self, mouth: np.ndarray, tip: np.ndarray) -> np.ndarray:
+        """Distance (m) from the goal region: of the mouth to the dump box, or of the teeth to the point (...,)."""
+        if self.task != "dump":
+            return np.linalg.norm(tip - self.point, axis=-1)
+        lay = self.layout
+        c, s = math.cos(lay.truck_yaw), math.sin(lay.truck_yaw)
+        along, across = bed_frame(mouth[..., 0], mouth[..., 1], lay.truck_centre[0], lay.truck_centre[1], c, s)
+        half_l, half_w = p.TRUCK_BED_LENGTH / 2 - BED_MARGIN_M, p.TRUCK_BED_WIDTH / 2 - BED_MARGIN_M
+        height = mouth[..., 2] - self.point[2]
+        out = [
+            np.maximum(np.abs(along) - half_l, 0.0),
+            np.maximum(np.abs(across) - half_w, 0.0),
+            np.maximum(DUMP_HEIGHT_M[0] - height, 0.0) + np.maximum(height - DUMP_HEIGHT_M[1], 0.0),
+        ]
+        return np.sqrt(sum(o**2 for o in out))
+
+    def reached(self, batch: RolloutBatch) -> np.ndarray:
+        """(B, T): at the goal with the swing at rest."""
+        at = self.error_m(batch.mouth, batch.tip) <= (0.0 if self.task == "dump" else self.tolerance_m)
+        return at & (np.abs(batch.qd[..., 0]) < REST_RATE)
+
+
+def dump_goal(layout: Layout) -> Goal:
+    """The mouth over the truck's bed, ready to open."""
+    return Goal("dump", np.array([*layout.truck_centre, p.TRUCK_BED_FLOOR_HEIGHT + p.TRUCK_BED_WALL_HEIGHT]), layout)
+
+
+def return_goal(layout: Layout, cut_direction: float, tolerance_m: float = 0.3) -> Goal:
+    """The teeth above the pile's cut at ``cut_direction`` (rad) where the scripted loader starts a dig."""
+    radius = entry_radius(layout)
+    point = np.array([radius * math.cos(cut_direction), radius * math.sin(cut_direction), 0.0])
+    point[2] = layout.pile_height + APPROACH_HEIGHT_M
+    return Goal("return", point, layout, tolerance_m)
+
+
+def tip_goal(point: np.ndarray, layout: Layout, tolerance_m: float = 0.3) -> Goal:
+    """The teeth within ``tolerance_m`` of ``point`` (world m)."""
+    return Goal("tip", np.asarray(point, float), layout, tolerance_m)
+
+
+@dataclasses.dataclass(frozen=True)
+class Plan:
+    """A planned move. ``spools_m`` (T, 4): per 25 ms control period up to the goal (then closed);
+    predicted ``time_s`` (to the goal; the horizon when not reached), ``fuel_l``, ``min_clearance_m``,
+    ``goal_error_m`` (at the end); ``reached``, ``collision_free`` (clearance >= 0), ``spill_free``;
+    ``rollouts`` simulated, ``wall_s`` spent; the predicted ``tip``, ``mouth`` (T, 3) and ``q`` (T, 4)."""
+
+    spools_m: np.ndarray
+    time_s: float
+    fuel_l: float
+    min_clearance_m: float
+    goal_error_m: float
+    reached: bool
+    collision_free: bool
+    spill_free: bool
+    rollouts: int
+    wall_s: float
+    tip: np.ndarray
+    mouth: np.ndarray
+    q: np.ndarray
+
+    @property
+    def message(self) -> str:
+        """What the plan is, in words (a plan that is not collision-free says so)."""
+        if not self.collision_free:
+            return f"no collision-free motion found: the best plan's clearance is {self.min_clearance_m:.3f} m"
+        if not self.reached:
+            return f"goal not reached within the horizon: {self.goal_error_m:.2f} m short"
+        return (
+            f"reaches the goal in {self.time_s:.2f} s with {self.fuel_l:.3f} L, clearance {self.min_clearance_m:.2f} m"
+        )
+
+
+def _knot_spools(params: np.ndarray, periods_per_knot: int, periods: int) -> np.ndarray:
+    """(B, K*4) knot fractions -> (B, T, 4) spools (m) per control period."""
+    knots = np.clip(params, -1.0, 1.0).reshape(len(params), -1, 4) * p.SPOOL_STROKE
+    return np.repeat(knots, periods_per_knot, axis=1)[:, :periods]
+
+
+def evaluate(
+    batch: RolloutBatch, goal: Goal, loaded: bool, w_fuel: float, margin_m: float = MARGIN_M
+) -> dict[str, np.ndarray]:
+    """Per rollout: cost, time (s), fuel (L), clearance (m) and goal error (m) up to the goal (or the horizon)."""
+    reached = goal.reached(batch)
+    nbatch, nper = reached.shape
+    dt = batch.times_s[0]
+    hit = reached.any(axis=1)
+    end = np.where(hit, reached.argmax(axis=1), nper - 1)
+    upto = np.arange(nper)[None, :] <= end[:, None]
+    fuel_l = (fuel.fuel_litres_many(batch.power_w.ravel(), np.full(batch.power_w.size, dt)).reshape(nbatch, nper)
+              * upto).sum(axis=1)  # fmt: skip
+    clearance = np.where(upto, batch.clearance_m.min(axis=2), np.inf).min(axis=1)
+    spill = np.where(upto, np.maximum(batch.tilt - p.MATERIAL_REPOSE_ANGLE, 0.0), 0.0).sum(axis=1) * dt if loaded else 0
+    error = goal.error_m(batch.mouth, batch.tip)[np.arange(nbatch), end]
+    time_s = batch.times_s[end]
+    cost = time_s + w_fuel * fuel_l + _CONTACT_COST * np.maximum(margin_m - clearance, 0.0) + _SPILL_COST * spill
+    cost = cost + np.where(hit, 0.0, _UNREACHED_S + 5.0 * error)
+    return {"cost": cost, "time_s": time_s, "fuel_l": fuel_l, "clearance_m": clearance, "error_m": error,
+            "reached": hit, "spill": np.asarray(spill) * np.ones(nbatch), "end": end}  # fmt: skip
+
+
+def _initial_mean(state: MachineState, goal: Goal, knots: int) -> np.ndarray:
+    """A heuristic move: swing towards the goal (braking half way), the boom up (dump) or down (return)."""
+    target = math.atan2(goal.point[1], goal.point[0])
+    turn = (target - state.q[0] + math.pi) % (2 * math.pi) - math.pi
+    mean = np.zeros((knots, 4))
+    swing_knots = max(1, min(knots - 1, round(abs(turn) / 0.5)))
+    mean[:swing_knots, 0] = np.sign(turn)
+    mean[swing_knots : swing_knots + 1, 0] = -0.5 * np.sign(turn)
+    if goal.task == "dump":
+        mean[: knots // 2, 1] = 1.0
+        mean[:, 3] = 0.2
+    else:
+        mean[: knots // 2, 1] = -0.3
+        mean[: knots // 2, 2] = -0.5
+        mean[: knots // 2, 3] = -0.5
+    return mean.ravel()
+
+
+def plan_motion(
+    state: MachineState,
+    goal: Goal,
+    model: RolloutModel,
+    w_fuel: float = 1.0,
+    budget: int = 2000,
+    horizon_s: float = 8.0,
+    knot_s: float = 0.5,
+    population: int = 100,
+    seed: int = 0,
+    margin_m: float = MARGIN_M,
+) -> Plan:
+    """Plan a move from ``state`` to ``goal`` with at most ``budget`` rollouts (see the module docstring).
+
+    Raises ValueError for a budget < 1, a horizon <= 0 or beyond ``MAX_HORIZON_S``, a knot spacing not a
+    whole number of control periods, a negative ``w_fuel``.
+    """
+    if isinstance(budget, bool) or not isinstance(budget, int | np.integer) or budget < 1:
+        raise ValueError(f"planner budget must be an integer >= 1 rollouts, got {budget!r}")
+    if not (isinstance(horizon_s, int | float) and math.isfinite(horizon_s) and 0 < horizon_s <= MAX_HORIZON_S):
+        raise ValueError(f"horizon_s must be > 0 and at most {MAX_HORIZON_S} s, got {horizon_s!r}")
+    if not (math.isfinite(w_fuel) and w_fuel >= 0):
+        raise ValueError(f"w_fuel must be finite and >= 0, got {w_fuel!r}")
+    periods_per_knot = round(knot_s / model.control_period)
+    if periods_per_knot < 1 or abs(periods_per_knot * model.control_period - knot_s) > 1e-9:
+        raise ValueError(f"knot_s must be a whole number of {model.control_period} s control periods, got {knot_s}")
+    start = time.perf_counter()
+    periods = math.ceil(horizon_s / model.control_period - 1e-9)
+    knots = math.ceil(periods / periods_per_knot)
+    loaded = state.payload_kg > 100.0
+    rng = np.random.default_rng(seed)
+    mean, std = _initial_mean(state, goal, knots), np.full(knots * 4, 0.5)
+    population = max(2, min(population, budget))
+    elites = max(1, population // 10)
+    best: tuple[float, np.ndarray] | None = None
+    used = 0
+    while used < budget:
+        n = min(population, budget - used)
+        params = np.clip(mean + std * rng.standard_normal((n, knots * 4)), -1.0, 1.0)
+        params[0] = np.clip(mean, -1.0, 1.0)  # the mean itself
+        if best is not None and n > 1:
+            params[1] = best[1]  # and the best so far (elitism)
+        batch = model.rollout(state, _knot_spools(params, periods_per_knot, periods), horizon_s)
+        used += n
+        scores = evaluate(batch, goal, loaded, w_fuel, margin_m)["cost"]
+        order = np.argsort(scores)
+        if best is None or scores[order[0]] < best[0]:
+            best = (float(scores[order[0]]), params[order[0]].copy())
+        top = params[order[:elites]]
+        mean = 0.3 * mean + 0.7 * top.mean(axis=0)
+        std = np.maximum(0.3 * std + 0.7 * top.std(axis=0), 0.05)
+    assert best is not None
+    final = model.rollout(state, _knot_spools(best[1][None], periods_per_knot, periods), horizon_s)
+    figures = evaluate(final, goal, loaded, w_fuel, margin_m)
+    end = int(figures["end"][0])
+    spools = _knot_spools(best[1][None], periods_per_knot, periods)[0, : end + 1]
+    clearance = float(figures["clearance_m"][0])
+    return Plan(
+        spools_m=spools, time_s=float(figures["time_s"][0]), fuel_l=float(figures["fuel_l"][0]),
+        min_clearance_m=clearance, goal_error_m=float(figures["error_m"][0]), reached=bool(figures["reached"][0]),
+        collision_free=clearance >= 0.0, spill_free=float(figures["spill"][0]) == 0.0, rollouts=used + 1,
+        wall_s=time.perf_counter() - start, tip=final.tip[0, : end + 1], mouth=final.mouth[0, : end + 1],
+        q=final.q[0, : end + 1],
+    )  # fmt: skip

@@ -1,0 +1,221 @@
+"""``hexgym plan``: plan a loading move on the fast model, replay it on the reference, compare with the scripted loader.
+
+For a seed of ``HexLoading-v0``'s layout, the scripted loader runs its first cycle to find the two
+start states: ``dump``, the loaded, curled bucket as it leaves the pile (the scripted ``to_truck``
+phase begins); ``return``, the emptied bucket over the truck (its ``to_pile`` phase begins). The move
+starts from rest at those angles. Then:
+
+- the planner (:func:`hexgym.planning.planner.plan_motion`) plans on the native learned model: its
+  ``predicted_*`` figures are the learned model's (the planner's final rollout);
+- the planned spools are replayed on the reference model (:mod:`hexgym.hydraulics.reference`, the
+  stand-in for the real machine; machine alone, its clearances from its joint angles on the site):
+  ``reference_time_s`` (first time at the goal, null if never), ``reference_fuel_l`` (to the plan's end),
+  ``reference_goal_error_m`` (at the plan's end), ``reference_min_clearance_m``;
+- the scripted loader does the same move from the same rest state on the learned model (the
+  environment): ``scripted_time_s``, ``scripted_fuel_l`` (to its first step at the goal; 0.1 s steps; for
+  ``return`` its teeth within the tolerance or its ``penetrate`` phase begun, moving or not: in its favour).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hexgym.agents.scripted import ScriptedLoader
+from hexgym.envs.loading import STEP_PERIOD, HexLoadingEnv
+from hexgym.planning.planner import Goal, Plan, dump_goal, plan_motion, return_goal
+from hexgym.planning.rollouts import MachineState, RolloutModel
+
+TASKS = ("dump", "return")
+REFERENCE_DT_OUT = 0.05  # s: the reference's rows (a multiple of its 2 ms step and of the plan's 25 ms periods)
+_SCRIPTED_LIMIT_S = 30.0  # s: the scripted move's limit
+_CYCLE_LIMIT_S = 120.0  # s: the scripted first cycle's limit (to find the start states)
+
+
+def start_states(seed: int) -> dict[str, tuple[MachineState, Goal]]:
+    """The ``dump`` and ``return`` start states (at rest) and goals of seed ``seed`` (see the module docstring)."""
+    env = HexLoadingEnv(backend="native")
+    env.reset(seed=seed)
+    loader = ScriptedLoader()
+    out: dict[str, tuple[MachineState, Goal]] = {}
+    dumped = False
+    while env.elapsed < _CYCLE_LIMIT_S and len(out) < 2:
+        action = loader.act(env)
+        phase = loader.phase
+        q, payload = env.physics.joint_positions().copy(), float(env.earth.bucket_kg)
+        if phase == "to_truck" and "dump" not in out:
+            out["dump"] = (MachineState(q, np.zeros(4), payload, env.layout), dump_goal(env.layout))
+        if phase == "dump":
+            dumped = True
+        if dumped and phase == "to_pile" and "return" not in out:
+            state = MachineState(q, np.zeros(4), payload, env.layout)
+            out["return"] = (state, return_goal(env.layout, env.fullest_cut_direction()))
+        env.step(action)
+    env.close()
+    if len(out) < 2:
+        raise RuntimeError(f"seed {seed}: the scripted loader did not finish a cycle in {_CYCLE_LIMIT_S:.0f} s")
+    return out
+
+
+def scripted_move(seed: int, state: MachineState, goal: Goal, model: RolloutModel) -> dict[str, Any]:
+    """The scripted loader from ``state`` (at rest) on seed ``seed``'s site until at ``goal``: time, fuel, clearance."""
+    env = HexLoadingEnv(backend="native")
+    env.reset(seed=seed)
+    env.start_machine(state.q, state.layout)
+    env.earth.bucket_kg = state.payload_kg
+    env.physics.set_payload(state.payload_kg)
+    loader = ScriptedLoader()
+    qs, reached_at = [], None
+    while env.elapsed < _SCRIPTED_LIMIT_S:
+        env.step(loader.act(env))
+        tip, mouth = env.physics.tip_position(), env.mouth_position()
+        qs.append(env.physics.joint_positions().copy())
+        at = goal.error_m(mouth, tip) <= (0.0 if goal.task == "dump" else goal.tolerance_m)
+        # the scripted loader does not stop at the dig start: its penetrate phase (or the point, moving) counts
+        if (at and abs(env.physics.joint_velocities()[0]) < 0.1) or (
+            goal.task != "dump" and (at or loader.phase == "penetrate")
+        ):
+            reached_at = env.elapsed
+            break
+    fuel_l = env.fuel_l
+    env.close()
+    _, _, clearance = model.at_angles(np.array(qs), state.layout)
+    return {"time_s": reached_at, "fuel_l": fuel_l, "min_clearance_m": float(clearance.min()), "steps": len(qs)}
+
+
+def reference_replay(plan: Plan, state: MachineState, goal: Goal, model: RolloutModel) -> dict[str, Any]:
+    """The plan's spools on the reference model from ``state`` (at rest): time to the goal, fuel, error, clearance."""
+    from hexgym.hydraulics.reference import ReferenceModel
+    from hexgym.model.commandlog import CommandLog
+    from hexgym.model.replay import replay
+
+    period = model.control_period
+    n = len(plan.spools_m)
+    t = np.arange(n + 1) * period
+    spools_mm = np.vstack([plan.spools_m * 1e3, np.zeros((1, 4))])
+    dt_out = REFERENCE_DT_OUT
+    duration = math.ceil(n * period / dt_out - 1e-9) * dt_out
+    rows = replay(ReferenceModel(), CommandLog(t, spools_mm), start=state.q, payload_kg=state.payload_kg,
+                  dt_out=dt_out, duration=duration)  # fmt: skip
+    q = np.column_stack([rows[f"q_{j}"] for j in ("swing", "boom", "stick", "bucket")])
+    tips, mouths, clearance = model.at_angles(q, state.layout)
+    error = goal.error_m(mouths, tips)
+    at = (error <= (0.0 if goal.task == "dump" else goal.tolerance_m)) & (np.abs(rows["qd_swing"]) < 0.1)
+    fuel_l = float(np.sum(rows["fuel_rate_l_per_h"][1:]) * dt_out / 3600.0)
+    return {
+        "time_s": float(rows["t"][np.argmax(at)]) if at.any() else None, "fuel_l": fuel_l,
+        "goal_error_m": float(error[-1]), "min_clearance_m": float(clearance.min()), "tip": tips,
+    }  # fmt: skip
+
+
+def plan_task(
+    task: str, seed: int, w_fuel: float = 1.0, budget: int = 2000, nthread: int = 2, horizon_s: float = 8.0
+) -> dict[str, Any]:
+    """Plan ``task`` on seed ``seed``, replay it on the reference, run the scripted loader: the figures."""
+    if task not in TASKS:
+        raise ValueError(f"--task must be one of {TASKS}, got {task!r}")
+    states = start_states(seed)
+    state, goal = states[task]
+    model = RolloutModel(nthread=nthread)
+    try:
+        plan = plan_motion(state, goal, model, w_fuel=w_fuel, budget=budget, horizon_s=horizon_s, seed=seed)
+        reference = reference_replay(plan, state, goal, model)
+        scripted = scripted_move(seed, state, goal, model)
+    finally:
+        model.close()
+    return {
+        "task": task, "seed": seed, "w_fuel": w_fuel, "plan_message": plan.message, "plan_wall_s": plan.wall_s,
+        "rollouts": plan.rollouts, "predicted_reached": plan.reached, "predicted_time_s": plan.time_s,
+        "predicted_fuel_l": plan.fuel_l, "predicted_min_clearance_m": plan.min_clearance_m,
+        "predicted_collision_free": plan.collision_free, "predicted_spill_free": plan.spill_free,
+        "reference_time_s": reference["time_s"], "reference_fuel_l": reference["fuel_l"],
+        "reference_goal_error_m": reference["goal_error_m"], "reference_min_clearance_m": reference["min_clearance_m"],
+        "scripted_time_s": scripted["time_s"], "scripted_fuel_l": scripted["fuel_l"],
+        "scripted_min_clearance_m": scripted["min_clearance_m"], "payload_kg": state.payload_kg,
+        "planned_spools_mm": (plan.spools_m * 1e3).round(3).tolist(),
+    }  # fmt: skip
+
+
+def _ratio(a: float | None, b: float | None) -> float | None:
+    return a / b if a is not None and b else None
+
+
+def summarise(results: list[dict[str, Any]]) -> dict[str, Any]:
+    """Medians and target hit rates over seeds."""
+
+    def median(values: list[float | None]) -> float | None:
+        kept = [v for v in values if v is not None]
+        return float(np.median(kept)) if kept else None
+
+    def rel(a: float | None, b: float | None) -> float | None:
+        return abs(a / b - 1.0) if a is not None and b else None
+
+    faster = [_ratio(r["predicted_time_s"], r["scripted_time_s"]) for r in results]
+    fuel = [_ratio(r["predicted_fuel_l"], r["scripted_fuel_l"]) for r in results]
+    out = {
+        "seeds": [r["seed"] for r in results],
+        "median_plan_wall_s": median([r["plan_wall_s"] for r in results]),
+        "median_rollouts": median([r["rollouts"] for r in results]),
+        "median_time_vs_scripted": median(faster), "median_fuel_vs_scripted": median(fuel),
+        "median_reference_goal_error_m": median([r["reference_goal_error_m"] for r in results]),
+        "reference_contacts": sum(r["reference_min_clearance_m"] < 0 for r in results),
+        "median_time_prediction_error": median([rel(r["predicted_time_s"], r["reference_time_s"]) for r in results]),
+        "median_fuel_prediction_error": median([rel(r["predicted_fuel_l"], r["reference_fuel_l"]) for r in results]),
+        "planned_reached": sum(bool(r["predicted_reached"]) for r in results),
+        "reference_reached": sum(r["reference_time_s"] is not None for r in results),
+    }  # fmt: skip
+    targets = {
+        "plan_wall_le_2s": sum(r["plan_wall_s"] <= 2.0 for r in results),
+        "faster_15pct_no_more_fuel": sum(
+            (t is not None and t <= 0.85) and (f is not None and f <= 1.0) for t, f in zip(faster, fuel, strict=True)
+        ),
+        "reference_goal_error_le_0.3m": sum(r["reference_goal_error_m"] <= 0.3 for r in results),
+        "reference_no_contact": sum(r["reference_min_clearance_m"] >= 0 for r in results),
+    }
+    return out | {"targets_met_of": len(results), "targets": targets}
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``"A-B"`` (inclusive) or ``"A"`` -> seeds."""
+    try:
+        first, _, last = text.partition("-")
+        a, b = int(first), int(last or first)
+    except ValueError:
+        raise ValueError(f"--seeds must be A-B (integers, A <= B), got {text!r}") from None
+    if a < 0 or b < a:
+        raise ValueError(f"--seeds must be A-B with 0 <= A <= B, got {text!r}")
+    return list(range(a, b + 1))
+
+
+def run_plan(
+    task: str,
+    seeds: list[int],
+    w_fuel: float = 1.0,
+    budget: int = 2000,
+    nthread: int = 2,
+    json_out: str | Path | None = None,
+) -> dict[str, Any]:
+    """Plan on each seed; one seed's figures, or with several a summary and the per-seed figures."""
+    if not (math.isfinite(w_fuel) and w_fuel >= 0):
+        raise ValueError(f"--w-fuel must be finite and >= 0, got {w_fuel}")
+    if budget < 1:
+        raise ValueError(f"--budget must be >= 1 rollouts, got {budget}")
+    start = time.perf_counter()
+    results = [plan_task(task, s, w_fuel, budget, nthread) for s in seeds]
+    out: dict[str, Any] = results[0] if len(results) == 1 else {
+        "task": task, "w_fuel": w_fuel, "summary": summarise(results), "per_seed": results,
+    }  # fmt: skip
+    out["wall_s"] = time.perf_counter() - start
+    if json_out is not None:
+        Path(json_out).write_text(json.dumps(out, indent=2) + "\n")
+    return out
+
+
+def step_seconds() -> float:
+    """The environment's step (the scripted figures' resolution), s."""
+    return STEP_PERIOD
