@@ -6,7 +6,10 @@
 (clearance >= ``margin_m``) and, while loaded, the mouth within the material's repose angle of facing up
 (no spill). Candidates are rolled out in batches on the native model (:class:`RolloutModel`) and
 improved by the cross-entropy method (a Gaussian per knot refitted to the best tenth, seeded with a
-heuristic move towards the goal).
+heuristic move towards the goal or a given one). Fuel is the environment's account (the actuators' power
+from the machine's joint loads, :meth:`RolloutModel.actuator_power`); it needs a forward pass per sample,
+so each batch is ranked by time and penalties and only its best few are re-ranked with ``w_fuel x fuel``
+(power sampled every ``FUEL_SAMPLE_S``).
 
 Goals (:func:`dump_goal`, :func:`return_goal`, :func:`tip_goal`): ``dump``: the mouth's centre over the
 truck's bed (inside its walls by ``BED_MARGIN_M``), between 0.3 and 2.5 m above the rim, the swing at
@@ -25,6 +28,7 @@ import time
 
 import numpy as np
 
+from hexgym.envs.loading import STEP_PERIOD
 from hexgym.envs.world import Layout, bed_frame, entry_radius
 from hexgym.hydraulics import fuel
 from hexgym.machine import parameters as p
@@ -35,6 +39,7 @@ BED_MARGIN_M = 0.5  # m: the mouth's centre this far inside the bed's walls
 DUMP_HEIGHT_M = (0.3, 2.5)  # m above the rim: where the mouth may be to dump
 APPROACH_HEIGHT_M = 0.6  # m above the pile's top: the dig start (as the scripted loader's)
 REST_RATE = 0.1  # rad/s: the swing slower than this is at rest
+FUEL_SAMPLE_S = 1.0  # s between power samples when ranking candidates by fuel (the final plan: every 0.1 s)
 MARGIN_M = 0.1  # m of clearance the plan keeps from truck and ground
 MAX_REACH_M = 10.5  # m from the swing axis: beyond the teeth's reach (Cat 325 class: ~10.2 m at full reach)
 MAX_HEIGHT_M = 10.0  # m: above the teeth's highest point (~9.5 m)
@@ -145,26 +150,36 @@ def _knot_spools(params: np.ndarray, periods_per_knot: int, periods: int) -> np.
     return np.repeat(knots, periods_per_knot, axis=1)[:, :periods]
 
 
-def evaluate(
-    batch: RolloutBatch, goal: Goal, loaded: bool, w_fuel: float, margin_m: float = MARGIN_M
-) -> dict[str, np.ndarray]:
-    """Per rollout: cost, time (s), fuel (L), clearance (m) and goal error (m) up to the goal (or the horizon)."""
+def evaluate(batch: RolloutBatch, goal: Goal, loaded: bool, margin_m: float = MARGIN_M) -> dict[str, np.ndarray]:
+    """Per rollout: cost without fuel (time + penalties), time (s), clearance (m), goal error (m) up to the goal
+    (or the horizon), and the period it ends at."""
     reached = goal.reached(batch)
     nbatch, nper = reached.shape
     dt = batch.times_s[0]
     hit = reached.any(axis=1)
     end = np.where(hit, reached.argmax(axis=1), nper - 1)
     upto = np.arange(nper)[None, :] <= end[:, None]
-    fuel_l = (fuel.fuel_litres_many(batch.power_w.ravel(), np.full(batch.power_w.size, dt)).reshape(nbatch, nper)
-              * upto).sum(axis=1)  # fmt: skip
     clearance = np.where(upto, batch.clearance_m.min(axis=2), np.inf).min(axis=1)
     spill = np.where(upto, np.maximum(batch.tilt - p.MATERIAL_REPOSE_ANGLE, 0.0), 0.0).sum(axis=1) * dt if loaded else 0
     error = goal.error_m(batch.mouth, batch.tip)[np.arange(nbatch), end]
     time_s = batch.times_s[end]
-    cost = time_s + w_fuel * fuel_l + _CONTACT_COST * np.maximum(margin_m - clearance, 0.0) + _SPILL_COST * spill
+    cost = time_s + _CONTACT_COST * np.maximum(margin_m - clearance, 0.0) + _SPILL_COST * spill
     cost = cost + np.where(hit, 0.0, _UNREACHED_S + 5.0 * error)
-    return {"cost": cost, "time_s": time_s, "fuel_l": fuel_l, "clearance_m": clearance, "error_m": error,
-            "reached": hit, "spill": np.asarray(spill) * np.ones(nbatch), "end": end}  # fmt: skip
+    return {"cost": cost, "time_s": time_s, "clearance_m": clearance, "error_m": error, "reached": hit,
+            "spill": np.asarray(spill) * np.ones(nbatch), "end": end}  # fmt: skip
+
+
+def move_fuel_l(model: RolloutModel, batch: RolloutBatch, index: int, end: int, sample_s: float = STEP_PERIOD) -> float:
+    """Diesel (L) of rollout ``index`` up to period ``end``, its power sampled every ``sample_s`` (as the
+    environment accounts it: the power at the end of each interval, held over it)."""
+    dt = float(batch.times_s[0])
+    every = max(1, round(sample_s / dt))
+    ends = np.arange(every - 1, end + 1, every)
+    if not len(ends):
+        ends = np.array([end])
+    seconds = np.diff(np.concatenate([[-1], ends])) * dt
+    power = model.actuator_power(batch.states[index, ends])
+    return float(fuel.fuel_litres_many(power, seconds).sum())
 
 
 def _initial_mean(state: MachineState, goal: Goal, knots: int) -> np.ndarray:
@@ -196,8 +211,12 @@ def plan_motion(
     population: int = 100,
     seed: int = 0,
     margin_m: float = MARGIN_M,
+    initial: np.ndarray | None = None,
 ) -> Plan:
     """Plan a move from ``state`` to ``goal`` with at most ``budget`` rollouts (see the module docstring).
+
+    ``initial``: spool fractions per knot (K, 4) to start the search from (e.g. another controller's move;
+    default: a heuristic move towards the goal).
 
     Raises ValueError for a budget < 1, a horizon <= 0 or beyond ``MAX_HORIZON_S``, a knot spacing not a
     whole number of control periods, a negative ``w_fuel``.
@@ -216,7 +235,16 @@ def plan_motion(
     knots = math.ceil(periods / periods_per_knot)
     loaded = state.payload_kg > 100.0
     rng = np.random.default_rng(seed)
-    mean, std = _initial_mean(state, goal, knots), np.full(knots * 4, 0.5)
+    if initial is not None:
+        initial = np.asarray(initial, float)
+        if initial.ndim != 2 or initial.shape[1] != 4 or not np.isfinite(initial).all():
+            raise ValueError(f"initial must be (K, 4) finite spool fractions per knot, got shape {initial.shape}")
+        start_mean = np.zeros((knots, 4))
+        start_mean[: min(knots, len(initial))] = np.clip(initial[:knots], -1.0, 1.0)
+        mean = start_mean.ravel()
+    else:
+        mean = _initial_mean(state, goal, knots)
+    std = np.full(knots * 4, 0.5)
     population = max(2, min(population, budget))
     elites = max(1, population // 10)
     best: tuple[float, np.ndarray] | None = None
@@ -229,8 +257,15 @@ def plan_motion(
             params[1] = best[1]  # and the best so far (elitism)
         batch = model.rollout(state, _knot_spools(params, periods_per_knot, periods), horizon_s)
         used += n
-        scores = evaluate(batch, goal, loaded, w_fuel, margin_m)["cost"]
+        figures = evaluate(batch, goal, loaded, margin_m)
+        scores = figures["cost"]
         order = np.argsort(scores)
+        if w_fuel > 0:  # the fuel (a forward pass per sample) only for the best few: re-ranked with it
+            few = order[: 2 * elites]
+            scores = scores.copy()
+            for i in few:
+                scores[i] += w_fuel * move_fuel_l(model, batch, int(i), int(figures["end"][i]), FUEL_SAMPLE_S)
+            order = few[np.argsort(scores[few])]
         if best is None or scores[order[0]] < best[0]:
             best = (float(scores[order[0]]), params[order[0]].copy())
         top = params[order[:elites]]
@@ -238,8 +273,9 @@ def plan_motion(
         std = np.maximum(0.3 * std + 0.7 * top.std(axis=0), 0.05)
     assert best is not None
     final = model.rollout(state, _knot_spools(best[1][None], periods_per_knot, periods), horizon_s)
-    figures = evaluate(final, goal, loaded, w_fuel, margin_m)
+    figures = evaluate(final, goal, loaded, margin_m)
     end = int(figures["end"][0])
+    figures["fuel_l"] = np.array([move_fuel_l(model, final, 0, end)])
     spools = _knot_spools(best[1][None], periods_per_knot, periods)[0, : end + 1]
     clearance = float(figures["clearance_m"][0])
     return Plan(

@@ -33,6 +33,7 @@ import numpy as np
 from hexgym.envs.earthwork import mouth_normal
 from hexgym.envs.loading import native_world_model
 from hexgym.envs.world import Layout, World
+from hexgym.hydraulics import fuel
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.mbl.schema import DEFAULT_TABLE_SET
@@ -106,7 +107,8 @@ class RolloutBatch:
     pair of :data:`PAIRS`, the closest distance (m; negative: penetration; ``detection_m`` when farther);
     ``states`` (B, T, nstate): the physics states (``mjSTATE_FULLPHYSICS``); ``qd`` (B, T, 4) rad/s;
     ``mouth`` (B, T, 3): the mouth's centre, world m; ``tilt`` (B, T): the mouth's normal from straight up,
-    rad; ``power_w`` (B, T): the actuators' mechanical power, sum of |force x rate| (W).
+    rad; ``power_w`` (B, T): the servos' |force x rate| summed (W: the lean machine's stiff servos' figure,
+    no fuel measure: :meth:`RolloutModel.actuator_power` gives the environment's).
     """
 
     times_s: np.ndarray
@@ -344,6 +346,19 @@ class RolloutModel:
                     self.detection_m,
                 )
         return tips, mouths, clearance
+
+    def actuator_power(self, physics_states: np.ndarray) -> np.ndarray:
+        """The actuators' mechanical power (W) at physics states (N, nstate), as the environment accounts it for fuel
+        (:func:`hexgym.hydraulics.fuel.actuator_power` of the machine's joint loads and rates)."""
+        m, d = self.model, self.physics.data
+        out = np.empty(len(physics_states))
+        for k, x in enumerate(physics_states):
+            mujoco.mj_setState(m, d, x, self._kind)
+            mujoco.mj_forward(m, d)
+            loads, rates = self.machine.joint_loads(), self.physics.joint_velocities()
+            swing_torque = self.physics.swing_inertia() * self.machine.swing_acceleration
+            out[k] = fuel.actuator_power(loads[1:], rates[1:], swing_torque, rates[0])
+        return out
 
     def clearance_at(self, physics_state: np.ndarray) -> np.ndarray:
         """(4,) the clearance (m) of each pair of :data:`PAIRS` at a physics state (``detection_m`` when farther)."""

@@ -5,8 +5,10 @@ start states: ``dump``, the loaded, curled bucket as it leaves the pile (the scr
 phase begins); ``return``, the emptied bucket over the truck (its ``to_pile`` phase begins). The move
 starts from rest at those angles. Then:
 
-- the planner (:func:`hexgym.planning.planner.plan_motion`) plans on the native learned model: its
-  ``predicted_*`` figures are the learned model's (the planner's final rollout);
+- the planner (:func:`hexgym.planning.planner.plan_motion`) plans on the native learned model, its search
+  started from the scripted loader's move (``warm_start``): ``predicted_*`` are its final rollout's figures;
+- the planned spools are replayed in the environment (the learned model with the environment's fuel
+  account, 0.1 s steps): ``learned_time_s``, ``learned_fuel_l`` (the figures compared with the scripted's);
 - the planned spools are replayed on the reference model (:mod:`hexgym.hydraulics.reference`, the
   stand-in for the real machine; machine alone, its clearances from its joint angles on the site):
   ``reference_time_s`` (first time at the goal, null if never), ``reference_fuel_l`` (to the plan's end),
@@ -28,6 +30,7 @@ import numpy as np
 
 from hexgym.agents.scripted import ScriptedLoader
 from hexgym.envs.loading import STEP_PERIOD, HexLoadingEnv
+from hexgym.machine import parameters as p
 from hexgym.planning.planner import Goal, Plan, dump_goal, plan_motion, return_goal
 from hexgym.planning.rollouts import MachineState, RolloutModel
 
@@ -70,9 +73,10 @@ def scripted_move(seed: int, state: MachineState, goal: Goal, model: RolloutMode
     env.earth.bucket_kg = state.payload_kg
     env.physics.set_payload(state.payload_kg)
     loader = ScriptedLoader()
-    qs, reached_at = [], None
+    qs, actions, reached_at = [], [], None
     while env.elapsed < _SCRIPTED_LIMIT_S:
-        env.step(loader.act(env))
+        actions.append(loader.act(env))
+        env.step(actions[-1])
         tip, mouth = env.physics.tip_position(), env.mouth_position()
         qs.append(env.physics.joint_positions().copy())
         at = goal.error_m(mouth, tip) <= (0.0 if goal.task == "dump" else goal.tolerance_m)
@@ -85,7 +89,42 @@ def scripted_move(seed: int, state: MachineState, goal: Goal, model: RolloutMode
     fuel_l = env.fuel_l
     env.close()
     _, _, clearance = model.at_angles(np.array(qs), state.layout)
-    return {"time_s": reached_at, "fuel_l": fuel_l, "min_clearance_m": float(clearance.min()), "steps": len(qs)}
+    return {"time_s": reached_at, "fuel_l": fuel_l, "min_clearance_m": float(clearance.min()), "steps": len(qs),
+            "actions": np.array(actions)}  # fmt: skip
+
+
+def learned_replay(seed: int, state: MachineState, goal: Goal, plan: Plan, model: RolloutModel) -> dict[str, Any]:
+    """The plan's spools in the environment (the learned model with its fuel account) from ``state`` (at rest): the
+    time to the goal (0.1 s steps; each holds the spools of its start), fuel to then (or the plan's end)."""
+    env = HexLoadingEnv(backend="native")
+    env.reset(seed=seed)
+    env.start_machine(state.q, state.layout)
+    env.earth.bucket_kg = state.payload_kg
+    env.physics.set_payload(state.payload_kg)
+    per_step = round(STEP_PERIOD / model.control_period)
+    qs, reached_at = [], None
+    for k in range(0, len(plan.spools_m), per_step):
+        env.step((plan.spools_m[k] / p.SPOOL_STROKE).astype(np.float32))
+        qs.append(env.physics.joint_positions().copy())
+        at = goal.error_m(env.mouth_position(), env.physics.tip_position()) <= (
+            0.0 if goal.task == "dump" else goal.tolerance_m
+        )
+        if at and abs(env.physics.joint_velocities()[0]) < 0.1:
+            reached_at = env.elapsed
+            break
+    fuel_l = env.fuel_l
+    env.close()
+    _, _, clearance = model.at_angles(np.array(qs), state.layout)
+    return {"time_s": reached_at, "fuel_l": fuel_l, "min_clearance_m": float(clearance.min())}
+
+
+def scripted_knots(actions: np.ndarray, knot_s: float = 0.5) -> np.ndarray:
+    """The scripted move's actions (one per 0.1 s step) as knots every ``knot_s``: their means."""
+    per_knot = max(1, round(knot_s / STEP_PERIOD))
+    knots = -(-len(actions) // per_knot)
+    padded = np.zeros((knots * per_knot, 4))
+    padded[: len(actions)] = actions
+    return padded.reshape(knots, per_knot, 4).mean(axis=1)
 
 
 def reference_replay(plan: Plan, state: MachineState, goal: Goal, model: RolloutModel) -> dict[str, Any]:
@@ -114,25 +153,41 @@ def reference_replay(plan: Plan, state: MachineState, goal: Goal, model: Rollout
 
 
 def plan_task(
-    task: str, seed: int, w_fuel: float = 1.0, budget: int = 2000, nthread: int = 2, horizon_s: float = 8.0
+    task: str,
+    seed: int,
+    w_fuel: float = 1.0,
+    budget: int = 2000,
+    nthread: int = 2,
+    horizon_s: float = 8.0,
+    warm_start: bool = True,
 ) -> dict[str, Any]:
-    """Plan ``task`` on seed ``seed``, replay it on the reference, run the scripted loader: the figures."""
+    """Plan ``task`` on seed ``seed``, replay it on the reference and in the environment, run the scripted loader:
+    the figures. ``warm_start``: start the search from the scripted loader's move (its actions averaged per knot).
+    The horizon is ``horizon_s`` or, shorter, the scripted move's time plus 0.5 s (rounded up to 0.5 s, >= 3 s)."""
     if task not in TASKS:
         raise ValueError(f"--task must be one of {TASKS}, got {task!r}")
     states = start_states(seed)
     state, goal = states[task]
     model = RolloutModel(nthread=nthread)
     try:
-        plan = plan_motion(state, goal, model, w_fuel=w_fuel, budget=budget, horizon_s=horizon_s, seed=seed)
-        reference = reference_replay(plan, state, goal, model)
         scripted = scripted_move(seed, state, goal, model)
+        initial = scripted_knots(scripted["actions"]) if warm_start else None
+        if scripted["time_s"] is not None:  # no longer than the scripted move and a margin: less to simulate
+            horizon_s = min(horizon_s, max(3.0, math.ceil(2.0 * (scripted["time_s"] + 0.5)) / 2.0))
+        plan = plan_motion(state, goal, model, w_fuel=w_fuel, budget=budget, horizon_s=horizon_s, seed=seed,
+                           initial=initial)  # fmt: skip
+        reference = reference_replay(plan, state, goal, model)
+        learned = learned_replay(seed, state, goal, plan, model)
     finally:
         model.close()
     return {
-        "task": task, "seed": seed, "w_fuel": w_fuel, "plan_message": plan.message, "plan_wall_s": plan.wall_s,
+        "task": task, "seed": seed, "w_fuel": w_fuel, "horizon_s": horizon_s, "plan_message": plan.message,
+        "plan_wall_s": plan.wall_s,
         "rollouts": plan.rollouts, "predicted_reached": plan.reached, "predicted_time_s": plan.time_s,
         "predicted_fuel_l": plan.fuel_l, "predicted_min_clearance_m": plan.min_clearance_m,
         "predicted_collision_free": plan.collision_free, "predicted_spill_free": plan.spill_free,
+        "learned_time_s": learned["time_s"], "learned_fuel_l": learned["fuel_l"],
+        "learned_min_clearance_m": learned["min_clearance_m"], "warm_start": warm_start,
         "reference_time_s": reference["time_s"], "reference_fuel_l": reference["fuel_l"],
         "reference_goal_error_m": reference["goal_error_m"], "reference_min_clearance_m": reference["min_clearance_m"],
         "scripted_time_s": scripted["time_s"], "scripted_fuel_l": scripted["fuel_l"],
@@ -155,13 +210,16 @@ def summarise(results: list[dict[str, Any]]) -> dict[str, Any]:
     def rel(a: float | None, b: float | None) -> float | None:
         return abs(a / b - 1.0) if a is not None and b else None
 
-    faster = [_ratio(r["predicted_time_s"], r["scripted_time_s"]) for r in results]
-    fuel = [_ratio(r["predicted_fuel_l"], r["scripted_fuel_l"]) for r in results]
+    faster = [_ratio(r["learned_time_s"], r["scripted_time_s"]) for r in results]
+    fuel = [_ratio(r["learned_fuel_l"], r["scripted_fuel_l"]) for r in results]
     out = {
         "seeds": [r["seed"] for r in results],
         "median_plan_wall_s": median([r["plan_wall_s"] for r in results]),
         "median_rollouts": median([r["rollouts"] for r in results]),
         "median_time_vs_scripted": median(faster), "median_fuel_vs_scripted": median(fuel),
+        "median_predicted_time_vs_scripted": median([_ratio(r["predicted_time_s"], r["scripted_time_s"])
+                                                     for r in results]),
+        "learned_reached": sum(r["learned_time_s"] is not None for r in results),
         "median_reference_goal_error_m": median([r["reference_goal_error_m"] for r in results]),
         "reference_contacts": sum(r["reference_min_clearance_m"] < 0 for r in results),
         "median_time_prediction_error": median([rel(r["predicted_time_s"], r["reference_time_s"]) for r in results]),
@@ -214,8 +272,3 @@ def run_plan(
     if json_out is not None:
         Path(json_out).write_text(json.dumps(out, indent=2) + "\n")
     return out
-
-
-def step_seconds() -> float:
-    """The environment's step (the scripted figures' resolution), s."""
-    return STEP_PERIOD
