@@ -246,9 +246,25 @@ def test_plan_command_writes_the_figures(tmp_path):
     from hexgym.tools.cli import main
 
     out = tmp_path / "plan.json"
-    assert main(["plan", "--task", "dump", "--seed", "0", "--json", str(out)]) == 0
+    png = tmp_path / "plan.png"
+    assert main(["plan", "--task", "dump", "--seed", "0", "--json", str(out), "--plot", str(png)]) == 0
+    assert png.stat().st_size > 0
     result = json.loads(out.read_text())
     for key in ("plan_wall_s", "rollouts", "predicted_time_s", "predicted_fuel_l", "reference_time_s",
                 "reference_fuel_l", "reference_goal_error_m", "reference_min_clearance_m", "scripted_time_s",
                 "scripted_fuel_l"):  # fmt: skip
         assert key in result, key
+
+
+def test_plot_plan_writes_a_png(tmp_path):
+    from hexgym.tools.plan import plot_plan
+
+    path = np.column_stack([np.linspace(5, 0, 20), np.linspace(0, 6, 20), np.linspace(1, 3, 20)])
+    result = {
+        "task": "dump", "seed": 0, "learned_time_s": 3.5, "learned_fuel_l": 0.025, "reference_fuel_l": 0.024,
+        "reference_goal_error_m": 0.1, "scripted_time_s": 4.9, "scripted_fuel_l": 0.032,
+        "planned_spools_mm": np.full((140, 4), 5.0).tolist(), "scripted_spools_mm": np.full((49, 4), -5.0).tolist(),
+        "paths": {"planned_tip": path.tolist(), "reference_tip": path.tolist(), "scripted_tip": path.tolist()},
+    }  # fmt: skip
+    out = plot_plan(result, tmp_path / "plan.png")
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

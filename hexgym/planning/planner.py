@@ -40,12 +40,13 @@ DUMP_HEIGHT_M = (0.3, 2.5)  # m above the rim: where the mouth may be to dump
 APPROACH_HEIGHT_M = 0.6  # m above the pile's top: the dig start (as the scripted loader's)
 REST_RATE = 0.1  # rad/s: the swing slower than this is at rest
 FUEL_SAMPLE_S = 1.0  # s between power samples when ranking candidates by fuel (the final plan: every 0.1 s)
-MARGIN_M = 0.1  # m of clearance the plan keeps from truck and ground
+MARGIN_M = 0.5  # m of clearance the plan keeps from truck and ground (the learned-reference gap: docs/planning.md)
 MAX_REACH_M = 10.5  # m from the swing axis: beyond the teeth's reach (Cat 325 class: ~10.2 m at full reach)
 MAX_HEIGHT_M = 10.0  # m: above the teeth's highest point (~9.5 m)
 MAX_HORIZON_S = 30.0  # s: a longer move is no single loading motion
 _UNREACHED_S = 10.0  # s added to the cost of a rollout that does not reach the goal, plus 5 s per metre short
-_CONTACT_COST = 100.0  # s per metre of clearance short of the margin
+_SHORTFALL_COST = 20.0  # s per metre-second of clearance short of the margin
+_CONTACT_COST = 100.0  # s per metre of penetration
 _SPILL_COST = 20.0  # s per rad-second of tilt beyond the repose angle while loaded
 
 
@@ -159,11 +160,15 @@ def evaluate(batch: RolloutBatch, goal: Goal, loaded: bool, margin_m: float = MA
     hit = reached.any(axis=1)
     end = np.where(hit, reached.argmax(axis=1), nper - 1)
     upto = np.arange(nper)[None, :] <= end[:, None]
-    clearance = np.where(upto, batch.clearance_m.min(axis=2), np.inf).min(axis=1)
+    least = batch.clearance_m.min(axis=2)  # (B, T)
+    clearance = np.where(upto, least, np.inf).min(axis=1)
+    # every period short of the margin costs (not only the least: a start near the ground must not make the
+    # rest of the move free to pass close), a contact much more
+    shortfall = np.where(upto, np.maximum(margin_m - least, 0.0), 0.0).sum(axis=1) * dt
     spill = np.where(upto, np.maximum(batch.tilt - p.MATERIAL_REPOSE_ANGLE, 0.0), 0.0).sum(axis=1) * dt if loaded else 0
     error = goal.error_m(batch.mouth, batch.tip)[np.arange(nbatch), end]
     time_s = batch.times_s[end]
-    cost = time_s + _CONTACT_COST * np.maximum(margin_m - clearance, 0.0) + _SPILL_COST * spill
+    cost = time_s + _SHORTFALL_COST * shortfall + _CONTACT_COST * np.maximum(-clearance, 0.0) + _SPILL_COST * spill
     cost = cost + np.where(hit, 0.0, _UNREACHED_S + 5.0 * error)
     return {"cost": cost, "time_s": time_s, "clearance_m": clearance, "error_m": error, "reached": hit,
             "spill": np.asarray(spill) * np.ones(nbatch), "end": end}  # fmt: skip

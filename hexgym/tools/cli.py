@@ -224,9 +224,13 @@ def _cmd_plan(args: argparse.Namespace) -> int:
 
     seeds = parse_seeds(args.seeds) if args.seeds is not None else [args.seed]
     result = run_plan(args.task, seeds, w_fuel=args.w_fuel, budget=args.budget, nthread=args.threads,
-                      json_out=args.json)  # fmt: skip
-    shown = result.get("summary", {k: v for k, v in result.items() if k != "planned_spools_mm"})
+                      json_out=args.json, margin_m=args.margin)  # fmt: skip
+    shown = result.get("summary", {k: v for k, v in result.items() if not k.endswith("_mm") and k != "paths"})
     print(json.dumps(shown, indent=2))
+    if args.plot:
+        from hexgym.tools.plan import plot_plan
+
+        print(f"wrote {plot_plan(result.get('per_seed', [result])[0], args.plot)}")
     if args.json:
         print(f"wrote {args.json}")
     return 0
@@ -432,6 +436,9 @@ def _add_planning_parsers(sub: argparse._SubParsersAction) -> None:
     plan.add_argument("--w-fuel", type=float, default=1.0, help="seconds per litre in the cost (default: 1)")
     plan.add_argument("--budget", type=int, default=2000, help="rollouts the planner may simulate (default: 2000)")
     plan.add_argument("--threads", type=int, default=2, help="rollout threads (default: 2)")
+    plan.add_argument("--plot", metavar="PNG", default=None, help="also plot the (first) seed's plan to this PNG")
+    plan.add_argument("--margin", type=float, default=0.5, help="clearance (m) the plan keeps from truck and ground "
+                      "(default: 0.5)")  # fmt: skip
     plan.add_argument("--json", metavar="OUT", default=None, help="also write the figures to this JSON file")
     plan.set_defaults(func=_cmd_plan)
 
@@ -511,7 +518,7 @@ _POSITIVE = {"seconds": "s", "fps": "frames/s", "dt_out": "s"}
 _OUTPUT_FILES = {("simulate", "out"), ("video", "out"), ("video", "snapshot"), ("evaluate", "json"),
                  ("bench", "json"), ("scripted", "json"), ("clone", "out"), ("view", "screenshot"),
                  ("convert-normalizer", "out"), ("shield", "json"),
-                 ("plan", "json")}  # fmt: skip
+                 ("plan", "json"), ("plan", "plot")}  # fmt: skip
 _OUTPUT_DIRS = {("demo", "out"), ("reference-report", "out"), ("validate", "out"), ("collect", "out"),
                 ("fit", "out"), ("build-assets", "dir"), ("clone", "rounds_dir"), ("train", "log_dir")}  # fmt: skip
 _INPUT_FILES = {("simulate", "commands"), ("train", "hyperparams"), ("train", "init_from"), ("clone", "hyperparams"),

@@ -31,7 +31,7 @@ import numpy as np
 from hexgym.agents.scripted import ScriptedLoader
 from hexgym.envs.loading import STEP_PERIOD, HexLoadingEnv
 from hexgym.machine import parameters as p
-from hexgym.planning.planner import Goal, Plan, dump_goal, plan_motion, return_goal
+from hexgym.planning.planner import MARGIN_M, Goal, Plan, dump_goal, plan_motion, return_goal
 from hexgym.planning.rollouts import MachineState, RolloutModel
 
 TASKS = ("dump", "return")
@@ -88,9 +88,9 @@ def scripted_move(seed: int, state: MachineState, goal: Goal, model: RolloutMode
             break
     fuel_l = env.fuel_l
     env.close()
-    _, _, clearance = model.at_angles(np.array(qs), state.layout)
+    tips, _, clearance = model.at_angles(np.array(qs), state.layout)
     return {"time_s": reached_at, "fuel_l": fuel_l, "min_clearance_m": float(clearance.min()), "steps": len(qs),
-            "actions": np.array(actions)}  # fmt: skip
+            "actions": np.array(actions), "tip": tips}  # fmt: skip
 
 
 def learned_replay(seed: int, state: MachineState, goal: Goal, plan: Plan, model: RolloutModel) -> dict[str, Any]:
@@ -160,6 +160,7 @@ def plan_task(
     nthread: int = 2,
     horizon_s: float = 8.0,
     warm_start: bool = True,
+    margin_m: float = MARGIN_M,
 ) -> dict[str, Any]:
     """Plan ``task`` on seed ``seed``, replay it on the reference and in the environment, run the scripted loader:
     the figures. ``warm_start``: start the search from the scripted loader's move (its actions averaged per knot).
@@ -175,14 +176,14 @@ def plan_task(
         if scripted["time_s"] is not None:  # no longer than the scripted move and a margin: less to simulate
             horizon_s = min(horizon_s, max(3.0, math.ceil(2.0 * (scripted["time_s"] + 0.5)) / 2.0))
         plan = plan_motion(state, goal, model, w_fuel=w_fuel, budget=budget, horizon_s=horizon_s, seed=seed,
-                           initial=initial)  # fmt: skip
+                           initial=initial, margin_m=margin_m)  # fmt: skip
         reference = reference_replay(plan, state, goal, model)
         learned = learned_replay(seed, state, goal, plan, model)
     finally:
         model.close()
     return {
-        "task": task, "seed": seed, "w_fuel": w_fuel, "horizon_s": horizon_s, "plan_message": plan.message,
-        "plan_wall_s": plan.wall_s,
+        "task": task, "seed": seed, "w_fuel": w_fuel, "margin_m": margin_m, "horizon_s": horizon_s,
+        "plan_message": plan.message, "plan_wall_s": plan.wall_s,
         "rollouts": plan.rollouts, "predicted_reached": plan.reached, "predicted_time_s": plan.time_s,
         "predicted_fuel_l": plan.fuel_l, "predicted_min_clearance_m": plan.min_clearance_m,
         "predicted_collision_free": plan.collision_free, "predicted_spill_free": plan.spill_free,
@@ -193,6 +194,9 @@ def plan_task(
         "scripted_time_s": scripted["time_s"], "scripted_fuel_l": scripted["fuel_l"],
         "scripted_min_clearance_m": scripted["min_clearance_m"], "payload_kg": state.payload_kg,
         "planned_spools_mm": (plan.spools_m * 1e3).round(3).tolist(),
+        "scripted_spools_mm": (scripted["actions"] * p.SPOOL_STROKE * 1e3).round(3).tolist(),
+        "paths": {"planned_tip": plan.tip.round(3).tolist(), "reference_tip": reference["tip"].round(3).tolist(),
+                  "scripted_tip": scripted["tip"].round(3).tolist()},
     }  # fmt: skip
 
 
@@ -257,18 +261,66 @@ def run_plan(
     budget: int = 2000,
     nthread: int = 2,
     json_out: str | Path | None = None,
+    margin_m: float = MARGIN_M,
 ) -> dict[str, Any]:
     """Plan on each seed; one seed's figures, or with several a summary and the per-seed figures."""
     if not (math.isfinite(w_fuel) and w_fuel >= 0):
         raise ValueError(f"--w-fuel must be finite and >= 0, got {w_fuel}")
     if budget < 1:
         raise ValueError(f"--budget must be >= 1 rollouts, got {budget}")
+    if not (math.isfinite(margin_m) and 0 <= margin_m <= 2.0):
+        raise ValueError(f"--margin must be within 0 and 2 m, got {margin_m}")
     start = time.perf_counter()
-    results = [plan_task(task, s, w_fuel, budget, nthread) for s in seeds]
+    results = [plan_task(task, s, w_fuel, budget, nthread, margin_m=margin_m) for s in seeds]
     out: dict[str, Any] = results[0] if len(results) == 1 else {
         "task": task, "w_fuel": w_fuel, "summary": summarise(results), "per_seed": results,
     }  # fmt: skip
     out["wall_s"] = time.perf_counter() - start
     if json_out is not None:
         Path(json_out).write_text(json.dumps(out, indent=2) + "\n")
+    return out
+
+
+def plot_plan(result: dict[str, Any], out: str | Path) -> Path:
+    """One seed's plan as a PNG: teeth paths from above and their heights (planned, on the reference, scripted),
+    the planned and the scripted spools, and the time and fuel of each."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths = {k: np.array(v) for k, v in result["paths"].items()}
+    planned_dt, reference_dt, scripted_dt = 0.025, REFERENCE_DT_OUT, STEP_PERIOD
+    fig, axes = plt.subplots(2, 2, figsize=(11, 7.5))
+    styles = (("planned_tip", "planned (learned model)", planned_dt, "C0"),
+              ("reference_tip", "planned, on the reference", reference_dt, "C3"),
+              ("scripted_tip", "scripted loader", scripted_dt, "C2"))  # fmt: skip
+    for key, label, dt, colour in styles:
+        path = paths[key]
+        axes[0, 0].plot(path[:, 0], path[:, 1], color=colour, label=label)
+        axes[0, 1].plot(np.arange(len(path)) * dt + (dt if key != "reference_tip" else 0.0), path[:, 2], color=colour)
+    axes[0, 0].set(xlabel="x (m)", ylabel="y (m)", title=f"teeth from above: {result['task']}, seed {result['seed']}")
+    axes[0, 0].axis("equal")
+    axes[0, 0].legend(fontsize=8)
+    axes[0, 1].set(xlabel="t (s)", ylabel="teeth height (m)", title="teeth height")
+    names = ("swing", "boom", "stick", "bucket")
+    for spools, ax, dt, title in ((np.array(result["planned_spools_mm"]), axes[1, 0], planned_dt, "planned spools"),
+                                  (np.array(result["scripted_spools_mm"]), axes[1, 1], scripted_dt,
+                                   "scripted loader's spools")):  # fmt: skip
+        for j, name in enumerate(names):
+            ax.step(np.arange(len(spools)) * dt, spools[:, j], where="post", label=name)
+        ax.set(xlabel="t (s)", ylabel="spool (mm)", title=title, ylim=(-12, 12))
+        ax.legend(fontsize=8, ncol=4)
+    learned_t = result["learned_time_s"]
+    fig.suptitle(
+        f"planned: {learned_t if learned_t is not None else float('nan'):.1f} s, {result['learned_fuel_l']:.4f} L "
+        f"(learned model); reference {result['reference_fuel_l']:.4f} L, goal error "
+        f"{result['reference_goal_error_m']:.2f} m; scripted: {result['scripted_time_s']:.1f} s, "
+        f"{result['scripted_fuel_l']:.4f} L",
+        fontsize=10,
+    )
+    fig.tight_layout()
+    out = Path(out)
+    fig.savefig(out, dpi=90)
+    plt.close(fig)
     return out
