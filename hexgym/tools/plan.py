@@ -10,9 +10,10 @@ starts from rest at those angles. Then:
 - the planned spools are replayed in the environment (the learned model with the environment's fuel
   account, 0.1 s steps): ``learned_time_s``, ``learned_fuel_l`` (the figures compared with the scripted's);
 - the planned spools are replayed on the reference model (:mod:`hexgym.hydraulics.reference`, the
-  stand-in for the real machine; machine alone, its clearances from its joint angles on the site):
-  ``reference_time_s`` (first time at the goal, null if never), ``reference_fuel_l`` (to the plan's end),
-  ``reference_goal_error_m`` (at the plan's end), ``reference_min_clearance_m``;
+  stand-in for the real machine; machine alone, its clearances from its joint angles on the site), then
+  ``SETTLE_S`` with the spools closed: ``reference_time_s`` (first time at the goal with the swing at rest,
+  null if never), ``reference_fuel_l`` (to the plan's end), ``reference_goal_error_m`` (where it settles;
+  ``reference_goal_error_at_plan_end_m`` at the plan's end), ``reference_min_clearance_m``;
 - the scripted loader does the same move from the same rest state on the learned model (the
   environment): ``scripted_time_s``, ``scripted_fuel_l`` (to its first step at the goal; 0.1 s steps; for
   ``return`` its teeth within the tolerance or its ``penetrate`` phase begun, moving or not: in its favour).
@@ -35,6 +36,7 @@ from hexgym.planning.planner import MARGIN_M, Goal, Plan, dump_goal, plan_motion
 from hexgym.planning.rollouts import MachineState, RolloutModel
 
 TASKS = ("dump", "return")
+SETTLE_S = 1.5  # s the reference runs on with the spools closed after the plan (the swing coasts to rest)
 REFERENCE_DT_OUT = 0.05  # s: the reference's rows (a multiple of its 2 ms step and of the plan's 25 ms periods)
 _SCRIPTED_LIMIT_S = 30.0  # s: the scripted move's limit
 _CYCLE_LIMIT_S = 120.0  # s: the scripted first cycle's limit (to find the start states)
@@ -128,7 +130,9 @@ def scripted_knots(actions: np.ndarray, knot_s: float = 0.5) -> np.ndarray:
 
 
 def reference_replay(plan: Plan, state: MachineState, goal: Goal, model: RolloutModel) -> dict[str, Any]:
-    """The plan's spools on the reference model from ``state`` (at rest): time to the goal, fuel, error, clearance."""
+    """The plan's spools on the reference model from ``state`` (at rest), then ``SETTLE_S`` with the spools closed:
+    the first time at the goal with the swing at rest, the fuel to the plan's end, the goal error where the
+    machine settles (and at the plan's end), the least clearance."""
     from hexgym.hydraulics.reference import ReferenceModel
     from hexgym.model.commandlog import CommandLog
     from hexgym.model.replay import replay
@@ -138,17 +142,18 @@ def reference_replay(plan: Plan, state: MachineState, goal: Goal, model: Rollout
     t = np.arange(n + 1) * period
     spools_mm = np.vstack([plan.spools_m * 1e3, np.zeros((1, 4))])
     dt_out = REFERENCE_DT_OUT
-    duration = math.ceil(n * period / dt_out - 1e-9) * dt_out
+    planned = math.ceil(n * period / dt_out - 1e-9)  # rows to the plan's end
     rows = replay(ReferenceModel(), CommandLog(t, spools_mm), start=state.q, payload_kg=state.payload_kg,
-                  dt_out=dt_out, duration=duration)  # fmt: skip
+                  dt_out=dt_out, duration=(planned + round(SETTLE_S / dt_out)) * dt_out)  # fmt: skip
     q = np.column_stack([rows[f"q_{j}"] for j in ("swing", "boom", "stick", "bucket")])
     tips, mouths, clearance = model.at_angles(q, state.layout)
     error = goal.error_m(mouths, tips)
     at = (error <= (0.0 if goal.task == "dump" else goal.tolerance_m)) & (np.abs(rows["qd_swing"]) < 0.1)
-    fuel_l = float(np.sum(rows["fuel_rate_l_per_h"][1:]) * dt_out / 3600.0)
+    fuel_l = float(np.sum(rows["fuel_rate_l_per_h"][1 : planned + 1]) * dt_out / 3600.0)
     return {
         "time_s": float(rows["t"][np.argmax(at)]) if at.any() else None, "fuel_l": fuel_l,
-        "goal_error_m": float(error[-1]), "min_clearance_m": float(clearance.min()), "tip": tips,
+        "goal_error_m": float(error[-1]), "goal_error_at_plan_end_m": float(error[planned]),
+        "min_clearance_m": float(clearance.min()), "tip": tips[: planned + 1],
     }  # fmt: skip
 
 
@@ -190,7 +195,9 @@ def plan_task(
         "learned_time_s": learned["time_s"], "learned_fuel_l": learned["fuel_l"],
         "learned_min_clearance_m": learned["min_clearance_m"], "warm_start": warm_start,
         "reference_time_s": reference["time_s"], "reference_fuel_l": reference["fuel_l"],
-        "reference_goal_error_m": reference["goal_error_m"], "reference_min_clearance_m": reference["min_clearance_m"],
+        "reference_goal_error_m": reference["goal_error_m"],
+        "reference_goal_error_at_plan_end_m": reference["goal_error_at_plan_end_m"],
+        "reference_min_clearance_m": reference["min_clearance_m"],
         "scripted_time_s": scripted["time_s"], "scripted_fuel_l": scripted["fuel_l"],
         "scripted_min_clearance_m": scripted["min_clearance_m"], "payload_kg": state.payload_kg,
         "planned_spools_mm": (plan.spools_m * 1e3).round(3).tolist(),
