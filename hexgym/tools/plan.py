@@ -275,6 +275,8 @@ def run_plan(
         raise ValueError(f"--w-fuel must be finite and >= 0, got {w_fuel}")
     if budget < 1:
         raise ValueError(f"--budget must be >= 1 rollouts, got {budget}")
+    if nthread < 1:
+        raise ValueError(f"--threads must be >= 1, got {nthread}")
     if not (math.isfinite(margin_m) and 0 <= margin_m <= 2.0):
         raise ValueError(f"--margin must be within 0 and 2 m, got {margin_m}")
     start = time.perf_counter()
