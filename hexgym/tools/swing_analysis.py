@@ -99,6 +99,15 @@ def swing_start(ramp_s: float, spool_mm: float = 7.0, duration: float = 1.5) -> 
     return replay(ReferenceModel(), CommandLog(t, u), start=POSE_CYCLE, dt_out=DT_OUT)
 
 
+def value_at_rate(traj: np.ndarray, rate: float, column: str) -> float:
+    """``column`` of the row where the swing first reaches ``rate`` (rad/s)."""
+    w = traj["qd_swing"]
+    k = int(np.argmax(w >= rate))
+    if w[k] < rate:
+        raise ValueError(f"the swing never reached {rate} rad/s")
+    return float(traj[column][k])
+
+
 def acceleration_at_rate(traj: np.ndarray, rate: float) -> float:
     """The swing acceleration (rad/s^2) when the swing first reaches ``rate`` (rad/s)."""
     w = traj["qd_swing"]
@@ -157,6 +166,13 @@ def main() -> None:
     for rate in (0.03, 0.05, 0.1, 0.15):
         step, ramped = (acceleration_at_rate(starts[r], rate) for r in (0.0, 0.4))
         print(f"  w = {rate:4.2f} rad/s: after a step {step:6.3f}, after a 0.4 s ramp {ramped:6.3f}")
+    print("  and the pump 2 pressure (MPa) / flow (L/min) there: the pressure differs, the flow (the regulator) not")
+    for rate in (0.03, 0.05, 0.1):
+        p, q = (
+            [value_at_rate(starts[r], rate, c) for r in (0.0, 0.4)] for c in ("pump2_pressure_pa", "pump2_flow_m3s")
+        )
+        step, ramp = (f"{p[i] / 1e6:5.1f} / {q[i] * 6e4:5.1f}" for i in (0, 1))
+        print(f"  w = {rate:4.2f} rad/s: step {step}, ramp {ramp}")
     if (Path("data") / "swing.npz").is_file():  # the collected data set (`hexgym collect`)
         bias = grid_bias_figures()
         print(f"\nSwing table at the data's 7 mm, 0-0.2 rad/s samples ({bias['points']:.0f}): mean error")
