@@ -78,6 +78,8 @@ from hexgym.hydraulics import fuel
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.machine.physics import payload_inertia
+from hexgym.model.plugin import CTRL_PER_SPOOL_M
+from hexgym.model.plugin import STATE as PLUGIN_STATE
 
 CONTACT_SLOTS = 16  # contacts of the bucket and stick the sensor reports (random actions reach 7 of all kinds)
 _VEL = int(mujoco.mjtStage.mjSTAGE_VEL)  # after a step: positions and velocities current, as mj_step1 leaves them
@@ -186,8 +188,9 @@ class HexLoadingVectorEnv(VectorEnv):
         self._tip_site, self._bucket, self._payload = m.site("tip").id, m.body("bucket").id, m.body("payload").id
         swing = self._dadr[0]
         self._swing_diag = m.M_rowadr[swing] + m.M_rownnz[swing] - 1
-        self._load_slots = int(m.plugin_stateadr[0]) + np.arange(4)  # the plugin's last constraint load
-        self._acceleration_slot = int(m.plugin_stateadr[0]) + 4  # its last swing acceleration
+        state = int(m.plugin_stateadr[0])
+        self._load_slots = state + PLUGIN_STATE["load"] + np.arange(4)  # the plugin's last constraint load
+        self._acceleration_slot = state + PLUGIN_STATE["acceleration"]  # its last swing acceleration
         sensor = m.sensor(TOOL_CONTACT_SENSOR)
         self._contact_slots = slice(int(sensor.adr[0]), int(sensor.adr[0]) + 2 * CONTACT_SLOTS)
 
@@ -277,7 +280,7 @@ class HexLoadingVectorEnv(VectorEnv):
         fuel_step, contact_step = np.zeros(n), np.zeros(n)
         if len(stepping):
             spools = np.minimum(np.maximum(a[stepping], -1.0), 1.0) * p.SPOOL_STROKE
-            self._ctrl[stepping[:, None], self._ctrl_ids] = spools * 1e3  # the plugin's ctrl is in mm
+            self._ctrl[stepping[:, None], self._ctrl_ids] = spools * CTRL_PER_SPOOL_M
             flows = np.zeros((3, n))  # dug, delivered, spilled (kg)
             self._advance(stepping, flows, fuel_step, contact_step)
             self.fuel_l[stepping] += fuel_step[stepping]
