@@ -78,7 +78,7 @@ import numpy as np
 from hexgym.files import atomic_path, check_output_dir
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
-from hexgym.mbl.schema import TABLE_SETS
+from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS
 
 GENERATOR_VERSION = 1
 DEFAULT_SAMPLES = 6400  # per group: the paper had 5500 (boom/bucket) and 6400 (stick/swing) points
@@ -859,8 +859,9 @@ def add_collect_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser.add_argument(
         "--tables",
         choices=tuple(TABLE_SETS),
-        default="extended",
-        help="which table set's data: 'extended' (both pumps work; the default model) or 'paper' (default: extended)",
+        default=DEFAULT_TABLE_SET,
+        help=f"which table set's data: paper, or extended (the other pump's spools move too) "
+        f"(default: {DEFAULT_TABLE_SET})",
     )
     parser.set_defaults(func=run_collect)
     return parser
