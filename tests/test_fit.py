@@ -7,7 +7,9 @@ import pytest
 
 from hexgym.mbl import fit
 from hexgym.mbl.baselines import synthetic_flow_sharing
-from hexgym.mbl.schema import TABLES
+from hexgym.mbl.schema import TABLE_SETS
+
+TABLES = TABLE_SETS["paper"]  # the set fit and tables default to
 
 
 @pytest.fixture(scope="module")

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from hexgym.mbl.schema import TABLES, check_table_schema
+from hexgym.mbl.schema import TABLE_SETS, check_table_schema
 from hexgym.mbl.table import MBLTable, load_table, load_tables, packaged_tables_dir, table_path
 from hexgym.model import plugin
 
@@ -95,7 +95,7 @@ def test_interface_differences_name_each_side():
 
 
 def test_a_table_that_differs_from_the_schema_is_refused_naming_file_and_difference(tmp_path):
-    for name in TABLES:
+    for name in TABLE_SETS["paper"]:
         shutil.copy(table_path(name), tmp_path / f"{name}.npz")
     boom = load_table(table_path("boom", packaged_tables_dir()))
     order = (1, 0, 2, 3)
@@ -119,7 +119,7 @@ def test_a_table_that_differs_from_the_schema_is_refused_naming_file_and_differe
 
 
 def test_schema_check_names_missing_extra_and_output():
-    spec = TABLES["swing"]
+    spec = TABLE_SETS["paper"]["swing"]
     with pytest.raises(ValueError, match=r"f\.npz: .*missing inputs \['swing_rate_radps'\]"):
         check_table_schema("f.npz", "swing", spec.inputs[:-1], spec.output)
     with pytest.raises(ValueError, match=r"extra inputs \['boom_force_n'\].*output 'x'"):

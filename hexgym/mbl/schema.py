@@ -12,18 +12,13 @@ pump: the pumps' cross-sensing power control makes each pump's delivery depend o
 pressures, so each pump's pressure is learned as a table of its own and fed, one control period old
 (the regulator's lag allows it), into the other pump's tables.
 
-Quantity names carry their SI unit as a suffix (``_m``, ``_n``, ``_kgm2``, ``_radps``, ``_mps``,
-``_radps2``); :data:`UNITS` spells them out.
+Quantity names carry their SI unit as a suffix: ``_m`` m, ``_n`` N, ``_nm`` N m, ``_kgm2`` kg m^2,
+``_radps`` rad/s, ``_mps`` m/s, ``_radps2`` rad/s^2, ``_pa`` Pa.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-
-UNITS = {
-    "_m": "m", "_n": "N", "_nm": "N m", "_kgm2": "kg m^2", "_radps": "rad/s", "_mps": "m/s", "_radps2": "rad/s^2",
-    "_pa": "Pa",
-}  # fmt: skip
 
 # Every quantity a table may read, in a fixed order (the plugin's query vector uses this order).
 QUANTITIES = (
@@ -99,15 +94,6 @@ TABLE_SETS: dict[str, dict[str, TableSchema]] = {
     ),
 }
 DEFAULT_TABLE_SET = "paper"
-TABLES = TABLE_SETS[DEFAULT_TABLE_SET]
-
-
-def unit(quantity: str) -> str:
-    """The SI unit of a schema quantity, from its name's suffix."""
-    for suffix in sorted(UNITS, key=len, reverse=True):
-        if quantity.endswith(suffix):
-            return UNITS[suffix]
-    raise ValueError(f"quantity {quantity!r} has no unit suffix")
 
 
 def check_table_schema(

@@ -18,6 +18,8 @@ import os
 import sys
 from pathlib import Path
 
+from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS  # names only: no MuJoCo, no numpy
+
 
 def _cmd_demo(args: argparse.Namespace) -> int:
     from hexgym.agents.demo import run_demo
@@ -286,17 +288,11 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {' '.join(message.split())} (see {self.prog} --help)\n")
 
 
-def _table_sets() -> tuple[str, ...]:
-    from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS
-
-    return DEFAULT_TABLE_SET, tuple(TABLE_SETS)
-
-
-_TABLES_OPTION = {
-    "choices": _table_sets()[1],
-    "default": _table_sets()[0],
-    "help": f"the learned model's table set: extended (both pumps) or paper (the paper's four tables) "
-    f"(default: {_table_sets()[0]})",
+_TABLES_OPTION = {  # --tables of the commands that use the learned model's tables
+    "choices": tuple(TABLE_SETS),
+    "default": DEFAULT_TABLE_SET,
+    "help": f"the learned model's table set: paper (the paper's four tables) or extended (both pumps) "
+    f"(default: {DEFAULT_TABLE_SET})",
 }
 
 

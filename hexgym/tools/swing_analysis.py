@@ -99,22 +99,23 @@ def swing_start(ramp_s: float, spool_mm: float = 7.0, duration: float = 1.5) -> 
     return replay(ReferenceModel(), CommandLog(t, u), start=POSE_CYCLE, dt_out=DT_OUT)
 
 
-def value_at_rate(traj: np.ndarray, rate: float, column: str) -> float:
-    """``column`` of the row where the swing first reaches ``rate`` (rad/s)."""
+def _first_at_rate(traj: np.ndarray, rate: float) -> int:
+    """The row where the swing first reaches ``rate`` (rad/s)."""
     w = traj["qd_swing"]
     k = int(np.argmax(w >= rate))
     if w[k] < rate:
         raise ValueError(f"the swing never reached {rate} rad/s")
-    return float(traj[column][k])
+    return k
+
+
+def value_at_rate(traj: np.ndarray, rate: float, column: str) -> float:
+    """``column`` of the row where the swing first reaches ``rate`` (rad/s)."""
+    return float(traj[column][_first_at_rate(traj, rate)])
 
 
 def acceleration_at_rate(traj: np.ndarray, rate: float) -> float:
     """The swing acceleration (rad/s^2) when the swing first reaches ``rate`` (rad/s)."""
-    w = traj["qd_swing"]
-    k = int(np.argmax(w >= rate))
-    if w[k] < rate:
-        raise ValueError(f"the swing never reached {rate} rad/s")
-    return float(np.gradient(w, traj["t"])[k])
+    return float(np.gradient(traj["qd_swing"], traj["t"])[_first_at_rate(traj, rate)])
 
 
 def swing_momentum_figures(ref: np.ndarray) -> dict[str, float]:
