@@ -1,4 +1,4 @@
-"""The learned machine model: MuJoCo's linkage dynamics + the four MBL tables (paper Sec III).
+"""The learned machine model: MuJoCo's linkage dynamics + the MBL tables (paper Sec III), in Python.
 
 Every control period (default: one 25 ms step of the lean machine), the paper's three steps:
 
@@ -11,7 +11,9 @@ Every control period (default: one 25 ms step of the lean machine), the paper's 
    not part of the load.
 2. **Tables.** Boom, bucket and stick tables turn spools + loads into cylinder velocities; the
    swing table gives the swing acceleration from the spools, the stick load, the swing inertia
-   (MuJoCo's mass matrix) and the swing rate.
+   (MuJoCo's mass matrix) and the swing rate. With the ``extended`` tables (:mod:`hexgym.mbl.schema`)
+   each also reads the other pump's pressure, the pump pressures come from tables of their own one
+   period old, and the swing table gives the motor torque, divided here by the inertia.
 3. **Integration.** The cylinder velocities become joint-rate targets through the moment arms;
    the swing's target rate is integrated from the acceleration. The MJCF's stiff velocity servos
    reach the targets within the step (a zero target holds the joint: no sag) and MuJoCo integrates.
