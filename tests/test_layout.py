@@ -20,7 +20,8 @@ ROOT = Path(__file__).resolve().parent.parent
 PACKAGE = ROOT / "hexgym"
 # lower layers first: a module may import its own layer and those before it
 LAYERS = (
-    "files", "interpolation", "machine", "hydraulics", "mbl", "model", "envs", "planning", "wrappers", "agents", "tools"
+    "parallel", "files", "interpolation", "machine", "hydraulics", "mbl", "model", "envs", "planning", "wrappers",
+    "agents", "tools",
 )  # fmt: skip
 OFFLINE = ("hexgym.mbl.collect", "hexgym.mbl.fit", "hexgym.mbl.lwr", "hexgym.mbl.baselines", "hexgym.mbl.grid")
 

@@ -64,7 +64,6 @@ import argparse
 import hashlib
 import json
 import math
-import multiprocessing as mp
 import os
 import sys
 import time
@@ -79,6 +78,7 @@ from hexgym.files import atomic_path, check_output_dir
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS
+from hexgym.parallel import Executor, add_ray_option, executor
 
 GENERATOR_VERSION = 1
 DEFAULT_SAMPLES = 6400  # per group: the paper had 5500 (boom/bucket) and 6400 (stick/swing) points
@@ -526,6 +526,12 @@ def _config_from_json(text: str) -> CollectConfig:
 
 def _chunk_task(task: tuple[str, str, int, int, str, str]) -> tuple[str, int, int, float]:
     """Compute and store one chunk; returns (group, index, counted samples, wall seconds)."""
+    return _store_chunk(task[0], _compute_chunk(task))
+
+
+def _compute_chunk(task: tuple[str, str, int, int, str, str]) -> tuple[str, int, int, float, dict[str, np.ndarray]]:
+    """Compute one chunk: (group, index, counted samples, wall seconds, its arrays). The driver stores
+    it (:func:`_store_chunk`), so workers on other machines need no shared file system."""
     out_dir, group, index, seed, config_json, fingerprint = task
     config = _config_from_json(config_json)
     if model_fingerprint() != fingerprint:  # e.g. a source file edited while a collection runs
@@ -546,8 +552,16 @@ def _chunk_task(task: tuple[str, str, int, int, str, str]) -> tuple[str, int, in
         "errors": [f"episode {e}: {r.error}" for e, r in episodes if r.error],
     }
     arrays["meta"] = np.array(json.dumps(meta, sort_keys=True))
+    return group, index, len(arrays[f"{config.tables(group)[0]}_y"]), wall, arrays
+
+
+def _store_chunk(
+    out_dir: str, result: tuple[str, int, int, float, dict[str, np.ndarray]]
+) -> tuple[str, int, int, float]:
+    """Write a computed chunk; returns (group, index, counted samples, wall seconds)."""
+    group, index, samples, wall, arrays = result
     _save_npz(chunk_path(out_dir, group, index), arrays)
-    return group, index, len(arrays[f"{config.tables(group)[0]}_y"]), wall
+    return group, index, samples, wall
 
 
 def _chunk_arrays(
@@ -648,14 +662,12 @@ def _missing_chunks(out_dir: Path, group: str, state: _GroupState, target: int, 
     return [i for i in range(state.prefix, state.prefix + need) if not chunk_path(out_dir, group, i).exists()]
 
 
-def _run_tasks(tasks: list[tuple[str, str, int, int, str, str]], workers: int) -> Iterator[tuple[str, int, int, float]]:
-    """Run chunk tasks, in this process for one worker, else in a spawn-context process pool."""
-    if workers == 1 or len(tasks) == 1:
-        for task in tasks:
-            yield _chunk_task(task)
-        return
-    with mp.get_context("spawn").Pool(min(workers, len(tasks))) as pool:
-        yield from pool.imap_unordered(_chunk_task, tasks)
+def _run_tasks(
+    pool: Executor, tasks: list[tuple[str, str, int, int, str, str]]
+) -> Iterator[tuple[str, int, int, float]]:
+    """Run chunk tasks on ``pool`` (this process, a process pool or Ray); each is stored as it finishes."""
+    for result in pool.map_unordered(_compute_chunk, tasks):
+        yield _store_chunk(tasks[0][0], result)
 
 
 # --------------------------------------------------------------------------------------------
@@ -669,6 +681,7 @@ def collect(
     progress: bool = True,
     config: CollectConfig | None = None,
     max_chunks: int | None = None,
+    ray: str | None = None,
 ) -> dict[str, Path]:
     """Collect the four tables' data sets into ``<out_dir>/<table>.npz``; returns the paths by table.
 
@@ -677,7 +690,8 @@ def collect(
     the first episodes (in index order) that reach that count, so a few more. Finished chunks
     in ``<out_dir>/chunks`` are reused, so an interrupted run resumes where it stopped.
     ``max_chunks`` computes at most that many new chunks and returns ``{}`` if the data sets are
-    not complete by then (a time-boxed run; the next call goes on).
+    not complete by then (a time-boxed run; the next call goes on). ``ray``: run the chunks as Ray
+    tasks (:mod:`hexgym.parallel`: "local" or a cluster's address) instead of ``workers`` processes.
 
     Each ``.npz`` holds ``X`` (n, d) float64, ``y`` (n,), ``inputs`` (d,) and ``output`` (0-d)
     names, ``episode`` and ``segment`` (n,) indices (samples of one segment or episode are
@@ -696,25 +710,26 @@ def collect(
     bar = _ProgressBar(samples_per_group, enabled=progress)
     new_chunks = 0
     try:
-        while True:
-            states = {g: _group_state(out, g, seed, config, samples_per_group, fingerprint) for g in GROUPS}
-            bar.set({g: s.counted for g, s in states.items()})
-            todo = sorted(  # by index: the groups advance together
-                (i, g)
-                for g, s in states.items()
-                if s.episodes_needed is None
-                for i in _missing_chunks(out, g, s, samples_per_group, config)
-            )
-            if not todo:
-                break
-            if max_chunks is not None:
-                todo = todo[: max(0, max_chunks - new_chunks)]
+        with executor(workers, ray=ray) as pool:
+            while True:
+                states = {g: _group_state(out, g, seed, config, samples_per_group, fingerprint) for g in GROUPS}
+                bar.set({g: s.counted for g, s in states.items()})
+                todo = sorted(  # by index: the groups advance together
+                    (i, g)
+                    for g, s in states.items()
+                    if s.episodes_needed is None
+                    for i in _missing_chunks(out, g, s, samples_per_group, config)
+                )
                 if not todo:
-                    return {}
-            tasks = [(str(out), g, i, seed, config.to_json(), fingerprint) for i, g in todo]
-            for group, _index, samples, _wall in _run_tasks(tasks, workers):
-                new_chunks += 1
-                bar.add(group, samples)
+                    break
+                if max_chunks is not None:
+                    todo = todo[: max(0, max_chunks - new_chunks)]
+                    if not todo:
+                        return {}
+                tasks = [(str(out), g, i, seed, config.to_json(), fingerprint) for i, g in todo]
+                for group, _index, samples, _wall in _run_tasks(pool, tasks):
+                    new_chunks += 1
+                    bar.add(group, samples)
     finally:
         bar.close()
     return _write_datasets(out, states, seed, config, fingerprint)
@@ -856,6 +871,7 @@ def add_collect_parser(subparsers: Any) -> argparse.ArgumentParser:
     )
     parser.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
     parser.add_argument("--workers", type=int, default=2, help="worker processes (default: 2)")
+    add_ray_option(parser, "the chunks")
     parser.add_argument(
         "--tables",
         choices=tuple(TABLE_SETS),
@@ -871,7 +887,14 @@ def run_collect(args: argparse.Namespace) -> int:
     """Run ``hexgym collect``: collect (resuming), then print the files and their coverage."""
     t0 = time.perf_counter()
     config = CollectConfig(table_set=args.tables)
-    paths = collect(args.out, samples_per_group=args.samples, seed=args.seed, workers=args.workers, config=config)
+    paths = collect(
+        args.out,
+        samples_per_group=args.samples,
+        seed=args.seed,
+        workers=args.workers,
+        config=config,
+        ray=getattr(args, "ray", None),
+    )
     print(f"collected in {time.perf_counter() - t0:.0f} s:")
     for table, path in paths.items():
         print(f"{table}: {path}")

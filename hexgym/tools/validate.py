@@ -23,7 +23,6 @@ time, so the interactions and the suite run in worker processes.
 
 from __future__ import annotations
 
-import multiprocessing
 import os
 import time
 from pathlib import Path
@@ -39,6 +38,7 @@ from hexgym.mbl.table import load_tables
 from hexgym.model.commandlog import CommandLog
 from hexgym.model.python_backend import LearnedModel
 from hexgym.model.replay import replay
+from hexgym.parallel import executor
 from hexgym.tools.operator_logs import pose_from_fractions, suite_log
 from hexgym.tools.scenarios import POSE_CYCLE, ramped_log, scenarios  # noqa: F401 (POSE_CYCLE: re-exported)
 
@@ -233,20 +233,20 @@ def _run_job(job: tuple[str, CommandLog, np.ndarray, float]) -> dict[str, object
 
 
 def run_jobs(
-    jobs: list[tuple[str, CommandLog, np.ndarray, float]], learned: LearnedModel | None = None, workers: int = 1
+    jobs: list[tuple[str, CommandLog, np.ndarray, float]],
+    learned: LearnedModel | None = None,
+    workers: int = 1,
+    ray: str | None = None,
 ) -> dict[str, dict[str, object]]:
     """:func:`run_test` on each (name, log, start pose, payload kg), keyed by name.
 
     ``workers`` > 1: in that many spawned processes, the longest logs first; each process builds
     its reference model and gets a copy of ``learned`` (default: the packaged tables' model).
+    ``ray``: as Ray tasks instead (:mod:`hexgym.parallel`: "local" or a cluster's address).
     """
-    if workers <= 1 or len(jobs) <= 1:
-        _init_worker(learned)
-        return {job[0]: _run_job(job) for job in jobs}
     jobs = sorted(jobs, key=lambda job: -job[1].duration)
-    context = multiprocessing.get_context("spawn")
-    with context.Pool(min(workers, len(jobs)), initializer=_init_worker, initargs=(learned,)) as pool:
-        return {result["name"]: result for result in pool.imap_unordered(_run_job, jobs)}
+    with executor(min(workers, max(len(jobs), 1)), ray, initializer=_init_worker, initargs=(learned,)) as pool:
+        return {result["name"]: result for result in pool.map_unordered(_run_job, jobs)}
 
 
 def _suite_entry(result: dict[str, object], description: dict[str, object]) -> dict[str, object]:
@@ -274,6 +274,7 @@ def run_validation(
     suite_duration_s: float | None = None,
     table_set: str = DEFAULT_TABLE_SET,
     tables_dir: str | Path | None = None,
+    ray: str | None = None,
 ) -> dict[str, object]:
     """The three tests, the interactions and ``suite`` random operator logs; plots and ``summary.json``
     in ``out_dir``; returns the summary.
@@ -282,7 +283,7 @@ def run_validation(
     ``workers``: processes for the interactions and the suite (default: one per CPU);
     ``suite_only``: the suite alone; ``suite_duration_s``: every suite log this long (default 30-60 s);
     ``table_set``, ``tables_dir``: the learned model's tables (default: the packaged ones of the set), unless
-    ``learned`` is given.
+    ``learned`` is given; ``ray``: the interactions and the suite as Ray tasks ("local" or a cluster's address).
     """
     if suite < 0 or (suite_only and suite == 0):
         raise ValueError(f"suite must be a number of logs >= 0 (> 0 with suite_only), got {suite}")
@@ -305,7 +306,7 @@ def run_validation(
     logs = {f"suite log {i} (seed {suite_seed})": suite_log(suite_seed, i, suite_duration_s) for i in range(suite)}
     jobs = [(name, *case) for name, case in interactions.items()]
     jobs += [(name, o.log, o.start_pose, o.payload_kg) for name, o in logs.items()]
-    results = run_jobs(jobs, learned, workers)
+    results = run_jobs(jobs, learned, workers, ray)
     if interactions:
         summary["interactions"] = {name: _interaction_summary(name, results[name]) for name in interactions}
         plot_interactions(results, out_dir / "interactions.png")
