@@ -1,4 +1,4 @@
-"""The loading task's earthwork (pure numpy): the pile, digging, the bucket's contents, conservation."""
+"""The loading task's earthwork (compiled with numba): the pile, digging, the bucket's contents, conservation."""
 
 import numpy as np
 import pytest
@@ -65,7 +65,7 @@ def test_heap_volume_and_surface():
     assert pile.height_at(np.array([30.0, 0.0])) == 0.0  # off the grid
     # bilinear between grid points: the mean of the corners in the middle of a cell
     i, j = 20, 30
-    x, y = pile._origin[0] + (j + 0.5) * SPACING, pile._origin[1] + (i + 0.5) * SPACING
+    x, y = pile.origin[0] + (j + 0.5) * SPACING, pile.origin[1] + (i + 0.5) * SPACING
     corners = pile.heights[i : i + 2, j : j + 2].mean()
     assert pile.height_at(np.array([x, y])) == pytest.approx(corners)
 

@@ -147,8 +147,8 @@ def test_digging_lowers_the_rendered_pile():
     # the hfield (what is drawn) is the heightmap: a ray down onto it hits the surface
     m, d = env.physics.model, env.physics.data
     i, j = np.unravel_index(np.argmax(before - env.earth.pile.heights), before.shape)
-    x = env.earth.pile._origin[0] + j * env.earth.pile.spacing
-    y = env.earth.pile._origin[1] + i * env.earth.pile.spacing
+    x = env.earth.pile.origin[0] + j * env.earth.pile.spacing
+    y = env.earth.pile.origin[1] + i * env.earth.pile.spacing
     geomid = np.zeros(1, np.int32)
     group = np.array([0, 1, 0, 0, 0, 0], np.uint8)
     distance = mujoco.mj_ray(m, d, np.array([x, y, 10.0]), np.array([0, 0, -1.0]), group, 1, -1, geomid)

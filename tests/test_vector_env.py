@@ -8,8 +8,7 @@ from gymnasium.vector.utils import batch_space
 
 import hexgym  # noqa: F401 - registers HexLoading-v0
 from hexgym.agents.scripted import ScriptedLoader
-from hexgym.envs.earthwork import BatchedPiles
-from hexgym.envs.loading import HexLoadingEnv, heap_for, sample_start
+from hexgym.envs.loading import HexLoadingEnv
 from hexgym.envs.vector import HexLoadingVectorEnv
 from hexgym.hydraulics import fuel
 from hexgym.interpolation import UniformTable
@@ -142,36 +141,20 @@ def test_unsupported_arguments_are_refused(kwargs):
         HexLoadingVectorEnv(**({"num_envs": 2} | kwargs))
 
 
-def test_batched_pile_cuts_as_the_single_pile():
-    rng = np.random.default_rng(1)
-    layouts = [sample_start(rng)[0] for _ in range(6)]
-    singles = [heap_for(layout) for layout in layouts]
-    batched = BatchedPiles(len(singles), singles[0].heights.shape[0], singles[0].spacing)
-    for i, pile in enumerate(singles):
-        batched.load(i, pile)
-    ids = np.arange(len(singles))
-    for _ in range(20):
-        centre = np.array([pile.centre for pile in singles]) + rng.uniform(-2.5, 2.5, (len(singles), 2))
-        angle = rng.uniform(-np.pi, np.pi, len(singles))
-        lateral = np.stack([np.cos(angle), np.sin(angle)], axis=1)
-        floor, volume = rng.uniform(0.0, 1.2, len(singles)), rng.uniform(0.0, 0.05, len(singles))
-        got = batched.take(ids, centre[:, 0], centre[:, 1], lateral[:, 0], lateral[:, 1], 1.5, floor, volume)
-        expected = [pile.take(c, lat, 1.5, f, v) for pile, c, lat, f, v in zip(singles, centre, lateral, floor, volume,
-                                                                                 strict=True)]  # fmt: skip
-        assert got.tolist() == expected and got.max() > 0
-        x, y = centre[:, 0] + 0.3, centre[:, 1] - 0.2
-        heights = [pile.height_at_point(a, b) for pile, a, b in zip(singles, x, y, strict=True)]
-        assert batched.height_at(ids, x, y).tolist() == heights
-    assert all(np.array_equal(batched.heights[i], pile.heights) for i, pile in enumerate(singles))
-    assert batched.volumes().tolist() == [pile.volume() for pile in singles]
+def test_compiled_tables_fuel_and_payload_match_the_scalar_ones():
+    from hexgym.envs.earthwork import table_at
+    from hexgym.envs.task import _brake_power
 
-
-def test_vectorised_tables_fuel_and_payload_match_the_scalar_ones():
     table = UniformTable(-1.0, 2.0, np.random.default_rng(0).normal(size=50))
     x = np.linspace(-1.5, 2.5, 997)
-    assert table.at(x).tolist() == [table(v) for v in x]
-    power, seconds = np.linspace(0.0, 400e3, 301), np.full(301, 0.075)
-    assert fuel.fuel_litres_many(power, seconds).tolist() == [fuel.fuel_litres(w, 0.075) for w in power]
+    values = np.array(table.values)
+    assert [table_at(values, table.start, table.step, v) for v in x] == [table(v) for v in x]
+    rates = fuel._fuel_rate_table()
+    for power in np.linspace(0.0, 400e3, 301):
+        brake = min(_brake_power(power), p.ENGINE_POWER)
+        assert table_at(np.array(rates.values), rates.start, rates.step, brake) * 0.075 / 3600.0 == fuel.fuel_litres(
+            power, 0.075
+        )
     from hexgym.machine.physics import ExcavatorPhysics
 
     physics = ExcavatorPhysics()

@@ -1,9 +1,9 @@
 """Earthwork of the loading task: the pile, digging, the bucket's contents, spills and the truck.
 
-Pure numpy: the environment hands in the bucket's pose and velocity (world frame, SI) and gets
-back the digging resistance and where material went. Material lives in exactly four stores,
-the pile (a heightmap), the bucket, the truck and the ground (spilled), and only moves between
-them, so their sum is constant (:meth:`Earthwork.total_kg`).
+The bucket's pose and velocity come in (world frame, SI); the digging resistance and where
+material went come out. Material lives in exactly four stores, the pile (a heightmap), the
+bucket, the truck and the ground (spilled), and only moves between them, so their sum is constant
+(:meth:`Earthwork.total_kg`).
 
 - **Pile**: heights on a vertex grid (the MuJoCo hfield's layout), a flat-topped heap whose flanks
   stand at the angle of repose. Digging lowers the surface under the cutting edge; a local
@@ -21,10 +21,10 @@ them, so their sum is constant (:meth:`Earthwork.total_kg`).
   cannot hold leaves with a short time constant, into the truck when the caller says it falls
   in the bed, otherwise onto the ground.
 
-:class:`BatchedPiles` holds many sites' piles for the batched environment
-(:mod:`hexgym.envs.vector`) and cuts them with the single :class:`Pile`'s arithmetic, element for
-element (the helpers :func:`strip_mask`, :func:`relax_heights` and the array forms of the
-formulas are shared by both).
+The arithmetic is written once, as numba-compiled functions of one site of a stack of piles
+(``heights[i]`` of an ``(N, n, n)`` array, its grid origin ``origin[i]``): the loading task
+(:mod:`hexgym.envs.task`) calls them for each of its N sites, and :class:`Pile` and
+:class:`Earthwork` are one-site handles on the same functions (tests, tools, agents).
 """
 
 from __future__ import annotations
@@ -32,16 +32,27 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
-from hexgym.interpolation import UniformTable
 from hexgym.machine import parameters as p
 
 _GAMMA = p.MATERIAL_DENSITY * p.GRAVITY  # unit weight, N/m^3
 EDGE_SAMPLES = 5  # points along the cutting edge where the depth is measured
-_RELAX_ITERATIONS = 3  # avalanche passes after each cut
+RELAX_ITERATIONS = 3  # avalanche passes after each cut
 _RAKE_LIMITS = np.radians((5.0, 90.0))  # rake angles outside this are treated as at the limit
-EDGE_OFFSETS = tuple(np.linspace(-p.BUCKET_WIDTH / 2.0, p.BUCKET_WIDTH / 2.0, EDGE_SAMPLES).tolist())
+EDGE_OFFSETS = np.linspace(-p.BUCKET_WIDTH / 2.0, p.BUCKET_WIDTH / 2.0, EDGE_SAMPLES)
+_MOUTH_LENGTH = float(np.hypot(*np.subtract(p.BUCKET_EDGE, p.BUCKET_LIP)))  # strike line, m
+# plain floats for the compiled functions (numba freezes globals at compile time)
+_WIDTH = float(p.BUCKET_WIDTH)
+_DENSITY = float(p.MATERIAL_DENSITY)
+_HEAPED = float(p.BUCKET_HEAPED_CAPACITY)
+_STRUCK = float(p.BUCKET_STRUCK_CAPACITY)
+_REPOSE = float(p.MATERIAL_REPOSE_ANGLE)
+_SPILL_TIME = float(p.BUCKET_SPILL_TIME_CONSTANT)
+_REFERENCE_SPEED = float(p.DIG_REFERENCE_SPEED)
+
+jit = numba.njit(cache=True, nogil=True)  # every compiled function of the task: cached on disk, no fastmath
 
 
 def earthmoving_factors(
@@ -63,91 +74,266 @@ def earthmoving_factors(
     return n_q / 2.0, n_q
 
 
-_N_GAMMA = UniformTable(*_RAKE_LIMITS, earthmoving_factors(np.linspace(*_RAKE_LIMITS, 171))[0])
+# N_gamma tabulated over the rake (the failure-plane search is too slow for every period)
+_N_GAMMA = earthmoving_factors(np.linspace(*_RAKE_LIMITS, 171))[0]
+_N_GAMMA_START, _N_GAMMA_STEP = float(_RAKE_LIMITS[0]), float((_RAKE_LIMITS[1] - _RAKE_LIMITS[0]) / 170)
 
 
-def digging_resistance(depth: float, rake: float, surcharge_pa: float, width: float = p.BUCKET_WIDTH) -> float:
-    """Magnitude (N) of the earthmoving force on an edge ``width`` wide cutting ``depth`` m deep."""
+@jit
+def table_at(values: np.ndarray, start: float, step: float, x: float) -> float:
+    """A function tabulated at ``start + k step`` (``values``), linearly interpolated at ``x``, clamped at the ends
+    (:class:`hexgym.interpolation.UniformTable`'s arithmetic)."""
+    u = (x - start) / step
+    last = len(values) - 1
+    if u <= 0.0:
+        return values[0]
+    if u >= last:
+        return values[last]
+    i = int(u)
+    lo = values[i]
+    return lo + (values[i + 1] - lo) * (u - i)
+
+
+@jit
+def earthmoving_force(depth: float, n_gamma: float, surcharge_pa: float) -> float:
+    """The fundamental earthmoving equation without cohesion: ``w (gamma d^2 N_gamma + q d N_q)`` with
+    ``N_q = 2 N_gamma`` (McKyes' flat blade), N, for the bucket's edge."""
+    return _WIDTH * (_GAMMA * depth**2 * n_gamma + surcharge_pa * depth * 2.0 * n_gamma)
+
+
+@jit
+def surcharge_pressure(bucket_volume: float) -> float:
+    """Pressure (Pa) of the bucket's contents (m^3) spread over its mouth: the earthmoving equation's surcharge."""
+    return _GAMMA * bucket_volume / (_WIDTH * _MOUTH_LENGTH)
+
+
+@jit
+def _magnitude(depth: float, rake: float, surcharge_pa: float) -> float:
     if depth <= 0.0:
         return 0.0
-    n_gamma = _N_GAMMA(float(rake))  # rakes outside the table's limits count as at them
-    return float(earthmoving_force(depth, n_gamma, surcharge_pa, width))
+    return earthmoving_force(depth, table_at(_N_GAMMA, _N_GAMMA_START, _N_GAMMA_STEP, rake), surcharge_pa)
 
 
-def earthmoving_force(
-    depth: np.ndarray | float, n_gamma: np.ndarray | float, surcharge_pa: np.ndarray | float, width: float
-) -> np.ndarray | float:
-    """The fundamental earthmoving equation without cohesion, for floats or arrays: ``w (gamma d^2 N_gamma +
-    q d N_q)`` with ``N_q = 2 N_gamma`` (McKyes' flat blade), N."""
-    return width * (_GAMMA * depth**2 * n_gamma + surcharge_pa * depth * 2.0 * n_gamma)
+def digging_resistance(depth: float, rake: float, surcharge_pa: float) -> float:
+    """Magnitude (N) of the earthmoving force on the bucket's edge cutting ``depth`` m deep at ``rake``
+    (rakes outside 5-90 degrees count as at the limit)."""
+    return float(_magnitude(float(depth), float(rake), float(surcharge_pa)))
 
 
-def n_gamma_at(rake: np.ndarray) -> np.ndarray:
-    """N_gamma at rake angles ``rake`` (rad, an array), from the table :func:`digging_resistance` uses."""
-    return _N_GAMMA.at(rake)
-
-
-_RETAINED_TILTS = (0.0, p.MATERIAL_REPOSE_ANGLE, np.pi / 2.0 + p.MATERIAL_REPOSE_ANGLE)
-_RETAINED_VOLUMES = (p.BUCKET_HEAPED_CAPACITY, p.BUCKET_STRUCK_CAPACITY, 0.0)
-
-
+@jit
 def retained_volume(tilt: float) -> float:
-    """Material (m^3) the bucket holds with its mouth tilted ``tilt`` rad from facing straight up."""
-    return float(np.interp(tilt, _RETAINED_TILTS, _RETAINED_VOLUMES))
+    """Material (m^3) the bucket holds with its mouth tilted ``tilt`` rad from facing straight up: heaped
+    mouth-up, struck at the angle of repose, nothing 90 degrees past it (linear between)."""
+    if tilt <= 0.0:
+        return _HEAPED
+    if tilt <= _REPOSE:
+        return _HEAPED + (_STRUCK - _HEAPED) * (tilt / _REPOSE)
+    if tilt < math.pi / 2.0 + _REPOSE:
+        return _STRUCK * (1.0 - (tilt - _REPOSE) / (math.pi / 2.0))
+    return 0.0
 
 
-def retained_volumes(tilts: np.ndarray) -> np.ndarray:
-    """:func:`retained_volume` at each of ``tilts`` (an array)."""
-    return np.interp(tilts, _RETAINED_TILTS, _RETAINED_VOLUMES)
+@jit
+def spill_out(bucket_kg: float, tilt: float, dt: float) -> float:
+    """Material (kg) that runs out of a bucket holding ``bucket_kg`` at ``tilt`` over ``dt`` s: the excess over
+    :func:`retained_volume` with a time constant; the last kilogram goes too (not asymptotically)."""
+    if bucket_kg <= 0.0:
+        return 0.0
+    excess = bucket_kg - retained_volume(tilt) * _DENSITY
+    if excess <= 0.0:
+        return 0.0
+    out = excess * (1.0 - math.exp(-dt / _SPILL_TIME))
+    if bucket_kg - out < 1.0:
+        out = bucket_kg
+    return min(out, bucket_kg)
 
 
-def spilled_fraction(dt: np.ndarray | float) -> np.ndarray | float:
-    """Share of the excess over what the bucket holds that runs out in ``dt`` s (float or array)."""
-    return 1.0 - np.exp(-dt / p.BUCKET_SPILL_TIME_CONSTANT)
+@jit
+def resistance(
+    depth: float, bucket_kg: float, lx: float, ly: float, lz: float, tx: float, ty: float, tz: float,
+    vx: float, vy: float, vz: float,
+) -> tuple[float, float, float]:  # fmt: skip
+    """The earthmoving force (N, world) on the edge cutting ``depth`` m deep with ``bucket_kg`` already in the
+    bucket, against the edge's velocity ``v`` (full above ``DIG_REFERENCE_SPEED``, in proportion below it);
+    ``l`` the unit vector along the edge, ``t`` the teeth's direction. It acts in the arm's plane: the edge
+    cuts, the side plates do not."""
+    speed = math.sqrt(vx * vx + vy * vy + vz * vz)
+    ux, uy = (vx / speed, vy / speed) if speed > 1e-9 else (tx, ty)  # direction of travel
+    horizontal = math.hypot(ux, uy)
+    forward = (tx * ux + ty * uy) / horizontal if horizontal > 1e-9 else 0.0
+    rake = math.atan2(-tz, forward)
+    magnitude = _magnitude(depth, rake, surcharge_pressure(bucket_kg / _DENSITY))
+    scale = -magnitude / max(speed, _REFERENCE_SPEED)
+    fx, fy, fz = scale * vx, scale * vy, scale * vz
+    sideways = fx * lx + fy * ly + fz * lz
+    return fx - sideways * lx, fy - sideways * ly, fz - sideways * lz
 
 
-def surcharge_pressure(bucket_volume: np.ndarray | float) -> np.ndarray | float:
-    """Pressure (Pa) of the bucket's contents (m^3) spread over its mouth: the earthmoving equation's surcharge."""
-    return _GAMMA * bucket_volume / (p.BUCKET_WIDTH * _MOUTH_LENGTH)
+# -- the pile: site i of a stack of heightmaps ----------------------------------------------------
+@jit
+def height_at(heights: np.ndarray, origin: np.ndarray, spacing: float, i: int, x: float, y: float) -> float:
+    """Surface height (m) of pile ``i`` at world (x, y), bilinear; 0 off the grid."""
+    u, v = (x - origin[i, 0]) / spacing, (y - origin[i, 1]) / spacing
+    last = heights.shape[1] - 1
+    if not (0.0 <= u <= last and 0.0 <= v <= last):
+        return 0.0
+    j, k = min(int(u), last - 1), min(int(v), last - 1)
+    fu, fv = u - j, v - k
+    top = heights[i, k, j] * (1.0 - fu) + heights[i, k, j + 1] * fu
+    bottom = heights[i, k + 1, j] * (1.0 - fu) + heights[i, k + 1, j + 1] * fu
+    return top * (1.0 - fv) + bottom * fv
 
 
-def strip_mask(
-    dx: np.ndarray, dy: np.ndarray, lx: np.ndarray | float, ly: np.ndarray | float, width: float, spacing: float
-) -> np.ndarray:
-    """Grid points (offsets ``dx``, ``dy`` from the edge's centre, broadcast) within the edge's footprint: ``width``
-    along the unit vector (``lx``, ``ly``), one grid ``spacing`` across it (:meth:`Pile.take`)."""
-    along = dx * lx + dy * ly
-    across = np.abs(dx * ly - dy * lx)
-    return (np.abs(along) <= width / 2.0) & (across <= spacing)
+@jit
+def heights_at(heights: np.ndarray, origin: np.ndarray, spacing: float, i: int, xy: np.ndarray) -> np.ndarray:
+    """:func:`height_at` of pile ``i`` at world points ``xy`` (m, 2)."""
+    out = np.empty(xy.shape[0])
+    for k in range(xy.shape[0]):
+        out[k] = height_at(heights, origin, spacing, i, xy[k, 0], xy[k, 1])
+    return out
 
 
-def relax_heights(h: np.ndarray, limit: float, iterations: int = _RELAX_ITERATIONS) -> None:
-    """Let slopes steeper than ``limit`` (height difference per grid step) slide, in place, mass-conserving.
+@jit
+def window(n: int, spacing: float, x: float, y: float, radius: float) -> tuple[int, int, int, int]:
+    """Rows ``r0:r1`` and columns ``c0:c1`` of the grid points within ``radius`` of grid-relative (x, y) (a square;
+    empty where ``r1 <= r0`` or ``c1 <= c0``)."""
+    inv = 1.0 / spacing
+    c0, c1 = max(math.floor((x - radius) * inv), 0), min(math.ceil((x + radius) * inv) + 1, n)
+    r0, r1 = max(math.floor((y - radius) * inv), 0), min(math.ceil((y + radius) * inv) + 1, n)
+    return r0, r1, c0, c1
 
-    ``h`` is one window ``(rows, cols)`` or a stack of equally shaped windows ``(..., rows, cols)`` relaxed
-    independently (the batched environment): a window with no steep slope gets zero flows, which leave it
-    unchanged, so each window ends as it would alone.
+
+@jit
+def clearance(
+    heights: np.ndarray, origin: np.ndarray, spacing: float, top: float, i: int, x: float, y: float, z: float,
+    radius: float, enough: float,
+) -> float:  # fmt: skip
+    """Height (m) of (x, y, z) above the highest point of pile ``i`` within ``radius`` (a square window).
+
+    Negative where material stands higher; ``inf`` where none lies within ``radius``. Once the answer
+    is sure to be at least ``enough``, it may be any value >= ``enough`` (``top`` bounds the surface).
     """
+    if z - top >= enough:
+        return z - top
+    r0, r1, c0, c1 = window(heights.shape[1], spacing, x - origin[i, 0], y - origin[i, 1], radius)
+    if r1 <= r0 or c1 <= c0:
+        return math.inf
+    highest = -math.inf
+    for r in range(r0, r1):
+        for c in range(c0, c1):
+            highest = max(highest, heights[i, r, c])
+    return z - highest
+
+
+@jit
+def relax(h: np.ndarray, limit: float, iterations: int) -> None:
+    """Let slopes steeper than ``limit`` (height difference per grid step) slide, in place, mass-conserving:
+    each pass moves a quarter of each excess difference from the higher point to the lower, rows then columns."""
+    rows, cols = h.shape
     for _ in range(iterations):
         moved = False
-        for axis in (-2, -1):
-            dh = np.diff(h, axis=axis)
-            excess = np.abs(dh)
-            excess -= limit
-            if excess.max() <= 0.0:
-                continue  # no slope steeper than the repose angle along this axis: nothing slides
+        for axis in range(2):
+            nr, nc = (rows - 1, cols) if axis == 0 else (rows, cols - 1)
+            flow = np.zeros((max(nr, 0), max(nc, 0)))
+            steep = False
+            for r in range(nr):
+                for c in range(nc):
+                    dh = h[r + 1, c] - h[r, c] if axis == 0 else h[r, c + 1] - h[r, c]
+                    excess = abs(dh) - limit
+                    if excess > 0.0:
+                        steep = True
+                        flow[r, c] = math.copysign(excess, dh) * 0.25  # from higher to lower
+            if not steep:
+                continue
             moved = True
-            np.maximum(excess, 0.0, out=excess)
-            flow = np.copysign(excess, dh)  # from higher to lower
-            flow *= 0.25
-            if axis == -2:
-                h[..., 1:, :] -= flow
-                h[..., :-1, :] += flow
-            else:
-                h[..., :, 1:] -= flow
-                h[..., :, :-1] += flow
+            for r in range(nr):
+                for c in range(nc):
+                    if axis == 0:
+                        h[r + 1, c] -= flow[r, c]
+                    else:
+                        h[r, c + 1] -= flow[r, c]
+            for r in range(nr):
+                for c in range(nc):
+                    h[r, c] += flow[r, c]
         if not moved:
             break  # settled: later passes would find the same slopes
+
+
+@jit
+def take(
+    heights: np.ndarray, origin: np.ndarray, spacing: float, i: int, x: float, y: float, lx: float, ly: float,
+    width: float, floor: float, volume: float,
+) -> float:  # fmt: skip
+    """Remove up to ``volume`` m^3 lying above height ``floor`` from pile ``i`` in the edge's footprint; return it.
+
+    The footprint is the strip ``width`` wide along the unit vector (``lx``, ``ly``) and one grid spacing
+    deep each side, centred on (x, y). Each point gives up the same fraction of its material above the
+    floor, so the surface lowers evenly towards the edge; the window then relaxes (:func:`relax`).
+    """
+    if volume <= 0.0:
+        return 0.0
+    ox, oy = origin[i, 0], origin[i, 1]
+    r0, r1, c0, c1 = window(heights.shape[1], spacing, x - ox, y - oy, width / 2.0 + spacing)
+    if r1 <= r0 or c1 <= c0:
+        return 0.0
+    patch = heights[i, r0:r1, c0:c1]  # a view: the cut lands in the pile
+    available = np.zeros(patch.shape)
+    total = 0.0
+    for r in range(r1 - r0):
+        dy = oy + (r0 + r) * spacing - y
+        for c in range(c1 - c0):
+            dx = ox + (c0 + c) * spacing - x
+            if abs(dx * lx + dy * ly) <= width / 2.0 and abs(dx * ly - dy * lx) <= spacing:
+                available[r, c] = max(patch[r, c] - floor, 0.0)
+                total += available[r, c]
+    total *= spacing * spacing
+    if total <= 0.0:
+        return 0.0
+    before = patch.sum()
+    share = min(1.0, volume / total)
+    for r in range(r1 - r0):
+        for c in range(c1 - c0):
+            patch[r, c] -= available[r, c] * share
+    relax(patch, repose_limit(spacing), RELAX_ITERATIONS)
+    # the relaxation moves material inside the window only, so the window's loss is the take
+    return (before - patch.sum()) * spacing * spacing
+
+
+@jit
+def repose_limit(spacing: float) -> float:
+    """Height difference (m) between neighbouring grid points ``spacing`` apart at the angle of repose."""
+    return math.tan(_REPOSE) * spacing
+
+
+@jit
+def dig(
+    heights: np.ndarray, origin: np.ndarray, spacing: float, top: float, i: int, bucket_kg: float,
+    x: float, y: float, z: float, lx: float, ly: float, lz: float, tx: float, ty: float, tz: float,
+    vx: float, vy: float, vz: float, dt: float, fx: float, fy: float, fz: float,
+) -> tuple[float, float, float, float, float]:  # fmt: skip
+    """Cut pile ``i`` for ``dt`` s with the edge at (x, y, z) moving at ``v`` (m/s; the fill), the bucket holding
+    ``bucket_kg``; ``l`` along the edge, ``t`` along the teeth, ``f`` the velocity the resistance opposes.
+
+    Returns the resistance (N, world), the material taken (kg) and the cutting depth (m: the mean over
+    ``EDGE_SAMPLES`` points along the edge of the material above it; 0: not cutting, no force).
+    """
+    if z >= top:
+        return 0.0, 0.0, 0.0, 0.0, 0.0  # above the whole pile: kept cheap
+    floor = max(z, 0.0)  # the pile stands on the ground: no material below it
+    total = 0.0
+    for offset in EDGE_OFFSETS:
+        total += max(height_at(heights, origin, spacing, i, x + offset * lx, y + offset * ly) - floor, 0.0)
+    depth = total / EDGE_SAMPLES
+    if depth <= 0.0:
+        return 0.0, 0.0, 0.0, 0.0, 0.0
+    # fill: the edge slices a layer `depth` thick as it moves along the teeth; buried, the pile holds the
+    # contents whatever the tilt, so the bucket fills to its heap
+    cut_speed = max(vx * tx + vy * ty + vz * tz, 0.0)
+    room = max(_HEAPED - bucket_kg / _DENSITY, 0.0)
+    wanted = min(_WIDTH * depth * cut_speed * dt, room)
+    taken_kg = take(heights, origin, spacing, i, x, y, lx, ly, _WIDTH, floor, wanted) * _DENSITY
+    rx, ry, rz = resistance(depth, bucket_kg + taken_kg, lx, ly, lz, tx, ty, tz, fx, fy, fz)
+    return rx, ry, rz, taken_kg, depth
 
 
 def frustum_heights(
@@ -158,32 +344,54 @@ def frustum_heights(
     return np.clip(height - (r - top_radius) * np.tan(repose), 0.0, height)
 
 
+def mouth_normal() -> np.ndarray:
+    """Unit normal (bucket frame x, z) of the bucket's mouth, pointing out of the bucket."""
+    lip, edge = np.array(p.BUCKET_LIP), np.array(p.BUCKET_EDGE)
+    d = edge - lip
+    n = np.array([-d[1], d[0]]) / np.hypot(*d)
+    mid = (lip + edge) / 2.0
+    return -n if n @ (np.zeros(2) - mid) > 0 else n  # the pin is on the inside
+
+
+# -- one-site handles ------------------------------------------------------------------------------
 class Pile:
-    """A heightmap of material on a square vertex grid, axis-aligned with the world.
+    """A heightmap of material on a square vertex grid, axis-aligned with the world: pile ``index`` of a stack.
 
     Args:
         heights: (n, n) heights above the ground, m; row ``i`` is at ``y = centre_y + (i - (n-1)/2) spacing``,
-            column ``j`` at ``x = centre_x + (j - (n-1)/2) spacing`` (MuJoCo's hfield layout).
+            column ``j`` at ``x = centre_x + (j - (n-1)/2) spacing`` (MuJoCo's hfield layout). Copied into a
+            stack of one unless ``stack`` is given.
         centre: (x, y) of the grid's centre in the world, m.
         spacing: distance between grid points, m; each point stands for a ``spacing^2`` cell.
+        stack, origins, index: a handle on pile ``index`` of a stack ``(N, n, n)`` whose grid origins are
+            ``origins`` (N, 2) (the loading task's piles; ``heights`` and ``centre`` are then ignored).
+        flags: integer arrays (N,) whose entry ``index`` this handle counts up when it changes the heights
+            (the owner's caches).
     """
 
-    def __init__(self, heights: np.ndarray, centre: tuple[float, float], spacing: float) -> None:
-        heights = np.array(heights, dtype=float)
-        if heights.ndim != 2 or heights.shape[0] != heights.shape[1] or not np.all(np.isfinite(heights)):
-            raise ValueError(f"pile heights must be a finite square grid, got shape {heights.shape}")
-        if np.any(heights < 0):
-            raise ValueError("pile heights must be >= 0")
-        self.heights = heights
-        self.centre = np.array(centre, dtype=float)
+    def __init__(
+        self,
+        heights: np.ndarray | None,
+        centre: tuple[float, float] | None,
+        spacing: float,
+        stack: np.ndarray | None = None,
+        origins: np.ndarray | None = None,
+        index: int = 0,
+        flags: tuple[np.ndarray, ...] = (),
+    ) -> None:
+        if stack is None:
+            heights = np.array(heights, dtype=float)
+            if heights.ndim != 2 or heights.shape[0] != heights.shape[1] or not np.all(np.isfinite(heights)):
+                raise ValueError(f"pile heights must be a finite square grid, got shape {heights.shape}")
+            if np.any(heights < 0):
+                raise ValueError("pile heights must be >= 0")
+            half = (heights.shape[0] - 1) * spacing / 2.0
+            stack = heights[None].copy()
+            origins = (np.array(centre, dtype=float) - half)[None]
+        self.stack, self.origins, self.index, self._flags = stack, origins, int(index), flags
         self.spacing = float(spacing)
-        n = heights.shape[0]
-        self.half_size = (n - 1) * spacing / 2.0
-        self._origin = self.centre - self.half_size  # (x, y) of grid point [0, 0]
-        self._origin_x, self._origin_y = self._origin.tolist()  # the same as floats, for scalar arithmetic
-        self.top = float(heights.max())  # an upper bound of the surface: digging only lowers it
-        self._volume: float | None = None  # cached sum of the heights x cell area; None once they change
-        self.revision = 0  # counts the changes of ``heights`` (by take and relax): for caches of derived values
+        self.half_size = (stack.shape[1] - 1) * self.spacing / 2.0
+        self.top = float(self.heights.max())  # an upper bound of the surface: digging only lowers it
 
     @classmethod
     def heap(cls, centre: tuple[float, float], height: float, top_radius: float, n: int, spacing: float) -> Pile:
@@ -193,115 +401,65 @@ class Pile:
         return cls(frustum_heights(x, y, height, top_radius), centre, spacing)
 
     @property
+    def heights(self) -> np.ndarray:
+        """The heightmap (n, n), m: a view of the stack."""
+        return self.stack[self.index]
+
+    @property
+    def origin(self) -> np.ndarray:
+        """World (x, y) of grid point [0, 0], m."""
+        return self.origins[self.index]
+
+    @property
+    def centre(self) -> np.ndarray:
+        """World (x, y) of the grid's centre, m."""
+        return self.origin + self.half_size
+
+    @property
     def cell_area(self) -> float:
         """Area each grid point stands for, m^2."""
         return self.spacing**2
 
     def volume(self) -> float:
-        """Material in the pile, m^3 (cached: change ``heights`` only through :meth:`take` and :meth:`relax`)."""
-        if self._volume is None:
-            self._volume = float(self.heights.sum()) * self.cell_area
-        return self._volume
+        """Material in the pile, m^3."""
+        return float(self.heights.sum()) * self.cell_area
 
-    def height_at(self, xy: np.ndarray) -> np.ndarray:
+    def height_at(self, xy: np.ndarray) -> np.ndarray | float:
         """Surface height (m) at world points ``xy`` (..., 2), bilinear; 0 off the grid."""
         xy = np.asarray(xy, dtype=float)
-        u = (xy[..., 0] - self._origin[0]) / self.spacing
-        v = (xy[..., 1] - self._origin[1]) / self.spacing
-        last = self.heights.shape[0] - 1
-        inside = (u >= 0) & (v >= 0) & (u <= last) & (v <= last)
-        # (np.minimum/maximum: np.clip costs several times more on these few points)
-        j = np.minimum(np.maximum(np.floor(u), 0), last - 1).astype(int)
-        i = np.minimum(np.maximum(np.floor(v), 0), last - 1).astype(int)
-        fu = np.minimum(np.maximum(u - j, 0.0), 1.0)
-        fv = np.minimum(np.maximum(v - i, 0.0), 1.0)
-        h = self.heights
-        top = h[i, j] * (1 - fu) + h[i, j + 1] * fu
-        bottom = h[i + 1, j] * (1 - fu) + h[i + 1, j + 1] * fu
-        return np.where(inside, top * (1 - fv) + bottom * fv, 0.0)
+        flat = np.ascontiguousarray(xy.reshape(-1, 2))
+        out = heights_at(self.stack, self.origins, self.spacing, self.index, flat).reshape(xy.shape[:-1])
+        return float(out) if out.ndim == 0 else out
 
     def height_at_point(self, x: float, y: float) -> float:
-        """:meth:`height_at` for one point, in plain Python (several times faster than numpy for one)."""
-        u, v = (x - self._origin_x) / self.spacing, (y - self._origin_y) / self.spacing
-        last = self.heights.shape[0] - 1
-        if not (0.0 <= u <= last and 0.0 <= v <= last):
-            return 0.0
-        j, i = min(int(u), last - 1), min(int(v), last - 1)
-        fu, fv = u - j, v - i
-        h = self.heights
-        top = h[i, j] * (1.0 - fu) + h[i, j + 1] * fu
-        bottom = h[i + 1, j] * (1.0 - fu) + h[i + 1, j + 1] * fu
-        return float(top * (1.0 - fv) + bottom * fv)
-
-    def may_reach(self, point: np.ndarray, margin: float) -> bool:
-        """Whether material may lie within a bucket's width of ``point`` (world) above ``point``'s height - margin.
-
-        A cheap bound: the highest grid point within ``BUCKET_WIDTH`` (a square window).
-        """
-        return self.clearance(point, p.BUCKET_WIDTH, margin) < margin
+        """:meth:`height_at` of one point (x, y)."""
+        return float(height_at(self.stack, self.origins, self.spacing, self.index, float(x), float(y)))
 
     def clearance(self, point: np.ndarray, radius: float, enough: float = math.inf) -> float:
-        """Height (m) of world ``point`` above the highest grid point within ``radius`` of it (a square window).
-
-        Negative where material stands higher; ``inf`` where none lies within ``radius``. Once the
-        answer is sure to be at least ``enough``, it may be any value >= ``enough`` (cheap bound).
-        """
-        z = float(point[2])
-        if z - self.top >= enough:
-            return z - self.top  # above the whole pile's (upper bound of the) top
-        window = self._window(point, radius)
-        return z - float(self.heights[window].max()) if window is not None else math.inf
-
-    def _window(self, xy: np.ndarray, radius: float) -> tuple[slice, slice] | None:
-        """Row and column slices of the grid points within ``radius`` of ``xy`` (a square), or None."""
-        n, inv = self.heights.shape[0], 1.0 / self.spacing
-        x, y = float(xy[0]) - self._origin_x, float(xy[1]) - self._origin_y
-        c0, c1 = max(math.floor((x - radius) * inv), 0), min(math.ceil((x + radius) * inv) + 1, n)
-        r0, r1 = max(math.floor((y - radius) * inv), 0), min(math.ceil((y + radius) * inv) + 1, n)
-        if c1 <= c0 or r1 <= r0:
-            return None
-        return slice(r0, r1), slice(c0, c1)
+        """Height (m) of world ``point`` above the highest grid point within ``radius`` of it (:func:`clearance`)."""
+        x, y, z = (float(v) for v in point)
+        return float(clearance(self.stack, self.origins, self.spacing, self.top, self.index, x, y, z, radius, enough))
 
     def take(self, xy: np.ndarray, lateral: np.ndarray, width: float, floor: float, volume: float) -> float:
-        """Remove up to ``volume`` m^3 lying above height ``floor`` in the edge's footprint; return it.
+        """Remove up to ``volume`` m^3 above ``floor`` in the edge's footprint at ``xy``, ``lateral`` (:func:`take`)."""
+        x, y = (float(v) for v in xy[:2])
+        lx, ly = (float(v) for v in lateral[:2])
+        self._changed()
+        return float(take(self.stack, self.origins, self.spacing, self.index, x, y, lx, ly, width, floor, volume))
 
-        The footprint is the strip ``width`` wide along the unit vector ``lateral`` and one grid
-        spacing deep each side, centred on ``xy``. Each point gives up the same fraction of its
-        material above the floor, so the surface lowers evenly towards the edge.
-        """
-        if volume <= 0.0:
-            return 0.0
-        window = self._window(xy, width / 2.0 + self.spacing)
-        if window is None:
-            return 0.0
-        rows, cols = window
-        lx, ly = float(lateral[0]), float(lateral[1])
-        dx = (self._origin_x + np.arange(cols.start, cols.stop) * self.spacing - float(xy[0]))[None, :]
-        dy = (self._origin_y + np.arange(rows.start, rows.stop) * self.spacing - float(xy[1]))[:, None]
-        in_strip = strip_mask(dx, dy, lx, ly, width, self.spacing)
-        patch = self.heights[rows, cols]
-        available = np.where(in_strip, np.maximum(patch - floor, 0.0), 0.0)
-        total = float(available.sum()) * self.cell_area
-        if total <= 0.0:
-            return 0.0
-        before = float(patch.sum())
-        patch -= available * min(1.0, volume / total)
-        self._volume = None
-        self.relax((rows, cols))  # (counts the change in ``revision``)
-        # the relaxation moves material inside the window only, so the window's loss is the take
-        return (before - float(self.heights[rows, cols].sum())) * self.cell_area
+    def relax(self, iterations: int = RELAX_ITERATIONS) -> None:
+        """Let slopes steeper than the angle of repose slide over the whole pile (mass-conserving)."""
+        self._changed()
+        relax(self.heights, repose_limit(self.spacing), iterations)
 
-    def relax(self, window: tuple[slice, slice] | None = None, iterations: int = _RELAX_ITERATIONS) -> None:
-        """Let slopes steeper than the angle of repose slide (mass-conserving), inside ``window``."""
-        rows, cols = window if window is not None else (slice(None), slice(None))
-        self._volume = None
-        self.revision += 1
-        relax_heights(self.heights[rows, cols], repose_limit(self.spacing), iterations)  # a view: updates land
+    def _changed(self) -> None:
+        for flag in self._flags:
+            flag[self.index] += 1
 
 
 @dataclass
 class DigResult:
-    """What one digging interval did: the resistance on the edge (N, world) and the material taken (kg)."""
+    """What one digging interval did: the resistance on the edge (N, world), the material taken (kg), the depth."""
 
     force: np.ndarray
     taken_kg: float
@@ -317,38 +475,26 @@ class SpillResult:
 
 
 class Earthwork:
-    """The four material stores of the loading task and the moves between them.
+    """The four material stores of one site and the moves between them, on :func:`dig` and :func:`spill_out`.
 
     Args:
         pile: the material heap.
-        density: bulk density of the material, kg/m^3.
     """
 
-    def __init__(self, pile: Pile, density: float = p.MATERIAL_DENSITY) -> None:
+    def __init__(self, pile: Pile) -> None:
         self.pile = pile
-        self.density = float(density)
         self.bucket_kg = 0.0
         self.truck_kg = 0.0
         self.spilled_kg = 0.0
-        self.initial_kg = self.total_kg()
 
     @property
     def pile_kg(self) -> float:
         """Material in the pile, kg."""
-        return self.pile.volume() * self.density
-
-    @property
-    def bucket_volume(self) -> float:
-        """Material in the bucket, m^3."""
-        return self.bucket_kg / self.density
+        return self.pile.volume() * p.MATERIAL_DENSITY
 
     def total_kg(self) -> float:
         """Pile + bucket + truck + spilled, kg: constant."""
         return self.pile_kg + self.bucket_kg + self.truck_kg + self.spilled_kg
-
-    def stores(self) -> dict[str, float]:
-        """Each store's material, kg."""
-        return {"pile": self.pile_kg, "bucket": self.bucket_kg, "truck": self.truck_kg, "spilled": self.spilled_kg}
 
     def dig(
         self,
@@ -359,237 +505,23 @@ class Earthwork:
         dt: float,
         force_velocity: np.ndarray | None = None,
     ) -> DigResult:
-        """Cut with the bucket's edge for ``dt`` s.
-
-        Args:
-            edge: centre of the cutting edge (the teeth), world m.
-            lateral: unit vector along the edge (the bucket's width), world.
-            teeth: unit vector the teeth point along (out of the bucket along its floor), world.
-            velocity: the edge's velocity, m/s, world (sets the fill).
-            force_velocity: the velocity the resistance opposes (default ``velocity``); the
-                environment passes a low-passed one so that the force does not chatter.
-            dt: interval, s.
-        """
-        # plain floats: a handful of 3-vectors, where numpy's per-call overhead would dominate
-        x, y, z = _floats(edge)
-        floor = max(z, 0.0)  # the pile stands on the ground: no material below it
-        if z >= self.pile.top:
-            return DigResult(np.zeros(3), 0.0, 0.0)  # above the whole pile: kept cheap
-        lx, ly, lz = _floats(lateral)
-        depths = (self.pile.height_at_point(x + o * lx, y + o * ly) - floor for o in EDGE_OFFSETS)
-        depth = sum(max(d, 0.0) for d in depths) / EDGE_SAMPLES
-        if depth <= 0.0:
-            return DigResult(np.zeros(3), 0.0, 0.0)
-        tx, ty, tz = _floats(teeth)
-        vx, vy, vz = _floats(velocity)
-        # fill: the edge slices a layer `depth` thick as it moves along the teeth
-        cut_speed = max(vx * tx + vy * ty + vz * tz, 0.0)
-        # buried, the pile holds the contents in whatever the tilt: the bucket fills to its heap
-        room = max(p.BUCKET_HEAPED_CAPACITY - self.bucket_volume, 0.0)
-        wanted = min(p.BUCKET_WIDTH * depth * cut_speed * dt, room)
-        taken_kg = self.pile.take((x, y), (lx, ly), p.BUCKET_WIDTH, floor, wanted) * self.density
+        """Cut with the bucket's edge (world m) for ``dt`` s (:func:`dig`; ``force_velocity`` defaults to
+        ``velocity``)."""
+        f = velocity if force_velocity is None else force_velocity
+        pile = self.pile
+        values = [float(v) for v in (*edge, *lateral, *teeth, *velocity, dt, *f)]
+        fx, fy, fz, taken_kg, depth = dig(
+            pile.stack, pile.origins, pile.spacing, pile.top, pile.index, self.bucket_kg, *values
+        )
         self.bucket_kg += taken_kg
-        force = self.resistance(depth, lateral, teeth, velocity if force_velocity is None else force_velocity)
-        return DigResult(force, taken_kg, depth)
-
-    def resistance(self, depth: float, lateral: np.ndarray, teeth: np.ndarray, velocity: np.ndarray) -> np.ndarray:
-        """The fundamental earthmoving equation's force (N, world) on the edge cutting ``depth`` m deep, against
-        ``velocity`` (full above ``DIG_REFERENCE_SPEED``, in proportion below it); arguments as :meth:`dig`'s."""
-        lx, ly, lz = _floats(lateral)
-        tx, ty, tz = _floats(teeth)
-        vx, vy, vz = _floats(velocity)
-        speed = math.sqrt(vx * vx + vy * vy + vz * vz)
-        ux, uy = (vx / speed, vy / speed) if speed > 1e-9 else (tx, ty)  # direction of travel
-        horizontal = math.hypot(ux, uy)
-        forward = (tx * ux + ty * uy) / horizontal if horizontal > 1e-9 else 0.0
-        rake = math.atan2(-tz, forward)
-        surcharge = surcharge_pressure(self.bucket_volume)
-        scale = -digging_resistance(depth, rake, surcharge) / max(speed, p.DIG_REFERENCE_SPEED)
-        fx, fy, fz = scale * vx, scale * vy, scale * vz
-        sideways = fx * lx + fy * ly + fz * lz  # in the arm's plane: the edge cuts, its side plates do not
-        return np.array([fx - sideways * lx, fy - sideways * ly, fz - sideways * lz])
+        return DigResult(np.array([fx, fy, fz]), taken_kg, depth)
 
     def spill(self, tilt: float, into_truck: bool, dt: float) -> SpillResult:
-        """Let what the bucket cannot hold at ``tilt`` run out for ``dt`` s, into the truck or onto the ground.
-
-        Call it only while the edge is out of the pile (inside, the pile holds the contents).
-        """
-        excess_kg = self.bucket_kg - retained_volume(tilt) * self.density
-        if excess_kg <= 0.0:
-            return SpillResult(0.0, 0.0)
-        out = excess_kg * spilled_fraction(dt)
-        if self.bucket_kg - out < 1.0:  # the last kilogram goes too, not asymptotically
-            out = self.bucket_kg
-        out = float(min(out, self.bucket_kg))
+        """Let what the bucket cannot hold at ``tilt`` run out for ``dt`` s, into the truck or onto the ground."""
+        out = float(spill_out(self.bucket_kg, float(tilt), float(dt)))
         self.bucket_kg -= out
         if into_truck:
             self.truck_kg += out
             return SpillResult(out, 0.0)
         self.spilled_kg += out
         return SpillResult(0.0, out)
-
-
-_MOUTH_LENGTH = float(np.hypot(*np.subtract(p.BUCKET_EDGE, p.BUCKET_LIP)))  # strike line, m
-
-
-def repose_limit(spacing: float) -> float:
-    """Height difference (m) between neighbouring grid points ``spacing`` apart at the angle of repose."""
-    return math.tan(p.MATERIAL_REPOSE_ANGLE) * spacing
-
-
-def _floats(vector: np.ndarray | tuple[float, ...]) -> tuple[float, ...]:
-    """A short vector's components as Python floats (a tuple or list passes through)."""
-    return vector if isinstance(vector, tuple | list) else tuple(np.asarray(vector, dtype=float).tolist())
-
-
-def mouth_normal() -> np.ndarray:
-    """Unit normal (bucket frame x, z) of the bucket's mouth, pointing out of the bucket."""
-    lip, edge = np.array(p.BUCKET_LIP), np.array(p.BUCKET_EDGE)
-    d = edge - lip
-    n = np.array([-d[1], d[0]]) / np.hypot(*d)
-    mid = (lip + edge) / 2.0
-    return -n if n @ (np.zeros(2) - mid) > 0 else n  # the pin is on the inside
-
-
-class BatchedPiles:
-    """The heightmaps of ``count`` piles on equal square grids (``n`` points a side, ``spacing`` apart).
-
-    Args:
-        count: number of piles.
-        n: grid points per side.
-        spacing: distance between grid points, m.
-    """
-
-    def __init__(self, count: int, n: int, spacing: float) -> None:
-        self.heights = np.zeros((count, n, n))
-        self.origin = np.zeros((count, 2))  # world (x, y) of each grid's point [0, 0]
-        self.top = np.zeros(count)  # upper bound of each surface (its first maximum: digging only lowers it)
-        self.n, self.spacing = int(n), float(spacing)
-        self.cell_area = self.spacing**2  # as Pile.cell_area
-        self._inv = 1.0 / self.spacing  # as Pile._window
-        self._limit = repose_limit(self.spacing)
-        self._volume = np.zeros(count)
-        self._stale = np.ones(count, bool)  # volumes to recompute (heights changed)
-        self.changed = np.ones(count, bool)  # heights changed since the owner last cleared the flag (its caches)
-
-    def load(self, index: int, pile: Pile) -> None:
-        """Make pile ``index`` a copy of ``pile`` (same grid size and spacing)."""
-        if pile.heights.shape != (self.n, self.n) or pile.spacing != self.spacing:
-            raise ValueError(f"pile grid {pile.heights.shape} at {pile.spacing} m is not this batch's")
-        self.heights[index] = pile.heights
-        self.origin[index] = pile.centre - pile.half_size  # as Pile._origin
-        self.top[index] = pile.top
-        self._stale[index] = self.changed[index] = True
-
-    def volumes(self) -> np.ndarray:
-        """Material in each pile, m^3 (recomputed only where the heights changed; a view, do not modify)."""
-        stale = np.flatnonzero(self._stale)
-        if len(stale):
-            # each row summed alone, as Pile.volume sums one contiguous grid: the same floats
-            self._volume[stale] = self.heights[stale].reshape(len(stale), -1).sum(axis=1) * self.cell_area
-            self._stale[stale] = False
-        return self._volume
-
-    def height_at(self, ids: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """Surface heights (m) of piles ``ids`` at world points (``x``, ``y``): :meth:`Pile.height_at_point`."""
-        u = (x - self.origin[ids, 0]) / self.spacing
-        v = (y - self.origin[ids, 1]) / self.spacing
-        last = self.n - 1
-        inside = (u >= 0.0) & (u <= last) & (v >= 0.0) & (v <= last)
-        j = np.minimum(np.maximum(np.floor(u), 0.0), last - 1).astype(np.intp)  # int(u) inside the grid
-        i = np.minimum(np.maximum(np.floor(v), 0.0), last - 1).astype(np.intp)
-        fu, fv = u - j, v - i
-        h = self.heights
-        top = h[ids, i, j] * (1.0 - fu) + h[ids, i, j + 1] * fu
-        bottom = h[ids, i + 1, j] * (1.0 - fu) + h[ids, i + 1, j + 1] * fu
-        return np.where(inside, top * (1.0 - fv) + bottom * fv, 0.0)
-
-    def windows(self, ids: np.ndarray, x: np.ndarray, y: np.ndarray, radius: float | np.ndarray) -> tuple:
-        """Row and column bounds ``(r0, r1, c0, c1)`` of the grid points within ``radius`` of (``x``, ``y``)
-        (a square), as :meth:`Pile._window`; a window is empty where ``r1 <= r0`` or ``c1 <= c0``. The
-        arguments broadcast (e.g. ``ids``, ``x``, ``y`` as (k, 1) and ``radius`` (m,) for k x m windows)."""
-        cx, cy = x - self.origin[ids, 0], y - self.origin[ids, 1]
-        c0 = np.maximum(np.floor((cx - radius) * self._inv), 0).astype(np.intp)
-        c1 = np.minimum(np.ceil((cx + radius) * self._inv) + 1, self.n).astype(np.intp)
-        r0 = np.maximum(np.floor((cy - radius) * self._inv), 0).astype(np.intp)
-        r1 = np.minimum(np.ceil((cy + radius) * self._inv) + 1, self.n).astype(np.intp)
-        return r0, r1, c0, c1
-
-    def first_blocked_window(
-        self, ids: np.ndarray, z: np.ndarray, bounds: tuple[np.ndarray, ...], travels: np.ndarray
-    ) -> np.ndarray:
-        """For each pile ``ids`` (k,) and height ``z``, the first of its nested windows ``bounds`` = (r0, r1, c0, c1),
-        each (k, m) from :meth:`windows` (window j inside window j + 1), that holds a grid point ``h`` with
-        ``z - h < travels[j]`` (:meth:`Pile.clearance` below ``travels[j]``); ``m`` where none does.
-
-        ``z - h`` falls as ``h`` rises, so a window's highest point decides as any of its points: window j
-        is blocked by a point that lies in it (from window ``w`` on) and is high enough (from travel ``t`` on)
-        when ``j >= max(w, t)``; the first blocked window is the least of those over the points.
-        """
-        r0, r1, c0, c1 = bounds
-        count = r0.shape[1]
-        first = np.full(len(ids), count, np.intp)
-        read = np.flatnonzero((r1[:, -1] > r0[:, -1]) & (c1[:, -1] > c0[:, -1]))  # the widest window holds points
-        if not len(read):
-            return first
-        ids, z, r0, r1, c0, c1 = ids[read], z[read], r0[read], r1[read], c0[read], c1[read]
-        size = int(max((r1[:, -1] - r0[:, -1]).max(), (c1[:, -1] - c0[:, -1]).max()))
-        offsets = np.arange(size)
-        rows, cols = r0[:, -1:] + offsets, c0[:, -1:] + offsets  # (k, size): the widest window's and beyond
-        n = self.n
-        row_starts = (ids * n * n)[:, None] + np.minimum(rows, n - 1) * n
-        patch = self.heights.reshape(-1).take(row_starts[:, :, None] + np.minimum(cols, n - 1)[:, None, :])
-        # the windows a row (column) is outside of: the first window holding it (count: none does)
-        row_from = ((rows[:, None, :] < r0[:, :, None]) | (rows[:, None, :] >= r1[:, :, None])).sum(axis=1)
-        col_from = ((cols[:, None, :] < c0[:, :, None]) | (cols[:, None, :] >= c1[:, :, None])).sum(axis=1)
-        high_from = np.searchsorted(travels, z[:, None, None] - patch, side="right")  # travels <= z - h: not blocking
-        blocked_from = np.maximum(np.maximum(row_from[:, :, None], col_from[:, None, :]), high_from)
-        first[read] = blocked_from.min(axis=(1, 2))
-        return first
-
-    def take(
-        self, ids: np.ndarray, x: np.ndarray, y: np.ndarray, lx: np.ndarray, ly: np.ndarray, width: float,
-        floor: np.ndarray, volume: np.ndarray,
-    ) -> np.ndarray:  # fmt: skip
-        """Cut up to ``volume`` m^3 above ``floor`` from each pile ``ids`` along its edge and relax (:meth:`Pile.take`).
-
-        Returns the volume each pile gave up, m^3.
-        """
-        taken = np.zeros(len(ids))
-        r0, r1, c0, c1 = self.windows(ids, x, y, width / 2.0 + self.spacing)
-        wanted = (volume > 0.0) & (r1 > r0) & (c1 > c0)
-        shapes = (r1 - r0) * (self.n + 1) + (c1 - c0)  # one code per window shape
-        for shape in np.unique(shapes[wanted]):
-            group = np.flatnonzero(wanted & (shapes == shape))
-            taken[group] = self._take_group(
-                ids[group], r0[group], c0[group], int(r1[group[0]] - r0[group[0]]), int(c1[group[0]] - c0[group[0]]),
-                x[group], y[group], lx[group], ly[group], width, floor[group], volume[group],
-            )  # fmt: skip
-        return taken
-
-    def _take_group(
-        self, ids: np.ndarray, r0: np.ndarray, c0: np.ndarray, n_rows: int, n_cols: int, x: np.ndarray,
-        y: np.ndarray, lx: np.ndarray, ly: np.ndarray, width: float, floor: np.ndarray, volume: np.ndarray,
-    ) -> np.ndarray:  # fmt: skip
-        """:meth:`take` for piles whose windows share one shape (n_rows, n_cols), from rows ``r0`` and cols ``c0``."""
-        rows = (r0[:, None] + np.arange(n_rows))[:, :, None]
-        cols = (c0[:, None] + np.arange(n_cols))[:, None, :]
-        patch = self.heights[ids[:, None, None], rows, cols]  # (k, n_rows, n_cols), a copy
-        dx = self.origin[ids, 0][:, None, None] + cols * self.spacing - x[:, None, None]
-        dy = self.origin[ids, 1][:, None, None] + rows * self.spacing - y[:, None, None]
-        in_strip = strip_mask(dx, dy, lx[:, None, None], ly[:, None, None], width, self.spacing)
-        available = np.where(in_strip, np.maximum(patch - floor[:, None, None], 0.0), 0.0)
-        total = available.sum(axis=(1, 2)) * self.cell_area
-        cut = np.flatnonzero(total > 0.0)  # the others give nothing and stay as they are (no relaxation)
-        if not len(cut):
-            return np.zeros(len(ids))
-        patch, available, total = patch[cut], available[cut], total[cut]
-        before = patch.sum(axis=(1, 2))
-        patch -= available * np.minimum(1.0, volume[cut] / total)[:, None, None]
-        relax_heights(patch, self._limit)
-        after = patch.sum(axis=(1, 2))
-        self.heights[ids[cut][:, None, None], rows[cut], cols[cut]] = patch
-        self._stale[ids[cut]] = self.changed[ids[cut]] = True
-        taken = np.zeros(len(ids))
-        taken[cut] = (before - after) * self.cell_area
-        return taken

@@ -14,19 +14,26 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
-from hexgym.envs.earthwork import Earthwork, Pile, mouth_normal
+from hexgym.envs.earthwork import Pile
+from hexgym.envs.task import (
+    CONTACT_SLOTS,
+    EARTHWORK_PERIODS,
+    INFO_STORES,
+    OBS_HIGH,
+    OBS_LOW,
+    REWARD_TERMS,
+    STEP_PERIOD,
+    LoadingTask,
+)
 from hexgym.envs.world import (
-    BED_RIM_HEIGHT,
     PILE_GRID_POINTS,
     PILE_GRID_SPACING,
+    TOOL_CONTACT_SENSOR,
     Layout,
     World,
-    bed_coordinates,
     build_world_model,
-    fullest_cut_direction,
     sample_layout,
 )
-from hexgym.hydraulics import fuel
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.machine.assets import SCENE_FILE, asset_path
@@ -37,27 +44,16 @@ from hexgym.model.backend import resolve_backend
 from hexgym.model.base import LearnedModelBase
 from hexgym.model.python_backend import LearnedModel
 
+__all__ = ["EARTHWORK_PERIODS", "REWARD_TERMS", "STEP_PERIOD", "HexLoadingEnv", "OBSERVATION_NAMES"]
+
 # s: the Python backend's table period on a scene whose step is finer than the lean machine's 25 ms (e.g. the
 # full scene.xml at 2 ms); on the lean machine the tables are asked every step
 PYTHON_CONTROL_PERIOD = 0.01
-STEP_PERIOD = 0.1  # s: one environment step, 10 Hz, an operator's reaction time scale
 MAX_TIME_LIMIT = 86_400.0  # s: an episode of at most a day (a longer one is a mistake that fills memory)
-# Control periods per dig (fill, pile cut and relaxation, spill) while the teeth may be in the pile: 4 = once
-# per 0.1 s step (fast; the digging force still follows the motion every period; `hexgym scripted` results
-# stay within 1 % of digging every period, see README), 1 = every 25 ms period.
-EARTHWORK_PERIODS = 4
-# Control periods between re-aims of the digging force while the edge cuts: 2 is ~15 % faster on random actions
-# but the scripted loader's first curl stalls 2.9 s instead of 4.0 s and it delivers up to 2.3 % less (README)
-FORCE_PERIODS = 1
-PAYLOAD_UPDATE_KG = 20.0  # re-mass the bucket only on changes this large (1 % of a heaped bucket): mj_setConst is slow
-_PILE_MARGIN = 0.6  # m: the teeth travel at most this far in one step (6 m/s), so cannot reach a pile lower by more
 START_NOISE = 0.1  # rad, uniform noise on the start pose's boom, stick and bucket angles
 _HOME = np.array([0.0, 0.35, 0.85, 0.75])  # the machine's keyframe `home`: bucket curled near the ground
-# bucket-frame (x, z) of the teeth's direction and the mouth's normal (both have y = 0), as floats
-_TEETH_X, _TEETH_Z = (float(v) for v in p.BUCKET_TEETH_DIRECTION)
-_MOUTH_NORMAL_X, _MOUTH_NORMAL_Z = mouth_normal().tolist()
 _MOUTH_CENTRE = np.array([(p.BUCKET_LIP[0] + p.BUCKET_EDGE[0]) / 2, 0.0, (p.BUCKET_LIP[1] + p.BUCKET_EDGE[1]) / 2])
-REWARD_TERMS = ("delivery", "fill", "time", "fuel", "spill", "contact")
+_SITE = np.zeros(1, np.intp)  # the single environment is site 0 of a task of one
 OBSERVATION_NAMES = (
     "boom_angle", "stick_angle", "bucket_angle", "swing_to_pile", "swing_to_truck",
     "swing_rate", "boom_rate", "stick_rate", "bucket_rate",
@@ -66,20 +62,16 @@ OBSERVATION_NAMES = (
     "tip_truck_along", "tip_truck_across", "tip_above_rim",
     "bucket_tilt", "truck_fill", "time_left", "swing_to_cut",
 )  # fmt: skip
-# Bounds (observations are clipped to them): angles, rates (rad/s) well beyond the servos' ranges,
-# loads (MN) beyond the reliefs' forces, a bucket's load (t), the site's extent (m)
-_OBS_HIGH = np.array([np.pi] * 5 + [10.0] * 4 + [10.0] * 3 + [5.0] + [30.0] * 6 + [np.pi, 2.0, 1.0, np.pi], np.float32)
-_OBS_LOW = np.array(
-    [-np.pi] * 5 + [-10.0] * 4 + [-10.0] * 3 + [0.0] + [-30.0] * 6 + [0.0, 0.0, 0.0, -np.pi], np.float32
-)
-_CLIP_LOW, _CLIP_HIGH = _OBS_LOW.astype(float), _OBS_HIGH.astype(float)  # the bounds as float64: clip before casting
 
 
 PYTHON_SCENE = "scene_lean.xml"  # the learned model's default machine (hexgym.model.python_backend)
 
 
 def make_machine(
-    backend: str = "auto", scene_path: str | Path | None = None, table_set: str = DEFAULT_TABLE_SET
+    backend: str = "auto",
+    scene_path: str | Path | None = None,
+    table_set: str = DEFAULT_TABLE_SET,
+    tool_contact_slots: int = 0,
 ) -> LearnedModelBase:
     """The machine model that drives the environment, on the loading site.
 
@@ -88,13 +80,16 @@ def make_machine(
     ``cat325_mbl.xml`` (:mod:`hexgym.model.native_backend`, needs the built plugin). ``scene_path`` overrides
     the scene (e.g. the full ``scene.xml``). ``"auto"``: :func:`hexgym.model.backend.resolve_backend`.
     ``table_set``: the learned model's tables, "extended" or "paper" (:mod:`hexgym.mbl.schema`).
+    ``tool_contact_slots``: see :func:`hexgym.envs.world.build_world_model`.
     """
     backend = resolve_backend(backend)
     if backend == "native":
         from hexgym.model.native_backend import NativeLearnedModel
 
-        return NativeLearnedModel(model=native_world_model(scene_path, table_set))
-    model = build_world_model(scene_path if scene_path is not None else asset_path(PYTHON_SCENE))
+        return NativeLearnedModel(model=native_world_model(scene_path, table_set, tool_contact_slots))
+    model = build_world_model(
+        scene_path if scene_path is not None else asset_path(PYTHON_SCENE), tool_contact_slots=tool_contact_slots
+    )
     step = model.opt.timestep  # on a finer model than the lean machine's, the tables are asked every 10 ms
     tables = load_tables(table_set=table_set)
     return LearnedModel(tables, model=model, control_period=step * max(1, round(PYTHON_CONTROL_PERIOD / step)))
@@ -149,10 +144,6 @@ def _servo_bands(model: mujoco.MjModel) -> tuple[np.ndarray, ...]:
     )
 
 
-def _wrap(angle: float) -> float:
-    return wrap_angle(float(angle))
-
-
 def wrap_angle(angle: np.ndarray | float) -> np.ndarray | float:
     """Angle(s) wrapped to [-pi, pi) (floats or arrays: numpy's % is Python's for floats)."""
     return (angle + math.pi) % (2.0 * math.pi) - math.pi
@@ -161,7 +152,7 @@ def wrap_angle(angle: np.ndarray | float) -> np.ndarray | float:
 def sample_start(rng: np.random.Generator) -> tuple[Layout, np.ndarray]:
     """An episode's random site and the machine's start angles (rad), drawn from ``rng`` in a fixed order."""
     layout = sample_layout(rng)
-    between = _wrap(layout.truck_direction - layout.pile_direction)
+    between = wrap_angle(float(layout.truck_direction - layout.pile_direction))
     q = _HOME.copy()
     q[0] = layout.pile_direction + rng.uniform(0.0, 1.0) * between
     q[1:] += rng.uniform(-START_NOISE, START_NOISE, 3)
@@ -179,12 +170,122 @@ def heap_for(layout: Layout) -> Pile:
 
 def task_spaces() -> tuple[spaces.Box, spaces.Box]:
     """HexLoading-v0's observation and action spaces, without building an environment."""
-    return spaces.Box(_OBS_LOW, _OBS_HIGH, dtype=np.float32), spaces.Box(-1.0, 1.0, (4,), np.float32)
+    return spaces.Box(OBS_LOW, OBS_HIGH, dtype=np.float32), spaces.Box(-1.0, 1.0, (4,), np.float32)
 
 
 def _is_number(value: Any) -> bool:
     """A real number (Python or NumPy), not a bool."""
     return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
+
+
+class MachineSite:
+    """One learned machine model (any backend) as the :class:`hexgym.envs.task.SitePhysics` of a task of one site.
+
+    The arrays are views of the machine's ``MjData`` with a site axis of one; the spools to hold are
+    set in :attr:`spools_m` before a step. A machine with integrated-velocity servos (the Python
+    backend) has their targets limited after each call (:meth:`limit_servo_windup`).
+    """
+
+    def __init__(self, machine: LearnedModelBase) -> None:
+        self.machine, self.physics = machine, machine.physics
+        model = self.physics.model
+        self.tip_site, self.bucket_body = model.site("tip").id, model.body("bucket").id
+        self.qadr = np.array([model.jnt_qposadr[model.joint(n).id] for n in kinematics.JOINTS])
+        self.dadr = np.array([model.jnt_dofadr[model.joint(n).id] for n in kinematics.JOINTS])
+        self.contact_adr = int(model.sensor(TOOL_CONTACT_SENSOR).adr[0])
+        self._servo_bands = _servo_bands(model)
+        self.spools_m = np.zeros(4)
+        self._bind()
+
+    def _bind(self) -> None:
+        d = self.physics.data
+        self.site_xpos, self.xpos, self.xmat = d.site_xpos[None], d.xpos[None], d.xmat[None]
+        self.qpos, self.qvel, self.sensordata = d.qpos[None], d.qvel[None], d.sensordata[None]
+
+    def __getstate__(self) -> dict:
+        state = self.__dict__.copy()
+        for name in ("site_xpos", "xpos", "xmat", "qpos", "qvel", "sensordata"):
+            del state[name]  # views: rebound to the unpickled MjData
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._bind()
+
+    def step(self, ids: np.ndarray, periods: int) -> None:
+        """Hold :attr:`spools_m` for ``periods`` control periods."""
+        self.machine.step(self.spools_m, n=periods)
+        self.limit_servo_windup()
+
+    def apply_tip_force(self, ids: np.ndarray, force: np.ndarray) -> None:
+        """Push the teeth with ``force[0]`` (N, world) from now on."""
+        self.physics.apply_tip_force(force[0])
+
+    def set_payload(self, ids: np.ndarray, mass_kg: np.ndarray) -> None:
+        """Re-mass the bucket's payload with ``mass_kg[0]``."""
+        self.physics.set_payload(float(mass_kg[0]))
+
+    def joint_loads(self, ids: np.ndarray) -> np.ndarray:
+        """The machine model's joint loads (1, 4), N m."""
+        return self.machine.joint_loads()[None]
+
+    def swing_torques(self, ids: np.ndarray) -> np.ndarray:
+        """The swing's inertia times its last table acceleration (1,), N m."""
+        return np.array([self.physics.swing_inertia() * self.machine.swing_acceleration])
+
+    def limit_servo_windup(self) -> None:
+        """Keep each servo's integrated target where the servo is at most saturated (anti-windup).
+
+        The machine's integrated-velocity servos integrate the tables' rate targets even while a
+        joint is stalled (bucket against the truck, dig force above the swing's torque); released,
+        the servo would then drive the joint to the stale target whatever the spools say. A stalled
+        hydraulic actuator stores no such displacement (its reliefs open), so the target is held
+        within the band where the servo force is at its limit.
+        """
+        act_adr, qpos_adr, dof_adr, ratio, slack = self._servo_bands
+        if not len(act_adr):
+            return  # a plugin backend: no integrated servo targets
+        d = self.physics.data
+        centre = d.qpos[qpos_adr] + ratio * d.qvel[dof_adr]
+        d.act[act_adr] = np.clip(d.act[act_adr], centre - slack, centre + slack)
+
+
+class SiteEarth:
+    """The material stores of site ``i`` of a :class:`hexgym.envs.task.LoadingTask` (the single environment's
+    ``earth``): its pile (a :class:`hexgym.envs.earthwork.Pile` on the task's heights) and the bucket, truck
+    and spilled kilograms (settable)."""
+
+    def __init__(self, task: LoadingTask, i: int = 0) -> None:
+        self._task, self._i = task, i
+        self.pile = task.pile(i)
+
+    @property
+    def bucket_kg(self) -> float:
+        """Material in the bucket, kg."""
+        return float(self._task.stores[self._i, 0])
+
+    @bucket_kg.setter
+    def bucket_kg(self, value: float) -> None:
+        self._task.stores[self._i, 0] = value
+
+    @property
+    def truck_kg(self) -> float:
+        """Material in the truck, kg."""
+        return float(self._task.stores[self._i, 1])
+
+    @property
+    def spilled_kg(self) -> float:
+        """Material spilled on the ground, kg."""
+        return float(self._task.stores[self._i, 2])
+
+    @property
+    def pile_kg(self) -> float:
+        """Material in the pile, kg."""
+        return float(self._task.pile_kg()[self._i])
+
+    def total_kg(self) -> float:
+        """Pile + bucket + truck + spilled, kg: constant."""
+        return self.pile_kg + self.bucket_kg + self.truck_kg + self.spilled_kg
 
 
 class HexLoadingEnv(gym.Env):
@@ -348,46 +449,37 @@ class HexLoadingEnv(gym.Env):
                 f"({frame.offwidth} x {frame.offheight})"
             )
         self.layout: Layout | None = None
-        self.earth: Earthwork | None = None
+        self.earth: SiteEarth | None = None
 
     # -- simulation ----------------------------------------------------------------------------
     def _build(self) -> None:
-        self.machine = make_machine(self._backend, self._scene_path, self.tables)
+        self.machine = make_machine(self._backend, self._scene_path, self.tables, tool_contact_slots=CONTACT_SLOTS)
         self.physics = self.machine.physics
         model = self.physics.model
-        self._period = self.machine.control_period  # s, one control period of the machine model
-        self._periods = int(round(STEP_PERIOD / self._period))
-        if abs(self._periods * self._period - STEP_PERIOD) > 1e-9:
-            raise ValueError(f"the machine's control period {self._period} s does not divide the step {STEP_PERIOD} s")
-        self._velocity_blend = 1.0 - np.exp(-self._period / p.DIG_VELOCITY_FILTER)
         self.world = World(model)
-        self._bucket_body = model.body("bucket").id
-        self._tip_site = model.site("tip").id
-        self._servo_bands = _servo_bands(model)
-        self._tool_geoms, self._obstacle_geoms = self.world.tool_geoms.tolist(), self.world.obstacle_geoms.tolist()
+        self._site = MachineSite(self.machine)
+        self.task = LoadingTask(
+            1, self._site, self.machine.control_period, self.time_limit, self.truck_capacity_kg, self.weights,
+            self.earthwork_periods,
+        )  # fmt: skip
+        self._period, self._periods = self.task.period, self.task.periods
+        self._bucket_body, self._tip_site = self._site.bucket_body, self._site.tip_site
         self._renderer: Any = None
         self._view: tuple[mujoco.MjModel, mujoco.MjData, ModelMirror] | None = None  # see _render_view
-        self._pile_shown = False  # the renderer's copy of the hfield is stale
+        self._pile_shown = -1  # the pile revision the renderer's copy of the hfield shows
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
         """Start an episode on a new random site (see the class docstring)."""
         super().reset(seed=seed)
         self.layout, q = sample_start(self.np_random)
         pile = heap_for(self.layout)
-        self.earth = Earthwork(pile)
-        self._cut: tuple[int, float] | None = None  # (pile revision, fullest cut direction): fullest_cut_direction
         self.start_machine(q, self.layout)
+        self.task.start(0, self.layout, pile, self.physics.payload_kg)
+        self.task.finish_starts(_SITE)
+        self.earth = SiteEarth(self.task)
         self.world.show_pile(pile.heights)
-        self._pile_shown = False
-        self._tip_before = self._bucket_pose()[0]
-        self._tip_interval = math.inf  # s since _tip_before was taken: none yet, so the velocity reads 0
-        self._tip_velocity = (0.0, 0.0, 0.0)  # low-passed, for the digging resistance
-        self._tip_force_on = False
-        self._dig_depth = 0.0  # m, the last dig's: the digging force follows the motion at it
-        self.fuel_l = 0.0
-        self.steps = 0
-        self.elapsed = 0.0
-        return self._observation(), self._info({})
+        self._pile_shown = -1
+        return self.task.observe(_SITE)[0], self._info(None, 0.0, 0.0)
 
     def start_machine(self, q: np.ndarray, layout: Layout) -> None:
         """Put the machine at rest at angles ``q`` with an empty bucket on a site laid out as ``layout``
@@ -398,238 +490,55 @@ class HexLoadingEnv(gym.Env):
         self.physics.data.qfrc_applied[:] = 0.0
         mujoco.mj_forward(self.physics.model, self.physics.data)
 
-    def _bucket_pose(self) -> tuple[list[float], tuple[float, ...], tuple[float, ...], float]:
-        """Teeth position, lateral and teeth directions (world) and the mouth's tilt from facing up.
+    @property
+    def fuel_l(self) -> float:
+        """Diesel burnt this episode, L."""
+        return float(self.task.fuel_l[0])
 
-        Plain floats: this runs every control period near the pile, where numpy's per-call cost on
-        3-vectors would exceed the arithmetic.
-        """
-        d = self.physics.data
-        r = d.xmat[self._bucket_body].tolist()  # row-major rotation, bucket frame -> world
-        tilt = math.acos(min(max(r[6] * _MOUTH_NORMAL_X + r[8] * _MOUTH_NORMAL_Z, -1.0), 1.0))
-        tx, tz = _TEETH_X, _TEETH_Z
-        teeth = (r[0] * tx + r[2] * tz, r[3] * tx + r[5] * tz, r[6] * tx + r[8] * tz)
-        return d.site_xpos[self._tip_site].tolist(), (r[1], r[4], r[7]), teeth, tilt
+    @property
+    def steps(self) -> int:
+        """Steps taken this episode."""
+        return int(self.task.steps[0])
+
+    @property
+    def elapsed(self) -> float:
+        """Simulated seconds this episode."""
+        return float(self.task.elapsed[0])
 
     def mouth_position(self) -> np.ndarray:
         """Centre of the bucket's mouth (where its contents pour from), world m."""
         d = self.physics.data
         return d.xpos[self._bucket_body] + d.xmat[self._bucket_body].reshape(3, 3) @ _MOUTH_CENTRE
 
-    def _spill(self, tilt: float, dt: float, flows: dict[str, float]) -> None:
-        """Let what the bucket cannot hold at ``tilt`` run out over ``dt`` s (into the bed if the mouth is over it)."""
-        if self.earth.bucket_kg <= 0.0:
-            return  # nothing to spill (the common case: skip the mouth's position)
-        into_truck = self.world.in_bed(self.mouth_position(), self.layout)
-        spilled = self.earth.spill(tilt, into_truck, dt)
-        flows["delivered"] += spilled.to_truck_kg
-        flows["spilled"] += spilled.to_ground_kg
-
-    def _earthwork(self, seconds: float, flows: dict[str, float]) -> None:
-        """Dig (fill, cut the pile) and spill over the next ``seconds``; apply the digging force; re-mass the bucket.
-
-        The fill uses the teeth's mean velocity since the last sample (a backward difference).
-        """
-        tip, lateral, teeth, tilt = self._bucket_pose()
-        velocity = self._sample_tip(tip)
-        dug = self.earth.dig(tip, lateral, teeth, velocity, seconds, self._tip_velocity)
-        self._dig_depth = dug.depth
-        if dug.depth <= 0.0:
-            self._spill(tilt, seconds, flows)
-        if dug.taken_kg > 0:
-            self._pile_shown = False
-        if dug.depth > 0 or self._tip_force_on:
-            self.physics.apply_tip_force(dug.force)
-            self._tip_force_on = dug.depth > 0
-        flows["dug"] += dug.taken_kg
-        self._update_payload()
-
-    def _sample_tip(self, tip: list[float]) -> tuple[float, ...]:
-        """The teeth's mean velocity since the last sample (m/s), also folded into the low-passed one."""
-        interval = self._tip_interval
-        (x, y, z), (x0, y0, z0), (fx, fy, fz) = tip, self._tip_before, self._tip_velocity
-        vx, vy, vz = (x - x0) / interval, (y - y0) / interval, (z - z0) / interval
-        blend = self._velocity_blend if interval == self._period else 1.0 - math.exp(-interval / p.DIG_VELOCITY_FILTER)
-        self._tip_velocity = (fx + (vx - fx) * blend, fy + (vy - fy) * blend, fz + (vz - fz) * blend)
-        self._tip_before = tip  # (the caller sets _tip_interval to the time until the next sample)
-        return vx, vy, vz
-
-    def _follow_resistance(self) -> None:
-        """Turn the digging force with the teeth's motion (at the depth of the last dig): every control period."""
-        tip, lateral, teeth, _ = self._bucket_pose()
-        self._sample_tip(tip)
-        if self._tip_force_on:
-            self.physics.apply_tip_force(self.earth.resistance(self._dig_depth, lateral, teeth, self._tip_velocity))
-
-    def _update_payload(self) -> None:
-        if abs(self.earth.bucket_kg - self.physics.payload_kg) > PAYLOAD_UPDATE_KG or (
-            self.earth.bucket_kg < 1.0 < self.physics.payload_kg
-        ):
-            self.physics.set_payload(self.earth.bucket_kg)
-
-    def _limit_servo_windup(self) -> None:
-        """Keep each servo's integrated target where the servo is at most saturated (anti-windup).
-
-        The machine's integrated-velocity servos integrate the tables' rate targets even while a
-        joint is stalled (bucket against the truck, dig force above the swing's torque); released,
-        the servo would then drive the joint to the stale target whatever the spools say. A stalled
-        hydraulic actuator stores no such displacement (its reliefs open), so the target is held
-        within the band where the servo force is at its limit.
-        """
-        d = self.physics.data
-        act_adr, qpos_adr, dof_adr, ratio, slack = self._servo_bands
-        if not len(act_adr):
-            return  # a plugin backend: no integrated servo targets
-        centre = d.qpos[qpos_adr] + ratio * d.qvel[dof_adr]
-        d.act[act_adr] = np.clip(d.act[act_adr], centre - slack, centre + slack)
-
-    def _hard_contact_force(self) -> float:
-        """Bucket and stick contact force on the ground and the truck beyond HARD_CONTACT_FORCE (capped), N.
-
-        Estimated from the contacts' depth (``CONTACT_STIFFNESS``): the lean machine's contacts are
-        detected but inactive, the learned model stalls a joint that drives into one.
-        """
-        d = self.physics.data
-        if d.ncon == 0:
-            return 0.0
-        contacts, tool, obstacle = d.contact, self._tool_geoms, self._obstacle_geoms
-        # the contacts are inactive (the machine model stalls at them): their depth tells the force
-        shallow = [
-            min(dist, 0.0)
-            for (g1, g2), dist in zip(contacts.geom.tolist(), contacts.dist.tolist(), strict=True)
-            if (tool[g1] and obstacle[g2]) or (tool[g2] and obstacle[g1])
-        ]  # plain floats: a few contacts, every step
-        if not shallow:
-            return 0.0
-        depth = -(sum(shallow) if len(shallow) < 8 else float(np.sum(shallow)))  # as numpy: 8 or more pairwise
-        total = p.CONTACT_STIFFNESS * depth
-        # count at most what a real machine could press with: its weight
-        return min(max(total - p.HARD_CONTACT_FORCE, 0.0), p.HARD_CONTACT_FORCE_CAP - p.HARD_CONTACT_FORCE)
-
-    def _actuator_power(self, joint_loads: np.ndarray) -> float:
-        """Mechanical power of the actuators (W) at the present state, whose joint loads are ``joint_loads``."""
-        ph = self.physics
-        rates = ph.joint_velocities()
-        swing_torque = ph.swing_inertia() * self.machine.swing_acceleration
-        return fuel.actuator_power(joint_loads[1:], rates[1:], swing_torque, rates[0])
+    def fullest_cut_direction(self) -> float:
+        """Swing angle (rad) of the pile's cut line with the most material (:func:`world.fullest_cut_direction`),
+        recomputed only when the pile has changed."""
+        self.task.update_cut_directions(_SITE)
+        return float(self.task.cut_dir[0])
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
         """Hold the spools for 0.1 s (several control periods of the machine model)."""
         if self.earth is None:
             raise RuntimeError("call reset() before step()")
         spools = np.minimum(np.maximum(self._check_action(action), -1.0), 1.0) * p.SPOOL_STROKE  # (np.clip: slower)
-        flows = {"dug": 0.0, "delivered": 0.0, "spilled": 0.0}
-        fuel_l, contact_impulse, joint_loads = self._advance(spools, flows)
-        self.fuel_l += fuel_l
-        self.steps += 1
-        self.elapsed = self.steps * STEP_PERIOD
-        w = self.weights
-        terms = {
-            "delivery": w["delivery"] * flows["delivered"] / 1000.0,
-            "fill": w["fill"] * flows["dug"] / 1000.0,
-            "time": -w["time"] * STEP_PERIOD,
-            "fuel": -w["fuel"] * fuel_l,
-            "spill": -w["spill"] * flows["spilled"] / 1000.0,
-            "contact": -w["contact"] * contact_impulse / 1000.0,
-        }
-        reward = float(sum(terms.values()))
-        obs = self._observation(joint_loads)
-        terminated = self.earth.truck_kg >= self.truck_capacity_kg
-        truncated = self.elapsed >= self.time_limit - 1e-9
-        info = self._info(terms) | {"fuel_l_step": fuel_l, "contact_impulse_ns": contact_impulse}
+        self._site.spools_m = spools
+        task = self.task
+        terms, rewards, ended = task.step(_SITE)
+        obs = task.observe(_SITE)[0]
+        info = self._info(terms[0].tolist(), float(task.step_fuel_l[0]), float(task.step_impulse[0]))
         if self.render_mode == "human":
             self.render()
-        return obs, reward, terminated, truncated, info
-
-    def _advance(self, spools: np.ndarray, flows: dict[str, float]) -> tuple[float, float, np.ndarray]:
-        """Hold the spools for the step's control periods; return fuel (L), hard-contact impulse (N s), joint loads.
-
-        Where the teeth may reach the pile, ``earthwork_periods`` periods at a time with the fill,
-        spill, fuel and contacts of each such interval (the digging force turns with the motion
-        every period); periods in which they surely stay clear of it, in one call of the machine
-        model (the native backend's fast path).
-        """
-        fuel_l = contact_impulse = 0.0
-        left = self._periods
-        while left:
-            clear = 0 if self._tip_force_on else min(self._clear_periods(), left)  # force on: in the pile
-            if clear:
-                periods = clear
-                step_fuel, step_contact, joint_loads = self._advance_clear(spools, periods, flows)
-            else:
-                periods = min(self.earthwork_periods, left)
-                step_fuel, step_contact, joint_loads = self._advance_in_pile(spools, periods, flows)
-            fuel_l += step_fuel
-            contact_impulse += step_contact
-            left -= periods
-        return fuel_l, contact_impulse, joint_loads
+        return obs, float(rewards[0]), bool(ended[0, 0]), bool(ended[0, 1]), info
 
     def _clear_periods(self) -> int:
-        """Control periods (up to a step's) within which the teeth surely stay out of the pile.
+        """Control periods (up to a step's) within which the teeth surely stay out of the pile
+        (:func:`hexgym.envs.task.clear_count`)."""
+        return int(self.task.clear_periods_of(_SITE)[0])
 
-        The teeth travel at most ``_PILE_MARGIN`` per step, so within ``m`` periods at most
-        ``m / periods`` of it; the dig samples lie within half a bucket width of them. ``m`` periods
-        are clear when no grid point within half a width plus that travel (horizontally) stands
-        higher than the teeth less that travel.
-        """
-        tip = self.physics.data.site_xpos[self._tip_site]
-        pile, per_period = self.earth.pile, _PILE_MARGIN / self._periods
-        # the usual case first: clear over the whole step is clear over each part (a smaller window, less travel)
-        whole = self._periods * per_period  # (the loop's last travel, the same float)
-        if pile.clearance(tip, p.BUCKET_WIDTH / 2.0 + whole, enough=whole) >= whole:
-            return self._periods
-        clear = 0
-        while clear < self._periods:
-            travel = (clear + 1) * per_period
-            if pile.clearance(tip, p.BUCKET_WIDTH / 2.0 + travel, enough=travel) < travel:
-                break
-            clear += 1
-        return clear
-
-    def _advance_in_pile(
-        self, spools: np.ndarray, periods: int, flows: dict[str, float]
-    ) -> tuple[float, float, np.ndarray]:
-        """``periods`` control periods with one dig (fill, spill, fuel, contacts over them all); while the edge
-        cuts, its force is re-aimed every period (held for longer, a stalled cut chatters: the resistance,
-        proportional to the speed below ``DIG_REFERENCE_SPEED``, would lag the motion by the interval)."""
-        seconds = periods * self._period
-        self._earthwork(seconds, flows)
-        # cutting: the force is re-aimed every FORCE_PERIODS; not cutting: nothing to update until the next dig
-        chunk = FORCE_PERIODS if self._tip_force_on else periods
-        for start in range(0, periods, chunk):
-            if start:
-                self._follow_resistance()
-            done = min(chunk, periods - start)
-            self.machine.step(spools, n=done)
-            self._limit_servo_windup()
-            self._tip_interval = done * self._period
-        joint_loads = self.machine.joint_loads()
-        fuel_l = fuel.fuel_litres(self._actuator_power(joint_loads), seconds)
-        return fuel_l, self._hard_contact_force() * seconds, joint_loads
-
-    def _advance_clear(
-        self, spools: np.ndarray, periods: int, flows: dict[str, float]
-    ) -> tuple[float, float, np.ndarray]:
-        """``periods`` control periods in one call of the machine model: clear of the pile nothing needs them apart.
-
-        No digging force acts; the spill over them is its exact exponential at their end tilt; fuel
-        and contacts are sampled at their end.
-        """
-        if self._tip_force_on:
-            self.physics.apply_tip_force(np.zeros(3))
-            self._tip_force_on = False
-        seconds = periods * self._period
-        tip_start = self._bucket_pose()[0]
-        self.machine.step(spools, n=periods)
-        self._limit_servo_windup()
-        tip, _, _, tilt = self._bucket_pose()
-        self._tip_velocity = tuple((end - start) / seconds for end, start in zip(tip, tip_start, strict=True))
-        self._tip_before, self._tip_interval = tip_start, seconds
-        self._spill(tilt, seconds, flows)
-        self._update_payload()
-        joint_loads = self.machine.joint_loads()
-        fuel_l = fuel.fuel_litres(self._actuator_power(joint_loads), seconds)
-        return fuel_l, self._hard_contact_force() * seconds, joint_loads
+    def _hard_contact_force(self) -> float:
+        """Bucket and stick contact force on the ground and the truck beyond HARD_CONTACT_FORCE (capped), N
+        (:func:`hexgym.envs.task.hard_contact_force`)."""
+        return float(self.task.hard_contact_forces(_SITE)[0])
 
     def _check_action(self, action: np.ndarray) -> np.ndarray:
         a = np.asarray(action, dtype=np.float64)
@@ -637,52 +546,17 @@ class HexLoadingEnv(gym.Env):
             raise ValueError(f"action must have shape (4,) (swing, boom, stick, bucket spools), got shape {a.shape}")
         if not math.isfinite(sum(a.tolist())) and not np.isfinite(a).all():  # a NaN or inf makes the sum one
             raise ValueError(
-                f"action must be finite, got {a} (a NaN or inf in {list(np.flatnonzero(~np.isfinite(a)))})"
+                f"action must be finite, got {a} (a NaN or inf in entries {np.flatnonzero(~np.isfinite(a)).tolist()})"
             )
         return a
 
-    # -- observation and info ----------------------------------------------------------------
-    def _observation(self, joint_loads: np.ndarray | None = None) -> np.ndarray:
-        """The observation (see the class docstring); ``joint_loads``: the machine's, if already at hand."""
-        ph, lay, earth = self.physics, self.layout, self.earth
-        q, qd = ph.joint_positions().tolist(), ph.joint_velocities().tolist()
-        if joint_loads is None:
-            joint_loads = self.machine.joint_loads()
-        arms = [table(angle) for table, angle in zip(kinematics.moment_arm_tables(), q[1:], strict=True)]
-        loads = [load / arm / 1e6 for load, arm in zip(joint_loads[1:].tolist(), arms, strict=True)]  # MN
-        tip, _, _, tilt = self._bucket_pose()
-        pile_dir = lay.pile_direction
-        c, s = math.cos(pile_dir), math.sin(pile_dir)
-        rel_x, rel_y = tip[0] - lay.pile_centre[0], tip[1] - lay.pile_centre[1]
-        above_pile = tip[2] - earth.pile.height_at_point(tip[0], tip[1])
-        values = [
-            *q[1:], _wrap(q[0] - pile_dir), _wrap(q[0] - lay.truck_direction), *qd, *loads,
-            earth.bucket_kg / 1000.0, c * rel_x + s * rel_y, -s * rel_x + c * rel_y, above_pile,
-            *bed_coordinates(tip[0], tip[1], lay), tip[2] - BED_RIM_HEIGHT,
-            tilt, earth.truck_kg / self.truck_capacity_kg, max(1.0 - self.elapsed / self.time_limit, 0.0),
-            _wrap(q[0] - self.fullest_cut_direction()),
-        ]  # fmt: skip
-        obs = np.array(values)
-        if not math.isfinite(sum(values)):  # a NaN or an infinity anywhere makes the sum one
-            raise RuntimeError(f"the simulation diverged (non-finite observation {obs}) at t = {self.elapsed:.1f} s")
-        np.minimum(np.maximum(obs, _CLIP_LOW, out=obs), _CLIP_HIGH, out=obs)
-        return obs.astype(np.float32)
-
-    def fullest_cut_direction(self) -> float:
-        """Swing angle (rad) of the pile's cut line with the most material (:func:`world.fullest_cut_direction`),
-        recomputed only when the pile has changed."""
-        pile = self.earth.pile
-        if self._cut is None or self._cut[0] != pile.revision:
-            self._cut = (pile.revision, fullest_cut_direction(pile.height_at, self.layout))
-        return self._cut[1]
-
-    def _info(self, terms: dict[str, float]) -> dict[str, Any]:
-        earth = self.earth
-        info: dict[str, Any] = {f"reward_{k}": terms.get(k, 0.0) for k in REWARD_TERMS}
-        info |= {
-            "pile_kg": earth.pile_kg, "bucket_kg": earth.bucket_kg, "truck_kg": earth.truck_kg,
-            "spilled_kg": earth.spilled_kg, "fuel_l": self.fuel_l, "time_s": self.elapsed,
-        }  # fmt: skip
+    def _info(self, terms: list[float] | None, fuel_step: float, impulse: float) -> dict[str, Any]:
+        """The step's ``info``: the reward terms (0 after a reset), the stores, and the step's fuel and impulse."""
+        values = [0.0] * len(REWARD_TERMS) if terms is None else terms
+        info: dict[str, Any] = {f"reward_{k}": v for k, v in zip(REWARD_TERMS, values, strict=True)}
+        info.update(zip(INFO_STORES, self.task.stores_of(_SITE)[0].tolist(), strict=True))
+        if terms is not None:
+            info["fuel_l_step"], info["contact_impulse_ns"] = fuel_step, impulse
         return info
 
     # -- rendering ----------------------------------------------------------------------------
@@ -694,9 +568,9 @@ class HexLoadingEnv(gym.Env):
         if self.earth is None:
             raise RuntimeError("call reset() before render()")
         self.world.show_loads(self.earth.truck_kg, self.earth.bucket_kg)
-        if not self._pile_shown:
+        if self._pile_shown != self.task.revision[0]:
             self.world.show_pile(self.earth.pile.heights)
-            self._pile_shown = True
+            self._pile_shown = int(self.task.revision[0])
         model, data, mirror = self._render_view()
         changed = mirror.sync(self.physics.data, data)
         if self.render_mode == "human":
@@ -744,7 +618,7 @@ class HexLoadingEnv(gym.Env):
         state = self.__dict__.copy()
         state["_renderer"] = None
         state["_view"] = None
-        state["_pile_shown"] = False
+        state["_pile_shown"] = -1
         return state
 
     def __setstate__(self, state: dict) -> None:
