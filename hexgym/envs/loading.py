@@ -54,6 +54,8 @@ START_NOISE = 0.1  # rad, uniform noise on the start pose's boom, stick and buck
 _HOME = np.array([0.0, 0.35, 0.85, 0.75])  # the machine's keyframe `home`: bucket curled near the ground
 _MOUTH_CENTRE = np.array([(p.BUCKET_LIP[0] + p.BUCKET_EDGE[0]) / 2, 0.0, (p.BUCKET_LIP[1] + p.BUCKET_EDGE[1]) / 2])
 _SITE = np.zeros(1, np.intp)  # the single environment is site 0 of a task of one
+_INFO_KEYS = (*(f"reward_{term}" for term in REWARD_TERMS), *INFO_STORES)
+_STEP_INFO_KEYS = (*_INFO_KEYS, "fuel_l_step", "contact_impulse_ns")
 OBSERVATION_NAMES = (
     "boom_angle", "stick_angle", "bucket_angle", "swing_to_pile", "swing_to_truck",
     "swing_rate", "boom_rate", "stick_rate", "bucket_rate",
@@ -552,12 +554,10 @@ class HexLoadingEnv(gym.Env):
 
     def _info(self, terms: list[float] | None, fuel_step: float, impulse: float) -> dict[str, Any]:
         """The step's ``info``: the reward terms (0 after a reset), the stores, and the step's fuel and impulse."""
-        values = [0.0] * len(REWARD_TERMS) if terms is None else terms
-        info: dict[str, Any] = {f"reward_{k}": v for k, v in zip(REWARD_TERMS, values, strict=True)}
-        info.update(zip(INFO_STORES, self.task.stores_of(_SITE)[0].tolist(), strict=True))
-        if terms is not None:
-            info["fuel_l_step"], info["contact_impulse_ns"] = fuel_step, impulse
-        return info
+        stores = self.task.stores_of(_SITE)[0].tolist()
+        if terms is None:
+            return dict(zip(_INFO_KEYS, [0.0] * len(REWARD_TERMS) + stores, strict=True))
+        return dict(zip(_STEP_INFO_KEYS, [*terms, *stores, fuel_step, impulse], strict=True))
 
     # -- rendering ----------------------------------------------------------------------------
     def render(self) -> np.ndarray | None:

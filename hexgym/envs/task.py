@@ -167,6 +167,18 @@ def _spill(i, tilt, dt, xpos, xmat, bucket, truck, stores, flows):  # noqa: ANN0
 
 
 @jit
+def begin_step(
+    ids: np.ndarray, periods: int, left: np.ndarray, flows: np.ndarray, fuel_l: np.ndarray, impulse: np.ndarray
+) -> None:
+    """Start a step of each site: all its ``periods`` left, no flows, fuel or impulse yet."""
+    for k in range(len(ids)):
+        i = ids[k]
+        left[i] = periods
+        flows[i, 0] = flows[i, 1] = flows[i, 2] = 0.0
+        fuel_l[i] = impulse[i] = 0.0
+
+
+@jit
 def clear_count(
     i: int, periods: int, site_xpos: np.ndarray, tip_site: int, heights: np.ndarray, origin: np.ndarray,
     spacing: float, top: np.ndarray,
@@ -349,7 +361,9 @@ def account(
 ) -> int:  # fmt: skip
     """Close each site's interval of ``seconds``: fuel (the actuators' power at its end through the engine's
     BSFC, :mod:`hexgym.hydraulics.fuel`), hard-contact impulse, the joint loads (k, 4) kept for the
-    observation, and the periods ``left`` of the step. Returns a site with too many contacts, else -1."""
+    observation, and the periods ``left`` of the step. Returns how many sites have periods left, or -1 - i for a
+    site i with too many contacts."""
+    going = 0
     for k in range(len(ids)):
         i = ids[k]
         power = 0.0
@@ -362,10 +376,11 @@ def account(
         fuel_l[i] += ew.table_at(fuel_rates, fuel_start, fuel_step, brake) * seconds[i] / 3600.0
         force = hard_contact_force(i, sensordata, contact_adr, slots)
         if force < 0.0:
-            return i
+            return -1 - i
         impulse[i] += force * seconds[i]
         left[i] -= interval[i]
-    return -1
+        going += left[i] > 0
+    return going
 
 
 @jit
@@ -403,8 +418,9 @@ def observe(
     stores: np.ndarray, truck_capacity: float, elapsed: np.ndarray, time_limit: float, cut_dir: np.ndarray,
     out: np.ndarray,
 ) -> int:  # fmt: skip
-    """Write the observation of each site (see :class:`hexgym.envs.loading.HexLoadingEnv`) into ``out`` (k, 23),
-    clipped to its bounds; returns the first site whose observation is not finite (-1: none)."""
+    """Write the observation of each site (see :class:`hexgym.envs.loading.HexLoadingEnv`) into ``out`` (k, 23,
+    float32), clipped to its bounds (as float64, then rounded); returns the first site whose observation is not
+    finite (-1: none)."""
     values = np.empty(OBSERVATION_SIZE)
     for k in range(len(ids)):
         i = ids[k]
@@ -438,6 +454,15 @@ def observe(
                 return i
             out[k, j] = min(max(values[j], _CLIP_LOW[j]), _CLIP_HIGH[j])
     return -1
+
+
+@jit
+def any_flagged(ids: np.ndarray, flags: np.ndarray, column: int) -> bool:
+    """Whether any site's ``flags[i, column]`` is set."""
+    for k in range(len(ids)):
+        if flags[ids[k], column]:
+            return True
+    return False
 
 
 @jit
@@ -564,10 +589,7 @@ class LoadingTask:
         (L) and hard-contact impulse (N s) stay in ``step_fuel_l`` and ``step_impulse``.
         """
         k = len(ids)
-        self._left[ids] = self.periods
-        self._flows[ids] = 0.0
-        self._fuel[ids] = 0.0
-        self._impulse[ids] = 0.0
+        begin_step(ids, self.periods, self._left, self._flows, self._fuel, self._impulse)
         self._advance(ids)
         terms, rewards, ended = np.empty((k, len(REWARD_TERMS))), np.empty(k), np.empty((k, 2), np.bool_)
         finish(ids, self._weights, self._flows, self._fuel, self._impulse, self.fuel_l, self.steps, self.elapsed,
@@ -603,11 +625,9 @@ class LoadingTask:
                 if clear.any():
                     self._step_grouped(ids[clear])
                     self._end_clear(ids[clear])
-            self._account(ids)
-            going = self._left[ids] > 0
-            if not going.any():
+            if not self._account(ids):
                 return
-            ids = ids[going]
+            ids = ids[self._left[ids] > 0]
             clear = clear[: len(ids)]
 
     def _step_grouped(self, ids: np.ndarray) -> None:
@@ -660,22 +680,24 @@ class LoadingTask:
                 ph.step(now, 1)
                 self.tip_interval[now] = self.period
 
-    def _account(self, ids: np.ndarray) -> None:
-        """Fuel, hard-contact impulse and joint loads at the end of the sites' intervals (:func:`account`)."""
+    def _account(self, ids: np.ndarray) -> int:
+        """Fuel, hard-contact impulse and joint loads at the end of the sites' intervals (:func:`account`); returns
+        how many sites have periods left."""
         ph = self.physics
-        bad = account(ids, self._seconds, ph.joint_loads(ids), ph.swing_torques(ids), ph.qvel, ph.dadr,
+        going = account(ids, self._seconds, ph.joint_loads(ids), ph.swing_torques(ids), ph.qvel, ph.dadr,
                       self._fuel_rates, self._fuel_start, self._fuel_step, ph.sensordata, ph.contact_adr,
                       self.contact_slots, self.joint_loads, self._fuel, self._impulse, self._left,
                       self._interval)  # fmt: skip
-        if bad >= 0:
-            raise RuntimeError(f"more than {self.contact_slots} bucket/stick contacts at environment {bad}")
+        if going < 0:
+            raise RuntimeError(f"more than {self.contact_slots} bucket/stick contacts at environment {-1 - going}")
+        return going
 
     # -- observation and info ---------------------------------------------------------------------
     def observe(self, ids: np.ndarray) -> np.ndarray:
         """The observations of sites ``ids`` (k, 23), float32."""
         self.update_cut_directions(ids)
         ph = self.physics
-        out = np.empty((len(ids), OBSERVATION_SIZE))
+        out = np.empty((len(ids), OBSERVATION_SIZE), np.float32)
         bad = observe(ids, ph.qpos, ph.qvel, ph.qadr, ph.dadr, ph.site_xpos, ph.xmat, ph.tip_site, ph.bucket_body,
                       self.joint_loads, self._arms, self._arm_start, self._arm_step, self.heights, self.origin,
                       self.spacing, self.layout, self.stores, self.truck_capacity_kg, self.elapsed, self.time_limit,
@@ -684,15 +706,14 @@ class LoadingTask:
             raise RuntimeError(
                 f"the simulation diverged (non-finite observation) at environment {bad}, t = {self.elapsed[bad]:.1f} s"
             )
-        return out.astype(np.float32)
+        return out
 
     def update_cut_directions(self, ids: np.ndarray) -> None:
         """Find the fullest cut line (:func:`hexgym.envs.world.fullest_cut_direction`) of the piles ``ids`` that
         changed since it was last found."""
-        changed = self.pile_flags[ids, 0]
-        if not changed.any():
+        if not any_flagged(ids, self.pile_flags, 0):
             return
-        for i in ids[changed > 0].tolist():
+        for i in ids[self.pile_flags[ids, 0] > 0].tolist():
             self.cut_dir[i] = fullest_cut_direction(self._height_function(i), self.layouts[i])
             self.pile_flags[i, 0] = 0
 

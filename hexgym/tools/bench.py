@@ -85,25 +85,22 @@ def _timed_steps(env: gym.Env, actions: list) -> float:
     return elapsed
 
 
+def _cores() -> int:
+    """The CPUs this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+WARMUP_STEPS = 3  # untimed vector steps first: a fresh install compiles the task's functions on the first ones
+
+
 def vector_steps_per_second(
     env_id: str = ENV_ID, num_envs: int = VECTOR_ENVS, vector_steps: int = 32, seed: int = 0
 ) -> tuple[float, str]:
     """Environment steps per second of ``gymnasium.make_vec(env_id, num_envs)`` under random actions,
-    and the vector env's class name (only ``step`` calls are timed; its autoreset is part of them)."""
-    if num_envs < 1 or vector_steps < 1:
-        raise ValueError(f"num_envs and vector_steps must be >= 1, got {num_envs} and {vector_steps}")
-    envs = gym.make_vec(env_id, num_envs=num_envs)
-    try:
-        envs.reset(seed=seed)
-        envs.action_space.seed(seed)
-        actions = [envs.action_space.sample() for _ in range(vector_steps)]
-        start = time.perf_counter()
-        for action in actions:
-            envs.step(action)
-        elapsed = time.perf_counter() - start
-        return num_envs * vector_steps / elapsed, type(envs).__name__
-    finally:
-        envs.close()
+    and the vector env's class name (only ``step`` calls are timed, after ``WARMUP_STEPS``; its autoreset is
+    part of them)."""
+    rates, kind = vector_benchmark(env_id, num_envs, vector_steps, seed, physics=False)
+    return rates["vector_steps_per_s"], kind
 
 
 def physics_bound_steps_per_second(num_envs: int = VECTOR_ENVS, vector_steps: int = 100, seed: int = 0) -> float:
@@ -123,6 +120,56 @@ def physics_bound_steps_per_second(num_envs: int = VECTOR_ENVS, vector_steps: in
         return num_envs * vector_steps / elapsed
     finally:
         envs.close()
+
+
+def vector_benchmark(
+    env_id: str = ENV_ID,
+    num_envs: int = VECTOR_ENVS,
+    vector_steps: int = 250,
+    seed: int = 0,
+    rounds: int = 10,
+    physics: bool = True,
+) -> tuple[dict[str, float], str]:
+    """``vector_steps_per_s``: environment steps per second of ``gymnasium.make_vec(env_id, num_envs)`` under
+    random actions (its autoreset included), and with ``physics`` (when the registered batched env runs)
+    ``vector_physics_bound_steps_per_s``: the same sites' physics alone (:meth:`step_physics_only`: a whole
+    step in one ``Batch.step``, no task logic). Both are timed in turn in ``rounds`` blocks, after
+    ``WARMUP_STEPS`` untimed steps, so that the machine's drift weighs on both alike. Also returns the
+    vector env's class name."""
+    if num_envs < 1 or vector_steps < 1 or rounds < 1:
+        raise ValueError(f"num_envs, vector_steps and rounds must be >= 1, got {num_envs}, {vector_steps}, {rounds}")
+    envs = gym.make_vec(env_id, num_envs=num_envs)
+    kind = type(envs).__name__
+    bound = None
+    try:
+        envs.reset(seed=seed)
+        envs.action_space.seed(seed)
+        for _ in range(WARMUP_STEPS):
+            envs.step(envs.action_space.sample())
+        actions = [envs.action_space.sample() for _ in range(vector_steps)]
+        if physics and kind == "HexLoadingVectorEnv":
+            from hexgym.envs.vector import HexLoadingVectorEnv
+
+            bound = HexLoadingVectorEnv(num_envs)
+            bound.reset(seed=seed)
+            spools = np.asarray(actions, dtype=float) * p.SPOOL_STROKE * CTRL_PER_SPOOL_M
+        elapsed = {"env": 0.0, "physics": 0.0}
+        edges = np.linspace(0, vector_steps, min(rounds, vector_steps) + 1).astype(int)
+        for first, last in zip(edges[:-1], edges[1:], strict=True):
+            start = time.perf_counter()
+            for action in actions[first:last]:
+                envs.step(action)
+            elapsed["env"] += time.perf_counter() - start
+            if bound is not None:
+                elapsed["physics"] += sum(bound.step_physics_only(row) for row in spools[first:last])
+        rates = {"vector_steps_per_s": num_envs * vector_steps / elapsed["env"]}
+        if bound is not None:
+            rates["vector_physics_bound_steps_per_s"] = num_envs * vector_steps / elapsed["physics"]
+        return rates, kind
+    finally:
+        envs.close()
+        if bound is not None:
+            bound.close()
 
 
 def mujoco_step_profile(steps: int = 500, seed: int = 0) -> dict[str, float]:
@@ -146,19 +193,35 @@ def mujoco_step_profile(steps: int = 500, seed: int = 0) -> dict[str, float]:
     }
 
 
+def warm_up(steps: int = 80, seed: int = 0) -> float:
+    """Run the scripted loader into the pile for ``steps`` untimed steps, so that every compiled function of the
+    loading task (:mod:`hexgym.envs.task`) is compiled or loaded from numba's cache before anything is timed;
+    returns its wall seconds (on a fresh install, the first-call compile time)."""
+    from hexgym.agents.scripted import ScriptedLoader
+    from hexgym.envs.loading import HexLoadingEnv
+
+    start = time.perf_counter()
+    env, loader = HexLoadingEnv(), ScriptedLoader()
+    env.reset(seed=seed)
+    for _ in range(steps):  # it cuts the pile from about step 50
+        env.step(loader.act(env))
+    env.close()
+    return time.perf_counter() - start
+
+
 def run_bench(steps: int = 2000, seed: int = 0, seconds: float = 2.0) -> dict:
-    """All figures (see the module docstring); ``steps`` random steps per single environment (and as
-    many environment steps of the vector env), ``seconds`` of wall time per real-time factor."""
+    """All figures (see the module docstring); ``steps`` random steps per single environment (and ``steps / 8``
+    steps of the vector env of 64), ``seconds`` of wall time per real-time factor."""
     if not seconds > 0:
         raise ValueError(f"seconds must be > 0, got {seconds}")
+    warm_up_s = warm_up(seed=seed)
     rates = interleaved_steps_per_second(
         {"loading": (ENV_ID, {}), "hopper": (REFERENCE_ENV, {}), "python": (ENV_ID, {"backend": "python"})},
         steps, seed,
     )  # fmt: skip
     loading, hopper, python = rates["loading"], rates["hopper"], rates["python"]
-    vector, vector_env = vector_steps_per_second(vector_steps=max(1, steps // VECTOR_ENVS), seed=seed)
-    batched = vector_env == "HexLoadingVectorEnv"
-    bound = physics_bound_steps_per_second(VECTOR_ENVS, max(1, steps // VECTOR_ENVS), seed) if batched else None
+    vector_rates, vector_env = vector_benchmark(vector_steps=max(1, steps // 8), seed=seed)
+    vector, bound = vector_rates["vector_steps_per_s"], vector_rates.get("vector_physics_bound_steps_per_s")
     result = {
         "steps": steps,
         "hexloading_steps_per_s": loading,
@@ -173,7 +236,9 @@ def run_bench(steps: int = 2000, seed: int = 0, seconds: float = 2.0) -> dict:
         "vector_ratio": vector / hopper,
         # what the batch's physics alone allows the vector env (no task logic): the ceiling of vector_steps_per_s
         "vector_physics_bound_steps_per_s": bound,
+        "vector_physics_share": vector / bound if bound else None,  # target >= 0.7
         "hexloading_sim_seconds_per_s": loading * 0.1,  # one step is 0.1 s of simulated time
+        "warm_up_s": warm_up_s,  # untimed scripted steps first: on a fresh install, the task's compile time
         **native_benchmark(seconds=seconds),  # learned_realtime_factor_python / _native (one thread)
     }
     if native_available():
@@ -206,6 +271,7 @@ def print_bench(result: dict, json_path: str | Path | None = None) -> None:
         bound = r["vector_physics_bound_steps_per_s"]
         ratio = bound / r["hopper_steps_per_s"]
         print(f"  its physics alone (no task logic): {bound:.0f} env steps/s, ratio {ratio:.3f}")
+        print(f"  vector / physics alone: {r['vector_steps_per_s'] / bound:.3f} (target >= 0.7)")
     for key in ("learned_realtime_factor_python", "learned_realtime_factor_native"):
         print(f"{key}: {result.get(key, float('nan')):.0f}x real time (one thread)")
     if "batch_realtime_factor_native" in result:
@@ -280,7 +346,7 @@ def batch_realtime_factor_native(
 
 def batch_benchmark(nbatch: int = 64, nthread: int | None = None, seconds: float = 3.0, seed: int = 0) -> dict:
     """``batch_realtime_factor_native``: simulated seconds of ``nbatch`` native rollouts per wall
-    second on ``nthread`` threads (default: every core) of ``mujoco.rollout`` (needs the plugin);
+    second on ``nthread`` threads (default: one per CPU this process may use) of ``mujoco.rollout`` (needs the plugin);
     ``batch_cores_used``: the cores the process got meanwhile (CPU / wall seconds: below ``nthread``
     when other processes share the cores, and the first figure is then that much short).
 
@@ -292,7 +358,7 @@ def batch_benchmark(nbatch: int = 64, nthread: int | None = None, seconds: float
 
     if nbatch < 1:
         raise ValueError(f"nbatch must be >= 1, got {nbatch}")
-    nthread = (os.cpu_count() or 1) if nthread is None else nthread
+    nthread = _cores() if nthread is None else nthread
     if nthread < 1:
         raise ValueError(f"nthread must be >= 1, got {nthread}")
     _, pose = _test3()
