@@ -15,6 +15,7 @@ import numpy as np
 from gymnasium import spaces
 
 from hexgym.envs.earthwork import Pile
+from hexgym.envs.sites import MachineSites
 from hexgym.envs.task import (
     CONTACT_SLOTS,
     EARTHWORK_PERIODS,
@@ -28,7 +29,6 @@ from hexgym.envs.task import (
 from hexgym.envs.world import (
     PILE_GRID_POINTS,
     PILE_GRID_SPACING,
-    TOOL_CONTACT_SENSOR,
     Layout,
     World,
     build_world_model,
@@ -121,31 +121,6 @@ def _display_available() -> bool:
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
-def _servo_bands(model: mujoco.MjModel) -> tuple[np.ndarray, ...]:
-    """Per integrated-velocity servo: act, qpos and dof addresses, kv/kp, and forcerange/kp.
-
-    Its force ``kp (act - q) - kv qd`` is within ``forcerange`` while ``act`` is within
-    ``q + kv/kp qd +- forcerange/kp``.
-    """
-    servos = [
-        i
-        for i in range(model.nu)
-        if model.actuator_plugin[i] < 0
-        and model.actuator_dyntype[i] == mujoco.mjtDyn.mjDYN_INTEGRATOR
-        and model.actuator_biastype[i] == mujoco.mjtBias.mjBIAS_AFFINE
-    ]  # integrated-velocity servos (a plugin actuator keeps its own state)
-    joints = model.actuator_trnid[servos, 0]
-    kp = model.actuator_gainprm[servos, 0]
-    kv = -model.actuator_biasprm[servos, 2]
-    return (
-        model.actuator_actadr[servos],
-        model.jnt_qposadr[joints],
-        model.jnt_dofadr[joints],
-        kv / kp,
-        model.actuator_forcerange[servos, 1] / kp,
-    )
-
-
 def wrap_angle(angle: np.ndarray | float) -> np.ndarray | float:
     """Angle(s) wrapped to [-pi, pi) (floats or arrays: numpy's % is Python's for floats)."""
     return (angle + math.pi) % (2.0 * math.pi) - math.pi
@@ -180,76 +155,14 @@ def _is_number(value: Any) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
 
 
-class MachineSite:
-    """One learned machine model (any backend) as the :class:`hexgym.envs.task.SitePhysics` of a task of one site.
-
-    The arrays are views of the machine's ``MjData`` with a site axis of one; the spools to hold are
-    set in :attr:`spools_m` before a step. A machine with integrated-velocity servos (the Python
-    backend) has their targets limited after each call (:meth:`limit_servo_windup`).
-    """
-
-    def __init__(self, machine: LearnedModelBase) -> None:
-        self.machine, self.physics = machine, machine.physics
-        model = self.physics.model
-        self.tip_site, self.bucket_body = model.site("tip").id, model.body("bucket").id
-        self.qadr = np.array([model.jnt_qposadr[model.joint(n).id] for n in kinematics.JOINTS])
-        self.dadr = np.array([model.jnt_dofadr[model.joint(n).id] for n in kinematics.JOINTS])
-        self.contact_adr = int(model.sensor(TOOL_CONTACT_SENSOR).adr[0])
-        self._servo_bands = _servo_bands(model)
-        self.spools_m = np.zeros(4)
-        self._bind()
-
-    def _bind(self) -> None:
-        d = self.physics.data
-        self.site_xpos, self.xpos, self.xmat = d.site_xpos[None], d.xpos[None], d.xmat[None]
-        self.qpos, self.qvel, self.sensordata = d.qpos[None], d.qvel[None], d.sensordata[None]
-
-    def __getstate__(self) -> dict:
-        state = self.__dict__.copy()
-        for name in ("site_xpos", "xpos", "xmat", "qpos", "qvel", "sensordata"):
-            del state[name]  # views: rebound to the unpickled MjData
-        return state
-
-    def __setstate__(self, state: dict) -> None:
-        self.__dict__.update(state)
-        self._bind()
-
-    def step(self, ids: np.ndarray, periods: int) -> None:
-        """Hold :attr:`spools_m` for ``periods`` control periods."""
-        self.machine.step(self.spools_m, n=periods)
-        self.limit_servo_windup()
-
-    def apply_tip_force(self, ids: np.ndarray, force: np.ndarray) -> None:
-        """Push the teeth with ``force[0]`` (N, world) from now on."""
-        self.physics.apply_tip_force(force[0])
-
-    def set_payload(self, ids: np.ndarray, mass_kg: np.ndarray) -> None:
-        """Re-mass the bucket's payload with ``mass_kg[0]``."""
-        self.physics.set_payload(float(mass_kg[0]))
-
-    def joint_loads(self, ids: np.ndarray) -> np.ndarray:
-        """The machine model's joint loads (1, 4), N m."""
-        return self.machine.joint_loads()[None]
-
-    def swing_torques(self, ids: np.ndarray) -> np.ndarray:
-        """The swing's inertia times its last table acceleration (1,), N m."""
-        return np.array([self.physics.swing_inertia() * self.machine.swing_acceleration])
-
-    def limit_servo_windup(self) -> None:
-        """Keep each servo's integrated target where the servo is at most saturated (anti-windup).
-
-        The machine's integrated-velocity servos integrate the tables' rate targets even while a
-        joint is stalled (bucket against the truck, dig force above the swing's torque); released,
-        the servo would then drive the joint to the stale target whatever the spools say. A stalled
-        hydraulic actuator stores no such displacement (its reliefs open), so the target is held
-        within the band where the servo force is at its limit.
-        """
-        act_adr, qpos_adr, dof_adr, ratio, slack = self._servo_bands
-        if not len(act_adr):
-            return  # a plugin backend: no integrated servo targets
-        d = self.physics.data
-        centre = d.qpos[qpos_adr] + ratio * d.qvel[dof_adr]
-        d.act[act_adr] = np.clip(d.act[act_adr], centre - slack, centre + slack)
+def start_machine(machine: LearnedModelBase, world: World, q: np.ndarray, layout: Layout) -> None:
+    """Put ``machine`` at rest at angles ``q`` with an empty bucket on its site ``world`` laid out as ``layout``."""
+    model, data = machine.physics.model, machine.physics.data
+    mujoco.mj_resetData(model, data)  # warm starts too: same seed, same episode
+    machine.reset(q, payload_kg=0.0)
+    world.place(data, layout)
+    data.qfrc_applied[:] = 0.0
+    mujoco.mj_forward(model, data)
 
 
 class SiteEarth:
@@ -459,7 +372,7 @@ class HexLoadingEnv(gym.Env):
         self.physics = self.machine.physics
         model = self.physics.model
         self.world = World(model)
-        self._site = MachineSite(self.machine)
+        self._site = MachineSites([self.machine])
         self.task = LoadingTask(
             1, self._site, self.machine.control_period, self.time_limit, self.truck_capacity_kg, self.weights,
             self.earthwork_periods,
@@ -486,11 +399,7 @@ class HexLoadingEnv(gym.Env):
     def start_machine(self, q: np.ndarray, layout: Layout) -> None:
         """Put the machine at rest at angles ``q`` with an empty bucket on a site laid out as ``layout``
         (the simulation part of :meth:`reset`; the batched environment starts its machines through it)."""
-        mujoco.mj_resetData(self.physics.model, self.physics.data)  # warm starts too: same seed, same episode
-        self.machine.reset(q, payload_kg=0.0)
-        self.world.place(self.physics.data, layout)
-        self.physics.data.qfrc_applied[:] = 0.0
-        mujoco.mj_forward(self.physics.model, self.physics.data)
+        start_machine(self.machine, self.world, q, layout)
 
     @property
     def fuel_l(self) -> float:
@@ -523,7 +432,7 @@ class HexLoadingEnv(gym.Env):
         if self.earth is None:
             raise RuntimeError("call reset() before step()")
         spools = np.minimum(np.maximum(self._check_action(action), -1.0), 1.0) * p.SPOOL_STROKE  # (np.clip: slower)
-        self._site.spools_m = spools
+        self._site.spools_m[0] = spools
         task = self.task
         terms, rewards, ended = task.step(_SITE)
         obs = task.observe(_SITE)[0]

@@ -2,19 +2,17 @@
 
 :class:`HexLoadingVectorEnv` runs the N machines as one :class:`mujoco.batch.Batch` of the native
 plugin's model (a persistent pool of C threads, one ``MjData`` per site, each site's state its
-``mjSTATE_INTEGRATION`` row, per-site payload masses) under the loading task of N sites
-(:class:`hexgym.envs.task.LoadingTask`), the one the single environment runs with N = 1, so that
-its results equal N :class:`HexLoadingEnv` stepped one by one (``tests/test_vector_env.py``).
-
-:class:`BatchSites` is the batch as the task's :class:`hexgym.envs.task.SitePhysics`: what the task
-reads comes from the batch without a Python loop over sites (bound state and outputs: joints, teeth
-site, bucket frame, contact sensor; the plugin state's last constraint load and swing acceleration),
-the digging force's joint forces from ``Batch.jac``. Resets (once per episode) run the single
-environment's own reset on a scratch :class:`HexLoadingEnv` and copy its state into the site's row.
+``mjSTATE_INTEGRATION`` row, per-site payload masses; :class:`hexgym.envs.sites.BatchSites`), or on the
+Python backend as N learned models (:class:`hexgym.envs.sites.MachineSites`), under the loading task of
+N sites (:class:`hexgym.envs.task.LoadingTask`), the one the single environment runs with N = 1, so
+that its results equal N :class:`HexLoadingEnv` stepped one by one (``tests/test_vector_env.py``).
+Resets (once per episode) draw each site's episode as the single environment's reset does; on the
+batch, its machine starts on a scratch :class:`HexLoadingEnv` whose state is copied into the site's row.
 """
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from pathlib import Path
@@ -25,108 +23,18 @@ import mujoco
 import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
-from mujoco import batch as mjbatch
 
-from hexgym.envs.loading import HexLoadingEnv, heap_for, native_world_model, sample_start
+from hexgym.envs.loading import HexLoadingEnv, heap_for, make_machine, native_world_model, sample_start, start_machine
+from hexgym.envs.sites import BatchSites, MachineSites
 from hexgym.envs.task import CONTACT_SLOTS, INFO_STORES, REWARD_TERMS, STEP_PERIOD, LoadingTask
-from hexgym.envs.world import TOOL_CONTACT_SENSOR, Layout
-from hexgym.machine import kinematics
+from hexgym.envs.world import Layout, World
 from hexgym.machine import parameters as p
-from hexgym.machine.physics import payload_inertia
+from hexgym.model.backend import resolve_backend
 from hexgym.model.plugin import CTRL_PER_SPOOL_M
-from hexgym.model.plugin import STATE as PLUGIN_STATE
 
 _VEL = int(mujoco.mjtStage.mjSTAGE_VEL)  # after a step: positions and velocities current, as mj_step1 leaves them
 _ACC = int(mujoco.mjtStage.mjSTAGE_ACC)
 _STATE = mujoco.mjtState.mjSTATE_INTEGRATION
-THREADED_SITE_STEPS = 32  # site steps in one call from which the batch's thread pool is worth waking
-
-
-class BatchSites:
-    """A :class:`mujoco.batch.Batch` of the plugin's model as the loading task's
-    :class:`hexgym.envs.task.SitePhysics` (the spools are the batch's ``ctrl``).
-
-    Each call does for its sites what the single environment's machine does to its ``MjData``, to the
-    last bit: a batch site steps as ``mj_step``, the joint loads are ``NativeLearnedModel.joint_loads``,
-    the digging force ``mj_applyFT``'s sum, the payload ``ExcavatorPhysics.set_payload``'s masses.
-    """
-
-    def __init__(self, model: mujoco.MjModel, count: int, nthread: int) -> None:
-        self.model = model
-        self.batch = b = mjbatch.Batch(model, count, nthread=nthread, persistent=True)
-        self.state = b.state
-        self.qpos, self.qvel = b.bind("qpos"), b.bind("qvel")
-        self.ctrl, self._qfrc_applied = b.bind("ctrl"), b.bind("qfrc_applied")
-        self._plugin_state = b.bind("plugin_state")
-        self.site_xpos, self.xpos, self.xmat = b.bind("site_xpos"), b.bind("xpos"), b.bind("xmat")
-        self._qfrc_bias, self._qfrc_passive = b.bind("qfrc_bias"), b.bind("qfrc_passive")
-        self._mass_matrix = b.bind("M")
-        self.sensordata = b.bind("sensordata")
-        self.body_mass, self.body_inertia = b.expand("body_mass"), b.expand("body_inertia")
-        m = model
-        self.qadr = np.array([m.jnt_qposadr[m.joint(n).id] for n in kinematics.JOINTS])
-        self.dadr = np.array([m.jnt_dofadr[m.joint(n).id] for n in kinematics.JOINTS])
-        self.ctrl_ids = np.array([m.actuator(n).id for n in kinematics.JOINTS])
-        self.tip_site, self.bucket_body, self.payload_body = m.site("tip").id, m.body("bucket").id, m.body("payload").id
-        swing = self.dadr[0]
-        self._swing_diag = m.M_rowadr[swing] + m.M_rownnz[swing] - 1
-        state = int(m.plugin_stateadr[0])
-        self._load_slots = state + PLUGIN_STATE["load"] + np.arange(4)  # the plugin's last constraint load
-        self._acceleration_slot = state + PLUGIN_STATE["acceleration"]  # its last swing acceleration
-        self.contact_adr = int(m.sensor(TOOL_CONTACT_SENSOR).adr[0])
-        self.seconds = 0.0  # wall time spent in the batch's steps (the rest is the task logic)
-        self.steps = 0  # MuJoCo steps (of one site) they made
-
-    def step(self, ids: np.ndarray, periods: int) -> None:
-        """Advance the sites ``ids`` by ``periods`` control periods (the model's steps); positions and velocities
-        then belong to the new state, as after ``mj_step1`` (timed: :attr:`seconds`).
-
-        In the batch's threads when there is enough work to share (``THREADED_SITE_STEPS``), else site by site
-        in this thread: handing a few steps to the pool costs more than they do (~0.1 ms against ~7 us a step).
-        """
-        start = time.perf_counter()
-        if len(ids) * periods >= THREADED_SITE_STEPS:
-            self.batch.step(ids, nstep=periods, stage=_VEL)
-        else:
-            for k in range(len(ids)):
-                self.batch.step(ids[k : k + 1], nstep=periods, stage=_VEL)
-        self.seconds += time.perf_counter() - start
-        self.steps += len(ids) * periods
-
-    def apply_tip_force(self, ids: np.ndarray, force: np.ndarray) -> None:
-        """ExcavatorPhysics.apply_tip_force of the sites ``ids``: ``qfrc_applied = J^T force`` at the teeth.
-
-        The sum is mj_applyFT's (``mju_mulMatTVec``: rows with a zero force skipped, added in order into
-        zeros), so the joint forces are the same floats.
-        """
-        if not np.isfinite(force).all():
-            raise ValueError(f"tip force must be finite, got {force[~np.isfinite(force).all(axis=1)]}")
-        if not force.any():
-            self._qfrc_applied[ids] = 0.0
-            return
-        tip = self.site_xpos[ids, self.tip_site]
-        jacp, _ = self.batch.jac(self.bucket_body, tip, ids)
-        qforce = np.zeros((len(ids), self.model.nv))
-        for r in range(3):
-            component = force[:, r : r + 1]
-            qforce = np.where(component != 0.0, qforce + jacp[:, r, :] * component, qforce)
-        self._qfrc_applied[ids] = 0.0 + qforce
-
-    def set_payload(self, ids: np.ndarray, mass_kg: np.ndarray) -> None:
-        """ExcavatorPhysics.set_payload of the sites ``ids``: mass and inertia, ``mj_setConst``, ``mj_forward``."""
-        self.body_mass[ids, self.payload_body] = mass_kg
-        self.body_inertia[ids, self.payload_body] = payload_inertia(mass_kg)
-        self.batch.set_const(ids)
-        self.batch.forward(ids, stage=_ACC)
-
-    def joint_loads(self, ids: np.ndarray) -> np.ndarray:
-        """NativeLearnedModel.joint_loads of the sites ``ids`` (N m), (k, 4)."""
-        tau = self._qfrc_bias[ids] - self._qfrc_passive[ids] - self._qfrc_applied[ids]
-        return tau[:, self.dadr] - self._plugin_state[ids][:, self._load_slots]
-
-    def swing_torques(self, ids: np.ndarray) -> np.ndarray:
-        """The swing's inertia times the plugin's last swing acceleration of the sites ``ids``, N m."""
-        return self._mass_matrix[ids, self._swing_diag] * self._plugin_state[ids, self._acceleration_slot]
 
 
 class HexLoadingVectorEnv(VectorEnv):
@@ -140,15 +48,17 @@ class HexLoadingVectorEnv(VectorEnv):
     returns the new episode's first observation with reward 0. ``reset(seed=s)`` seeds site ``i``
     with ``s + i``, so site ``i`` follows ``HexLoadingEnv`` reset with that seed.
 
-    Needs the native plugin (the batch steps its model in C threads); without it use
-    ``gymnasium.make_vec(..., vectorization_mode="sync")``. No rendering: render a single
-    environment.
+    On the native plugin the sites are one MuJoCo batch stepped in C threads (:class:`BatchSites`); on
+    the Python backend (``backend="python"``, or ``"auto"`` without the plugin or with
+    ``HEXGYM_BACKEND=python``) N learned models in turn (:class:`MachineSites`: slow, but the same
+    task and results as N single environments). No rendering: render a single environment.
 
     Args:
         num_envs: number of sites.
         nthread: the batch's threads (default: the CPUs this process may use, at most ``num_envs``).
         scene_path: as ``HexLoadingEnv``'s (the batch's model is built on it too).
-        backend: ``"native"`` or ``"auto"`` (the same here); ``"python"`` raises.
+        backend: ``"native"`` (needs the plugin), ``"python"`` or ``"auto"``
+            (:func:`hexgym.model.backend.resolve_backend`).
         render_mode: only None.
         env_kwargs: the other keyword arguments of ``HexLoadingEnv`` (time limit, truck capacity, reward
             weights, earthwork periods), with its defaults: the single environment takes and checks them.
@@ -161,7 +71,7 @@ class HexLoadingVectorEnv(VectorEnv):
         num_envs: int,
         nthread: int | None = None,
         scene_path: str | Path | None = None,
-        backend: str = "native",
+        backend: str = "auto",
         render_mode: str | None = None,
         **env_kwargs: Any,
     ) -> None:
@@ -172,21 +82,19 @@ class HexLoadingVectorEnv(VectorEnv):
                 f"the batched HexLoading-v0 does not render (render_mode {render_mode!r}): render a "
                 "single environment, or use gymnasium.make_vec(..., vectorization_mode='sync')"
             )
-        if backend not in ("auto", "native"):
-            raise ValueError(
-                f"the batched HexLoading-v0 runs the native plugin only, got backend={backend!r}; use "
-                "gymnasium.make_vec('HexLoading-v0', ..., vectorization_mode='sync') for the Python one"
-            )
-        from hexgym.model.plugin import NativePluginError, load_plugin
+        backend = resolve_backend(backend)
+        if backend == "native":
+            from hexgym.model.plugin import NativePluginError, load_plugin
 
-        reason = load_plugin()
-        if reason:
-            raise NativePluginError(
-                f"the batched HexLoading-v0 needs the native plugin: {reason}; use "
-                "gymnasium.make_vec('HexLoading-v0', num_envs, vectorization_mode='sync')"
-            )
+            reason = load_plugin()
+            if reason:
+                raise NativePluginError(
+                    f"the batched HexLoading-v0 on the native backend needs the native plugin: {reason}; use "
+                    "backend='python' or gymnasium.make_vec('HexLoading-v0', num_envs, vectorization_mode='sync')"
+                )
+        self.backend = backend
         # the single environment checks the arguments, resets the sites and holds the spaces
-        self._scratch = HexLoadingEnv(scene_path=scene_path, backend="native", **env_kwargs)
+        self._scratch = HexLoadingEnv(scene_path=scene_path, backend=backend, **env_kwargs)
         scratch = self._scratch
         self.num_envs = int(num_envs)
         self.render_mode = None
@@ -195,14 +103,23 @@ class HexLoadingVectorEnv(VectorEnv):
         self.single_action_space, self.single_observation_space = scratch.action_space, scratch.observation_space
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
-        model = native_world_model(scene_path, scratch.tables, tool_contact_slots=CONTACT_SLOTS)
-        if mujoco.mj_stateSize(model, _STATE) != mujoco.mj_stateSize(scratch.physics.model, _STATE):
-            raise RuntimeError("the batch's model and the single environment's differ in their state")
-        if nthread is None:
-            nthread = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-        self.nthread = max(1, min(int(nthread), self.num_envs))
-        self.model = model
-        self.sites = BatchSites(model, self.num_envs, self.nthread)
+        if backend == "native":
+            model = native_world_model(scene_path, scratch.tables, tool_contact_slots=CONTACT_SLOTS)
+            if mujoco.mj_stateSize(model, _STATE) != mujoco.mj_stateSize(scratch.physics.model, _STATE):
+                raise RuntimeError("the batch's model and the single environment's differ in their state")
+            if nthread is None:
+                nthread = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+            self.nthread = max(1, min(int(nthread), self.num_envs))
+            self.sites: BatchSites | MachineSites = BatchSites(model, self.num_envs, self.nthread)
+            self._worlds: list[World] = []
+        else:
+            self.nthread = 1
+            machines = [
+                make_machine("python", scene_path, scratch.tables, tool_contact_slots=CONTACT_SLOTS)
+                for _ in range(self.num_envs)
+            ]  # fmt: skip
+            self._worlds = [World(machine.physics.model) for machine in machines]
+            self.sites = MachineSites(machines)
         self.task = LoadingTask(
             self.num_envs, self.sites, scratch.task.period, self.time_limit, self.truck_capacity_kg, self.weights,
             self.earthwork_periods,
@@ -219,13 +136,8 @@ class HexLoadingVectorEnv(VectorEnv):
 
     @property
     def physics_seconds(self) -> float:
-        """Wall seconds spent in the batch's physics steps (the rest of a step is the task logic)."""
-        return self.sites.seconds
-
-    @property
-    def physics_steps(self) -> int:
-        """MuJoCo steps (of one site) the batch made."""
-        return self.sites.steps
+        """Wall seconds spent in the batch's physics steps (the rest of a step is the task logic; native only)."""
+        return getattr(self.sites, "seconds", math.nan)
 
     # -- Gymnasium API -------------------------------------------------------------------------
     def reset(
@@ -283,7 +195,10 @@ class HexLoadingVectorEnv(VectorEnv):
         stepped = np.zeros(n, bool)
         if len(stepping):
             spools = np.minimum(np.maximum(a[stepping], -1.0), 1.0) * p.SPOOL_STROKE
-            self.sites.ctrl[stepping[:, None], self.sites.ctrl_ids] = spools * CTRL_PER_SPOOL_M
+            if isinstance(self.sites, BatchSites):
+                self.sites.ctrl[stepping[:, None], self.sites.ctrl_ids] = spools * CTRL_PER_SPOOL_M
+            else:
+                self.sites.spools_m[stepping] = spools
             terms[stepping], rewards[stepping], ended = self.task.step(stepping)
             terminated[stepping], truncated[stepping] = ended[:, 0], ended[:, 1]
             stepped[stepping] = True
@@ -295,7 +210,10 @@ class HexLoadingVectorEnv(VectorEnv):
     def step_physics_only(self, spools_mm: np.ndarray) -> float:
         """Step every site's physics one environment step with ``spools_mm`` ((num_envs, 4), the plugin's ctrl)
         and no task logic; returns the wall seconds of the batch's step. The physics' share of a step: what
-        benchmarks compare the full step with (the site states are left inconsistent with the task: reset after)."""
+        benchmarks compare the full step with (the site states are left inconsistent with the task: reset after).
+        Native backend only."""
+        if not isinstance(self.sites, BatchSites):
+            raise NotImplementedError("step_physics_only times the native batch; this environment runs in Python")
         self.sites.ctrl[:, self.sites.ctrl_ids] = spools_mm
         start = time.perf_counter()
         self.sites.batch.step(np.arange(self.num_envs), nstep=self.task.periods, stage=_VEL)
@@ -303,7 +221,7 @@ class HexLoadingVectorEnv(VectorEnv):
 
     def close_extras(self, **kwargs: Any) -> None:
         """Stop the batch's threads."""
-        if hasattr(self, "sites"):  # (a failed construction closes too)
+        if isinstance(getattr(self, "sites", None), BatchSites):  # (a failed construction closes too)
             self.sites.batch = None
         if hasattr(self, "_scratch"):
             self._scratch.close()
@@ -332,17 +250,25 @@ class HexLoadingVectorEnv(VectorEnv):
             self._rngs[i], _ = gym.utils.seeding.np_random(seed)
         layout, q = sample_start(self._rngs[i])
         scratch, sites = self._scratch, self.sites
-        scratch.start_machine(q, layout)
-        mujoco.mj_getState(scratch.physics.model, scratch.physics.data, sites.state[i], _STATE)
-        sites.body_mass[i, sites.payload_body] = scratch.physics.model.body_mass[sites.payload_body]
-        sites.body_inertia[i, sites.payload_body] = scratch.physics.model.body_inertia[sites.payload_body]
-        self.task.start(i, layout, heap_for(layout), scratch.physics.payload_kg)
+        if isinstance(sites, BatchSites):
+            scratch.start_machine(q, layout)
+            mujoco.mj_getState(scratch.physics.model, scratch.physics.data, sites.state[i], _STATE)
+            sites.body_mass[i, sites.payload_body] = scratch.physics.model.body_mass[sites.payload_body]
+            sites.body_inertia[i, sites.payload_body] = scratch.physics.model.body_inertia[sites.payload_body]
+            payload_kg = scratch.physics.payload_kg
+        else:
+            start_machine(sites.machines[i], self._worlds[i], q, layout)
+            payload_kg = sites.machines[i].physics.payload_kg
+        self.task.start(i, layout, heap_for(layout), payload_kg)
         self._autoreset[i] = False
 
     def _finish_starts(self, ids: np.ndarray) -> None:
         """Derived quantities of freshly loaded sites (the start's masses, ``mj_forward``) and their teeth."""
-        self.sites.batch.set_const(ids)
-        self.sites.batch.forward(ids, stage=_ACC)
+        if isinstance(self.sites, BatchSites):
+            self.sites.batch.set_const(ids)
+            self.sites.batch.forward(ids, stage=_ACC)
+        else:
+            self.sites.refresh(ids)
         self.task.finish_starts(ids)
 
     # -- info ---------------------------------------------------------------------------------------

@@ -1,0 +1,237 @@
+"""The machines of the loading task's sites (:class:`hexgym.envs.task.SitePhysics`): learned machine models or a
+MuJoCo batch.
+
+- :class:`MachineSites`: N learned machine models of any backend (the single environment's one, or the
+  Python backend's N for the batched environment without the native plugin): each stepped by its
+  model's ``step``; the task's arrays are views of the one ``MjData`` (N = 1) or copies gathered
+  after each change.
+- :class:`BatchSites`: a :class:`mujoco.batch.Batch` of the native plugin's model: the sites step in
+  the batch's C threads, the arrays are the batch's bound state and outputs.
+
+Both do to each site what the machine model does to its ``MjData``, to the last bit, so that the task
+gives the same floats on either (``tests/test_vector_env.py``).
+"""
+
+from __future__ import annotations
+
+import time
+
+import mujoco
+import numpy as np
+from mujoco import batch as mjbatch
+
+from hexgym.envs.world import TOOL_CONTACT_SENSOR
+from hexgym.machine import kinematics
+from hexgym.machine.physics import payload_inertia
+from hexgym.model.base import LearnedModelBase
+from hexgym.model.plugin import STATE as PLUGIN_STATE
+
+_VEL = int(mujoco.mjtStage.mjSTAGE_VEL)  # after a step: positions and velocities current, as mj_step1 leaves them
+_ACC = int(mujoco.mjtStage.mjSTAGE_ACC)
+THREADED_SITE_STEPS = 32  # site steps in one call from which the batch's thread pool is worth waking
+_ARRAYS = ("site_xpos", "xpos", "xmat", "qpos", "qvel", "sensordata")  # what the task reads
+
+
+def _servo_bands(model: mujoco.MjModel) -> tuple[np.ndarray, ...]:
+    """Per integrated-velocity servo: act, qpos and dof addresses, kv/kp, and forcerange/kp.
+
+    Its force ``kp (act - q) - kv qd`` is within ``forcerange`` while ``act`` is within
+    ``q + kv/kp qd +- forcerange/kp``.
+    """
+    servos = [
+        i
+        for i in range(model.nu)
+        if model.actuator_plugin[i] < 0
+        and model.actuator_dyntype[i] == mujoco.mjtDyn.mjDYN_INTEGRATOR
+        and model.actuator_biastype[i] == mujoco.mjtBias.mjBIAS_AFFINE
+    ]  # integrated-velocity servos (a plugin actuator keeps its own state)
+    joints = model.actuator_trnid[servos, 0]
+    kp = model.actuator_gainprm[servos, 0]
+    kv = -model.actuator_biasprm[servos, 2]
+    return (
+        model.actuator_actadr[servos],
+        model.jnt_qposadr[joints],
+        model.jnt_dofadr[joints],
+        kv / kp,
+        model.actuator_forcerange[servos, 1] / kp,
+    )
+
+
+class MachineSites:
+    """N learned machine models (any backend, the same site model) as the task's sites.
+
+    The spools to hold are set in :attr:`spools_m` (N, 4) before a step. A machine with
+    integrated-velocity servos (the Python backend) has their targets limited after each step
+    (:meth:`limit_servo_windup`). The task's arrays are views of the machine's ``MjData`` for one
+    machine, else copies refreshed after each step, re-massing and (:meth:`refresh`) start.
+    """
+
+    def __init__(self, machines: list[LearnedModelBase]) -> None:
+        self.machines = list(machines)
+        model = self.machines[0].physics.model
+        self.tip_site, self.bucket_body = model.site("tip").id, model.body("bucket").id
+        self.qadr = np.array([model.jnt_qposadr[model.joint(n).id] for n in kinematics.JOINTS])
+        self.dadr = np.array([model.jnt_dofadr[model.joint(n).id] for n in kinematics.JOINTS])
+        self.contact_adr = int(model.sensor(TOOL_CONTACT_SENSOR).adr[0])
+        self._servo_bands = _servo_bands(model)
+        self.spools_m = np.zeros((len(self.machines), 4))
+        self._bind()
+
+    def _bind(self) -> None:
+        datas = [m.physics.data for m in self.machines]
+        for name in _ARRAYS:
+            if len(datas) == 1:
+                setattr(self, name, getattr(datas[0], name)[None])  # a view: always current
+            else:
+                setattr(self, name, np.stack([getattr(d, name) for d in datas]))
+
+    def refresh(self, ids: np.ndarray) -> None:
+        """Gather the sites' arrays after their machines changed outside the task (a start)."""
+        if len(self.machines) == 1:
+            return
+        for i in ids.tolist():
+            d = self.machines[i].physics.data
+            for name in _ARRAYS:
+                getattr(self, name)[i] = getattr(d, name)
+
+    def __getstate__(self) -> dict:
+        state = self.__dict__.copy()
+        for name in _ARRAYS:
+            del state[name]  # views or copies: rebound to the unpickled MjData
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._bind()
+
+    def step(self, ids: np.ndarray, periods: int) -> None:
+        """Hold each site's :attr:`spools_m` for ``periods`` control periods."""
+        for i in ids.tolist():
+            self.machines[i].step(self.spools_m[i], n=periods)
+            self.limit_servo_windup(i)
+        self.refresh(ids)
+
+    def apply_tip_force(self, ids: np.ndarray, force: np.ndarray) -> None:
+        """Push each site's teeth with its ``force`` row (N, world) from now on."""
+        for k, i in enumerate(ids.tolist()):
+            self.machines[i].physics.apply_tip_force(force[k])
+
+    def set_payload(self, ids: np.ndarray, mass_kg: np.ndarray) -> None:
+        """Re-mass each site's bucket payload."""
+        for k, i in enumerate(ids.tolist()):
+            self.machines[i].physics.set_payload(float(mass_kg[k]))
+        self.refresh(ids)
+
+    def joint_loads(self, ids: np.ndarray) -> np.ndarray:
+        """The machine models' joint loads (k, 4), N m."""
+        if len(self.machines) == 1:
+            return self.machines[0].joint_loads()[None]
+        return np.array([self.machines[i].joint_loads() for i in ids.tolist()])
+
+    def swing_torques(self, ids: np.ndarray) -> np.ndarray:
+        """Each swing's inertia times its last table acceleration (k,), N m."""
+        return np.array([self.machines[i].physics.swing_inertia() * self.machines[i].swing_acceleration
+                         for i in ids.tolist()])  # fmt: skip
+
+    def limit_servo_windup(self, i: int = 0) -> None:
+        """Keep each servo's integrated target where the servo is at most saturated (anti-windup).
+
+        The machine's integrated-velocity servos integrate the tables' rate targets even while a
+        joint is stalled (bucket against the truck, dig force above the swing's torque); released,
+        the servo would then drive the joint to the stale target whatever the spools say. A stalled
+        hydraulic actuator stores no such displacement (its reliefs open), so the target is held
+        within the band where the servo force is at its limit.
+        """
+        act_adr, qpos_adr, dof_adr, ratio, slack = self._servo_bands
+        if not len(act_adr):
+            return  # a plugin backend: no integrated servo targets
+        d = self.machines[i].physics.data
+        centre = d.qpos[qpos_adr] + ratio * d.qvel[dof_adr]
+        d.act[act_adr] = np.clip(d.act[act_adr], centre - slack, centre + slack)
+
+
+class BatchSites:
+    """A :class:`mujoco.batch.Batch` of the plugin's model as the loading task's
+    :class:`hexgym.envs.task.SitePhysics` (the spools are the batch's ``ctrl``).
+
+    Each call does for its sites what the single environment's machine does to its ``MjData``, to the
+    last bit: a batch site steps as ``mj_step``, the joint loads are ``NativeLearnedModel.joint_loads``,
+    the digging force ``mj_applyFT``'s sum, the payload ``ExcavatorPhysics.set_payload``'s masses.
+    """
+
+    def __init__(self, model: mujoco.MjModel, count: int, nthread: int) -> None:
+        self.model = model
+        self.batch = b = mjbatch.Batch(model, count, nthread=nthread, persistent=True)
+        self.state = b.state
+        self.qpos, self.qvel = b.bind("qpos"), b.bind("qvel")
+        self.ctrl, self._qfrc_applied = b.bind("ctrl"), b.bind("qfrc_applied")
+        self._plugin_state = b.bind("plugin_state")
+        self.site_xpos, self.xpos, self.xmat = b.bind("site_xpos"), b.bind("xpos"), b.bind("xmat")
+        self._qfrc_bias, self._qfrc_passive = b.bind("qfrc_bias"), b.bind("qfrc_passive")
+        self._mass_matrix = b.bind("M")
+        self.sensordata = b.bind("sensordata")
+        self.body_mass, self.body_inertia = b.expand("body_mass"), b.expand("body_inertia")
+        m = model
+        self.qadr = np.array([m.jnt_qposadr[m.joint(n).id] for n in kinematics.JOINTS])
+        self.dadr = np.array([m.jnt_dofadr[m.joint(n).id] for n in kinematics.JOINTS])
+        self.ctrl_ids = np.array([m.actuator(n).id for n in kinematics.JOINTS])
+        self.tip_site, self.bucket_body, self.payload_body = m.site("tip").id, m.body("bucket").id, m.body("payload").id
+        swing = self.dadr[0]
+        self._swing_diag = m.M_rowadr[swing] + m.M_rownnz[swing] - 1
+        state = int(m.plugin_stateadr[0])
+        self._load_slots = state + PLUGIN_STATE["load"] + np.arange(4)  # the plugin's last constraint load
+        self._acceleration_slot = state + PLUGIN_STATE["acceleration"]  # its last swing acceleration
+        self.contact_adr = int(m.sensor(TOOL_CONTACT_SENSOR).adr[0])
+        self.seconds = 0.0  # wall time spent in the batch's steps (the rest is the task logic)
+        self.steps = 0  # MuJoCo steps (of one site) they made
+
+    def step(self, ids: np.ndarray, periods: int) -> None:
+        """Advance the sites ``ids`` by ``periods`` control periods (the model's steps); positions and velocities
+        then belong to the new state, as after ``mj_step1`` (timed: :attr:`seconds`).
+
+        In the batch's threads when there is enough work to share (``THREADED_SITE_STEPS``), else site by site
+        in this thread: handing a few steps to the pool costs more than they do (~0.1 ms against ~7 us a step).
+        """
+        start = time.perf_counter()
+        if len(ids) * periods >= THREADED_SITE_STEPS:
+            self.batch.step(ids, nstep=periods, stage=_VEL)
+        else:
+            for k in range(len(ids)):
+                self.batch.step(ids[k : k + 1], nstep=periods, stage=_VEL)
+        self.seconds += time.perf_counter() - start
+        self.steps += len(ids) * periods
+
+    def apply_tip_force(self, ids: np.ndarray, force: np.ndarray) -> None:
+        """ExcavatorPhysics.apply_tip_force of the sites ``ids``: ``qfrc_applied = J^T force`` at the teeth.
+
+        The sum is mj_applyFT's (``mju_mulMatTVec``: rows with a zero force skipped, added in order into
+        zeros), so the joint forces are the same floats.
+        """
+        if not np.isfinite(force).all():
+            raise ValueError(f"tip force must be finite, got {force[~np.isfinite(force).all(axis=1)]}")
+        if not force.any():
+            self._qfrc_applied[ids] = 0.0
+            return
+        tip = self.site_xpos[ids, self.tip_site]
+        jacp, _ = self.batch.jac(self.bucket_body, tip, ids)
+        qforce = np.zeros((len(ids), self.model.nv))
+        for r in range(3):
+            component = force[:, r : r + 1]
+            qforce = np.where(component != 0.0, qforce + jacp[:, r, :] * component, qforce)
+        self._qfrc_applied[ids] = 0.0 + qforce
+
+    def set_payload(self, ids: np.ndarray, mass_kg: np.ndarray) -> None:
+        """ExcavatorPhysics.set_payload of the sites ``ids``: mass and inertia, ``mj_setConst``, ``mj_forward``."""
+        self.body_mass[ids, self.payload_body] = mass_kg
+        self.body_inertia[ids, self.payload_body] = payload_inertia(mass_kg)
+        self.batch.set_const(ids)
+        self.batch.forward(ids, stage=_ACC)
+
+    def joint_loads(self, ids: np.ndarray) -> np.ndarray:
+        """NativeLearnedModel.joint_loads of the sites ``ids`` (N m), (k, 4)."""
+        tau = self._qfrc_bias[ids] - self._qfrc_passive[ids] - self._qfrc_applied[ids]
+        return tau[:, self.dadr] - self._plugin_state[ids][:, self._load_slots]
+
+    def swing_torques(self, ids: np.ndarray) -> np.ndarray:
+        """The swing's inertia times the plugin's last swing acceleration of the sites ``ids``, N m."""
+        return self._mass_matrix[ids, self._swing_diag] * self._plugin_state[ids, self._acceleration_slot]
