@@ -1,6 +1,7 @@
 """The loading task as Gymnasium environments: ``HexLoading-v0`` (:class:`hexgym.envs.loading.HexLoadingEnv`;
-batched, :class:`hexgym.envs.vector.HexLoadingVectorEnv`), the site's world (:mod:`.world`: pile,
-truck, layout) and its earthwork (:mod:`.earthwork`: digging, payload, spill).
+batched, :class:`hexgym.envs.vector.HexLoadingVectorEnv`), both running the task written once over N sites
+(:mod:`.task`, compiled) on their machines (:mod:`.sites`), the site's world (:mod:`.world`: pile, truck,
+layout) and its earthwork (:mod:`.earthwork`: the pile, digging, resistance, spill).
 
 ``import hexgym`` registers them; this package imports MuJoCo and the machine model only when an
 environment is made.
@@ -19,6 +20,6 @@ def register_envs() -> None:
         gymnasium.register(
             id=ENV_ID,
             entry_point="hexgym.envs.loading:HexLoadingEnv",
-            # gymnasium.make_vec(ENV_ID, num_envs=N): the batched environment (needs the native plugin)
+            # gymnasium.make_vec(ENV_ID, num_envs=N): the batched environment (a MuJoCo batch on the native plugin)
             vector_entry_point="hexgym.envs.vector:make_vector_env",
         )

@@ -20,11 +20,13 @@ from hexgym.envs.task import (
     CONTACT_SLOTS,
     EARTHWORK_PERIODS,
     INFO_STORES,
+    MOUTH_CENTRE,
     OBS_HIGH,
     OBS_LOW,
     REWARD_TERMS,
     STEP_PERIOD,
     LoadingTask,
+    wrap,
 )
 from hexgym.envs.world import (
     PILE_GRID_POINTS,
@@ -52,7 +54,7 @@ PYTHON_CONTROL_PERIOD = 0.01
 MAX_TIME_LIMIT = 86_400.0  # s: an episode of at most a day (a longer one is a mistake that fills memory)
 START_NOISE = 0.1  # rad, uniform noise on the start pose's boom, stick and bucket angles
 _HOME = np.array([0.0, 0.35, 0.85, 0.75])  # the machine's keyframe `home`: bucket curled near the ground
-_MOUTH_CENTRE = np.array([(p.BUCKET_LIP[0] + p.BUCKET_EDGE[0]) / 2, 0.0, (p.BUCKET_LIP[1] + p.BUCKET_EDGE[1]) / 2])
+_MOUTH_CENTRE = np.array(MOUTH_CENTRE)  # bucket frame, m
 _SITE = np.zeros(1, np.intp)  # the single environment is site 0 of a task of one
 _INFO_KEYS = (*(f"reward_{term}" for term in REWARD_TERMS), *INFO_STORES)
 _STEP_INFO_KEYS = (*_INFO_KEYS, "fuel_l_step", "contact_impulse_ns")
@@ -121,15 +123,10 @@ def _display_available() -> bool:
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
-def wrap_angle(angle: np.ndarray | float) -> np.ndarray | float:
-    """Angle(s) wrapped to [-pi, pi) (floats or arrays: numpy's % is Python's for floats)."""
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
-
-
 def sample_start(rng: np.random.Generator) -> tuple[Layout, np.ndarray]:
     """An episode's random site and the machine's start angles (rad), drawn from ``rng`` in a fixed order."""
     layout = sample_layout(rng)
-    between = wrap_angle(float(layout.truck_direction - layout.pile_direction))
+    between = wrap(float(layout.truck_direction - layout.pile_direction))
     q = _HOME.copy()
     q[0] = layout.pile_direction + rng.uniform(0.0, 1.0) * between
     q[1:] += rng.uniform(-START_NOISE, START_NOISE, 3)

@@ -4,23 +4,26 @@
 material in the bucket, truck and on the ground, the teeth's sampled motion, fuel and time) as
 arrays over the sites, and advances a step of any subset of them. The machines are behind a
 :class:`SitePhysics`: one learned machine model (:mod:`hexgym.envs.loading`) or a MuJoCo batch
-(:mod:`hexgym.envs.vector`); it exposes the simulation's arrays with a leading site axis and
+(:mod:`hexgym.envs.sites`); it exposes the simulation's arrays with a leading site axis and
 steps, pushes and re-masses sites. The arithmetic of each stage is one numba-compiled function
 over the sites (``cache=True``: compiled on the first call of a fresh install, then loaded from
 ``__pycache__``), so N single environments and one batch of N give the same floats.
 
 A step advances four 25 ms control periods per site on the single environment's schedule:
 
-1. :func:`clear_periods`: periods within which the teeth surely stay clear of the pile (their
-   height above the highest pile point near them against 0.15 m of travel per period). Those go
-   in one call of the physics and are closed by :func:`end_clear` (teeth velocity, spill).
+1. :func:`plan`: each site's next interval. Where the teeth surely stay clear of the pile
+   (:func:`clear_count`: their height above the highest pile point near them against 0.15 m of
+   travel per period), its periods go in one call of the physics, closed by :func:`end_clear`
+   (teeth velocity, spill, payload).
 2. Otherwise :func:`begin_dig` digs once for ``earthwork_periods`` periods (fill, cut and relax the
    pile, the digging force; spill when not cutting); while the edge cuts, :func:`follow_resistance`
    re-aims the force every period (it is proportional to the speed below 5 cm/s: held over a
    whole step it would lag the motion).
-3. After each interval: :func:`payload_changes` (re-mass the bucket on changes over 20 kg), the
-   fuel (:mod:`hexgym.hydraulics.fuel`) and :func:`hard_contact_force` (bucket/stick contacts).
-4. :func:`observe` writes the observation.
+3. After each interval, :func:`account`: fuel (the actuators' power through the engine's BSFC,
+   :mod:`hexgym.hydraulics.fuel`'s own functions), hard contacts (:func:`hard_contact_force`) and
+   the joint loads; the bucket is re-massed on changes over 20 kg (:func:`payload_change`).
+4. :func:`finish`: reward terms and the episode's end; :func:`observe`: the observation;
+   :func:`info_stores`: the material stores for ``info``.
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ from typing import Protocol
 import numpy as np
 
 from hexgym.envs import earthwork as ew
+from hexgym.envs import world
 from hexgym.envs.earthwork import jit
 from hexgym.envs.world import (
     BED_RIM_HEIGHT,
@@ -58,8 +62,10 @@ OBSERVATION_SIZE = 23
 # bucket-frame (x, z) of the teeth's direction and the mouth's normal (both have y = 0), and the mouth's centre
 _TEETH_X, _TEETH_Z = (float(v) for v in p.BUCKET_TEETH_DIRECTION)
 _MOUTH_NORMAL_X, _MOUTH_NORMAL_Z = (float(v) for v in ew.mouth_normal())
-_MOUTH_X, _MOUTH_Z = (p.BUCKET_LIP[0] + p.BUCKET_EDGE[0]) / 2, (p.BUCKET_LIP[1] + p.BUCKET_EDGE[1]) / 2
-_BED_HALF_LENGTH, _BED_HALF_WIDTH = p.TRUCK_BED_LENGTH / 2, p.TRUCK_BED_WIDTH / 2
+MOUTH_CENTRE = ((p.BUCKET_LIP[0] + p.BUCKET_EDGE[0]) / 2, 0.0, (p.BUCKET_LIP[1] + p.BUCKET_EDGE[1]) / 2)  # bucket frame
+_MOUTH_X, _MOUTH_Z = MOUTH_CENTRE[0], MOUTH_CENTRE[2]
+# the site's own functions, compiled for floats: the bed's frame, whether a point is over the bed
+_bed_frame, _over_bed = jit(world.bed_frame), jit(world.over_bed)
 _DENSITY = float(p.MATERIAL_DENSITY)
 _HALF_WIDTH = p.BUCKET_WIDTH / 2.0
 _FILTER = float(p.DIG_VELOCITY_FILTER)
@@ -120,7 +126,7 @@ def wrap(angle: float) -> float:
 
 
 @jit
-def _bucket_pose(site_xpos, xmat, i, tip_site, bucket):  # noqa: ANN001, ANN202
+def _bucket_pose(site_xpos: np.ndarray, xmat: np.ndarray, i: int, tip_site: int, bucket: int) -> tuple:
     """Teeth (x, y, z), the edge's lateral unit vector, the teeth's direction and the mouth's tilt from up."""
     r = xmat[i, bucket]  # row-major, bucket frame -> world
     tilt = math.acos(min(max(r[6] * _MOUTH_NORMAL_X + r[8] * _MOUTH_NORMAL_Z, -1.0), 1.0))
@@ -130,7 +136,10 @@ def _bucket_pose(site_xpos, xmat, i, tip_site, bucket):  # noqa: ANN001, ANN202
 
 
 @jit
-def _sample_tip(i, tip, tip_before, tip_velocity, tip_interval, period, blend_one):  # noqa: ANN001, ANN202
+def _sample_tip(
+    i: int, tip: tuple, tip_before: np.ndarray, tip_velocity: np.ndarray, tip_interval: np.ndarray, period: float,
+    blend_one: float,
+) -> tuple[float, float, float]:  # fmt: skip
     """The teeth's mean velocity since the last sample (m/s), also folded into the low-passed one."""
     interval = tip_interval[i]
     vx = (tip[0] - tip_before[i, 0]) / interval
@@ -147,7 +156,10 @@ def _sample_tip(i, tip, tip_before, tip_velocity, tip_interval, period, blend_on
 
 
 @jit
-def _spill(i, tilt, dt, xpos, xmat, bucket, truck, stores, flows):  # noqa: ANN001, ANN202
+def _spill(
+    i: int, tilt: float, dt: float, xpos: np.ndarray, xmat: np.ndarray, bucket: int, truck: np.ndarray,
+    stores: np.ndarray, flows: np.ndarray,
+) -> None:  # fmt: skip
     """Let what the bucket cannot hold at ``tilt`` run out over ``dt`` s, into the bed if its mouth is over it."""
     out = ew.spill_out(stores[i, 0], tilt, dt)
     if out <= 0.0:
@@ -155,10 +167,9 @@ def _spill(i, tilt, dt, xpos, xmat, bucket, truck, stores, flows):  # noqa: ANN0
     r = xmat[i, bucket]
     mx = xpos[i, bucket, 0] + r[0] * _MOUTH_X + r[2] * _MOUTH_Z
     my = xpos[i, bucket, 1] + r[3] * _MOUTH_X + r[5] * _MOUTH_Z
-    dx, dy = mx - truck[i, 0], my - truck[i, 1]  # truck: centre x, y, cos yaw, sin yaw
-    along, across = truck[i, 2] * dx + truck[i, 3] * dy, -truck[i, 3] * dx + truck[i, 2] * dy
+    along, across = _bed_frame(mx, my, truck[i, 0], truck[i, 1], truck[i, 2], truck[i, 3])  # centre, cos, sin yaw
     stores[i, 0] -= out
-    if abs(along) <= _BED_HALF_LENGTH and abs(across) <= _BED_HALF_WIDTH:
+    if _over_bed(along, across):
         stores[i, 1] += out
         flows[i, 1] += out
     else:
@@ -441,9 +452,7 @@ def observe(
         values[13] = c * rel_x + s * rel_y
         values[14] = -s * rel_x + c * rel_y
         values[15] = tip[2] - ew.height_at(heights, origin, spacing, i, tip[0], tip[1])
-        dx, dy = tip[0] - layout[i, 5], tip[1] - layout[i, 6]
-        values[16] = layout[i, 8] * dx + layout[i, 9] * dy
-        values[17] = -layout[i, 9] * dx + layout[i, 8] * dy
+        values[16], values[17] = _bed_frame(tip[0], tip[1], layout[i, 5], layout[i, 6], layout[i, 8], layout[i, 9])
         values[18] = tip[2] - _RIM
         values[19] = tilt
         values[20] = stores[i, 1] / truck_capacity
