@@ -109,6 +109,7 @@ def surcharge_pressure(bucket_volume: float) -> float:
 
 @jit
 def _magnitude(depth: float, rake: float, surcharge_pa: float) -> float:
+    """The earthmoving force's magnitude (N) at ``depth`` and ``rake``, from the tabulated N_gamma."""
     if depth <= 0.0:
         return 0.0
     return earthmoving_force(depth, table_at(_N_GAMMA, _N_GAMMA_START, _N_GAMMA_STEP, rake), surcharge_pa)
