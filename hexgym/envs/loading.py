@@ -46,8 +46,6 @@ from hexgym.model.backend import resolve_backend
 from hexgym.model.base import LearnedModelBase
 from hexgym.model.python_backend import LearnedModel
 
-__all__ = ["EARTHWORK_PERIODS", "REWARD_TERMS", "STEP_PERIOD", "HexLoadingEnv", "OBSERVATION_NAMES"]
-
 # s: the Python backend's table period on a scene whose step is finer than the lean machine's 25 ms (e.g. the
 # full scene.xml at 2 ms); on the lean machine the tables are asked every step
 PYTHON_CONTROL_PERIOD = 0.01
