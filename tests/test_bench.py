@@ -30,8 +30,11 @@ def test_bench_command_prints_and_writes_consistent_json(tmp_path, capsys):
     assert data["steps"] == 30 and data["vector_envs"] == 64
     assert data["ratio"] == pytest.approx(data["hexloading_steps_per_s"] / data["hopper_steps_per_s"])
     assert data["vector_ratio"] == pytest.approx(data["vector_steps_per_s"] / data["hopper_steps_per_s"])
-    if data["vector_env"] == "HexLoadingVectorEnv":
+    if data["vector_backend"] == "native":  # the batch: its physics alone is timed too
         assert data["vector_physics_bound_steps_per_s"] > 0
+        assert data["vector_physics_share"] == pytest.approx(
+            data["vector_steps_per_s"] / data["vector_physics_bound_steps_per_s"]
+        )
     if native_available():
         assert 0 < data["batch_cores_used"] <= data["batch_threads"] + 0.1
         assert data["batch_realtime_factor_per_core"] == pytest.approx(

@@ -111,7 +111,7 @@ def physics_bound_steps_per_second(num_envs: int = VECTOR_ENVS, vector_steps: in
 
     if num_envs < 1 or vector_steps < 1:
         raise ValueError(f"num_envs and vector_steps must be >= 1, got {num_envs} and {vector_steps}")
-    envs = HexLoadingVectorEnv(num_envs)
+    envs = HexLoadingVectorEnv(num_envs, backend="native")
     try:
         envs.reset(seed=seed)
         rng = np.random.default_rng(seed)
@@ -134,12 +134,13 @@ def vector_benchmark(
     random actions (its autoreset included), and with ``physics`` (when the registered batched env runs)
     ``vector_physics_bound_steps_per_s``: the same sites' physics alone (:meth:`step_physics_only`: a whole
     step in one ``Batch.step``, no task logic). Both are timed in turn in ``rounds`` blocks, after
-    ``WARMUP_STEPS`` untimed steps, so that the machine's drift weighs on both alike. Also returns the
-    vector env's class name."""
+    ``WARMUP_STEPS`` untimed steps, so that the machine's drift weighs on both alike; ``vector_backend``:
+    the batched env's backend (None for another vector env). Also returns the vector env's class name."""
     if num_envs < 1 or vector_steps < 1 or rounds < 1:
         raise ValueError(f"num_envs, vector_steps and rounds must be >= 1, got {num_envs}, {vector_steps}, {rounds}")
     envs = gym.make_vec(env_id, num_envs=num_envs)
     kind = type(envs).__name__
+    backend = getattr(envs.unwrapped, "backend", None)  # the registered batched env's: "native" or "python"
     bound = None
     try:
         envs.reset(seed=seed)
@@ -147,10 +148,10 @@ def vector_benchmark(
         for _ in range(WARMUP_STEPS):
             envs.step(envs.action_space.sample())
         actions = [envs.action_space.sample() for _ in range(vector_steps)]
-        if physics and kind == "HexLoadingVectorEnv":
+        if physics and backend == "native":  # the batch (not Python machines)
             from hexgym.envs.vector import HexLoadingVectorEnv
 
-            bound = HexLoadingVectorEnv(num_envs)
+            bound = HexLoadingVectorEnv(num_envs, backend="native")
             bound.reset(seed=seed)
             spools = np.asarray(actions, dtype=float) * p.SPOOL_STROKE * CTRL_PER_SPOOL_M
         elapsed = {"env": 0.0, "physics": 0.0}
@@ -162,7 +163,7 @@ def vector_benchmark(
             elapsed["env"] += time.perf_counter() - start
             if bound is not None:
                 elapsed["physics"] += sum(bound.step_physics_only(row) for row in spools[first:last])
-        rates = {"vector_steps_per_s": num_envs * vector_steps / elapsed["env"]}
+        rates: dict = {"vector_steps_per_s": num_envs * vector_steps / elapsed["env"], "vector_backend": backend}
         if bound is not None:
             rates["vector_physics_bound_steps_per_s"] = num_envs * vector_steps / elapsed["physics"]
         return rates, kind
@@ -233,6 +234,7 @@ def run_bench(steps: int = 2000, seed: int = 0, seconds: float = 2.0) -> dict:
         "vector_steps_per_s": vector,
         "vector_envs": VECTOR_ENVS,
         "vector_env": vector_env,
+        "vector_backend": vector_rates["vector_backend"],
         "vector_ratio": vector / hopper,
         # what the batch's physics alone allows the vector env (no task logic): the ceiling of vector_steps_per_s
         "vector_physics_bound_steps_per_s": bound,
@@ -265,7 +267,7 @@ def print_bench(result: dict, json_path: str | Path | None = None) -> None:
     print(
         f"{ENV_ID}, backend='python': {r['hexloading_python_steps_per_s']:.0f} steps/s, ratio {r['ratio_python']:.3f}"
     )
-    vector = f"vector ({r['vector_envs']} envs, {r['vector_env']})"
+    vector = f"vector ({r['vector_envs']} envs, {r['vector_env']}, backend {r['vector_backend']})"
     print(f"{vector}: {r['vector_steps_per_s']:.0f} env steps/s, ratio {r['vector_ratio']:.3f}")
     if r["vector_physics_bound_steps_per_s"] is not None:
         bound = r["vector_physics_bound_steps_per_s"]
