@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import pickle
 import platform
 import socket
 import uuid
@@ -112,11 +113,14 @@ _SET_UP: set[str] = set()
 
 
 def _call(function: Callable[[Any], Any], initializer: Any, initargs: tuple[Any, ...], token: str, item: Any) -> Any:
-    """A Ray task's body: this process's set-up once per executor, then ``function(item)``."""
+    """A Ray task's body: this process's set-up once per executor, then ``function(item)``.
+
+    Ray hands NumPy arrays over read-only (zero-copy from its object store); a pickled copy gives the
+    function writable ones, as a process pool does."""
     if initializer is not None and token not in _SET_UP:
-        initializer(*initargs)
+        initializer(*pickle.loads(pickle.dumps(initargs)))
         _SET_UP.add(token)
-    return function(item)
+    return function(pickle.loads(pickle.dumps(item)))
 
 
 class RayExecutor(Executor):
@@ -141,7 +145,13 @@ class RayExecutor(Executor):
         self._initializer = initializer
         self._initargs_ref = ray.put(initargs) if initializer is not None else None
         self._token = uuid.uuid4().hex
-        self.workers = max(1, int(ray.cluster_resources().get("CPU", 1) // max(cpus_per_task, 1e-9)))
+        node_cpus = [n.get("Resources", {}).get("CPU", 0.0) for n in ray.nodes() if n.get("Alive")]
+        if cpus_per_task > max(node_cpus, default=0.0):
+            self.close()
+            raise ClusterError(
+                f"each task needs {cpus_per_task:g} cores, the largest Ray node has {max(node_cpus, default=0.0):g}"
+            )
+        self.workers = max(1, int(sum(node_cpus) // max(cpus_per_task, 1e-9)))
 
     def _submit(self, function: Callable[[Any], Any], items: Iterable[Any]) -> list[Any]:
         return [self._remote.remote(function, self._initializer, self._initargs_ref, self._token, i) for i in items]
@@ -179,11 +189,11 @@ def executor(
 
 
 def import_ray() -> Any:
-    """The ``ray`` module, or an ImportError saying in one line what to install."""
+    """The ``ray`` module, or a :class:`ClusterError` saying in one line what to install."""
     try:
         import ray
     except ImportError:
-        raise ImportError(INSTALL_HINT) from None
+        raise ClusterError(INSTALL_HINT) from None
     return ray
 
 
@@ -204,17 +214,18 @@ def _check_reachable(address: str) -> None:
         ) from None
 
 
-def connect(address: str = "local") -> bool:
+def connect(address: str = "local", runtime_env: dict[str, Any] | None = None) -> bool:
     """Connect this process to Ray at ``address`` and check its nodes (:func:`check_nodes`).
 
     Returns whether a Ray was started or joined here (the caller then shuts it down); False when
-    this process was already connected.
+    this process was already connected. ``runtime_env``: Ray's runtime environment for this job's
+    workers (e.g. ``{"env_vars": ...}``).
     """
     ray = import_ray()
     if ray.is_initialized():
         return False
     _check_reachable(address)
-    kwargs: dict[str, Any] = {"include_dashboard": False, "logging_level": "ERROR", "log_to_driver": True}
+    kwargs: dict[str, Any] = {"include_dashboard": False, "logging_level": "ERROR", "runtime_env": runtime_env}
     if address == "local":
         kwargs["num_cpus"] = os.cpu_count() or 1
     else:
@@ -249,12 +260,11 @@ def versions() -> dict[str, str]:
     }
 
 
-def check_nodes(timeout_s: float = PROBE_TIMEOUT_S, runtime_env: dict[str, Any] | None = None) -> dict[str, dict]:
+def check_nodes(timeout_s: float = PROBE_TIMEOUT_S) -> dict[str, dict]:
     """Run a probe on every alive node; returns its :func:`versions` by node address.
 
     Raises :class:`ClusterError` naming the first node that cannot import hexgym, runs other
-    versions than this process, or does not answer within ``timeout_s``. ``runtime_env``: the probe's
-    Ray runtime environment (tests use it to stand in for a badly installed node).
+    versions than this process, or does not answer within ``timeout_s``.
     """
     ray = import_ray()
     from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
@@ -266,7 +276,6 @@ def check_nodes(timeout_s: float = PROBE_TIMEOUT_S, runtime_env: dict[str, Any] 
         n["NodeManagerAddress"]: probe.options(
             num_cpus=0,
             max_retries=0,
-            runtime_env=runtime_env,
             scheduling_strategy=NodeAffinitySchedulingStrategy(n["NodeID"], soft=False),
         ).remote()
         for n in nodes

@@ -30,6 +30,7 @@ from hexgym.checks import check_count, check_seed
 from hexgym.envs import ENV_ID  # importing hexgym registers it
 from hexgym.files import check_output_file, write_json
 from hexgym.machine import parameters as p
+from hexgym.parallel import executor
 
 POLICY_DIR = Path(__file__).resolve().parents[1] / "policies"
 SHIPPED_POLICY = POLICY_DIR / "ppo_loading.zip"
@@ -133,13 +134,17 @@ def load_trained(model_path: str | Path) -> TrainedPolicy:
 
 
 def load_policy(spec: str) -> Policy:
-    """``"scripted"``, ``"shipped"`` or a model path -> a policy."""
+    """``"scripted"``, ``"shipped"``, a model path or an RLlib checkpoint directory -> a policy."""
     if spec == "scripted":
         return ScriptedPolicy()
     if spec == "shipped":
         if not SHIPPED_POLICY.is_file():
             raise FileNotFoundError(f"no shipped policy at {SHIPPED_POLICY}: see README, Training agents")
         return load_trained(SHIPPED_POLICY)
+    if Path(spec).is_dir():  # `hexgym train --framework rllib` checkpoints are directories
+        from hexgym.agents.rllib import load_rllib_policy
+
+        return load_rllib_policy(spec)
     return load_trained(spec)
 
 
@@ -236,25 +241,52 @@ def aggregate(episodes: list[Episode]) -> dict[str, Any]:
 
 
 def evaluate(
-    policy_spec: str, episodes: int = 20, seed: int = 0, env_kwargs: dict | None = None, json_out: str | None = None
+    policy_spec: str,
+    episodes: int = 20,
+    seed: int = 0,
+    env_kwargs: dict | None = None,
+    json_out: str | None = None,
+    workers: int = 1,
+    ray: str | None = None,
 ) -> dict[str, Any]:
     """Run ``episodes`` episodes (seeds ``seed``..``seed+episodes-1``) of a policy; the figures of :func:`aggregate`.
 
     ``success_rate``: share of episodes with at least one dump of FULL_ENOUGH_KG or more into the
     bed; ``mean_cycle_time_s``: mean time between the starts of successive full-enough dumps;
     ``spilled_fraction``: spilled / (spilled + delivered), of the material that left the bucket.
+    ``workers`` > 1 processes or ``ray`` ("local" or a cluster's address, :mod:`hexgym.parallel`) run the
+    episodes in parallel, each worker with the loaded policy and its own environment: the same figures.
     """
     check_count("episodes", episodes)
     check_seed("seed", seed)
+    check_count("workers", workers)
     if json_out:
         check_output_file(json_out, "JSON output", inputs=(policy_spec,))
     policy = load_policy(policy_spec)
-    env = gym.make(ENV_ID, **(env_kwargs or {}))
-    try:
-        runs = [run_episode(env, policy, seed + i) for i in range(int(episodes))]
-    finally:
-        env.close()
+    seeds = [seed + i for i in range(int(episodes))]
+    with executor(min(workers, len(seeds)), ray, initializer=_init_worker, initargs=(policy, env_kwargs)) as pool:
+        try:
+            runs = pool.map(_run_seed, seeds)
+        finally:
+            _close_worker()  # the environment of a run in this process
     result = {"policy": policy_spec, "env_id": ENV_ID, "seed": seed, **aggregate(runs)}
     if json_out:
         write_json(json_out, result)
     return result
+
+
+_worker: dict[str, Any] = {}  # per process: the policy and its environment
+
+
+def _init_worker(policy: Policy, env_kwargs: dict | None) -> None:
+    _worker.update(policy=policy, env=gym.make(ENV_ID, **(env_kwargs or {})))
+
+
+def _run_seed(seed: int) -> Episode:
+    return run_episode(_worker["env"], _worker["policy"], seed)
+
+
+def _close_worker() -> None:
+    if "env" in _worker:
+        _worker.pop("env").close()
+    _worker.clear()

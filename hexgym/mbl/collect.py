@@ -706,11 +706,11 @@ def collect(
     out = check_output_dir(out_dir, "collection output directory")
     check_output_dir(out / "chunks", "chunk directory")
     (out / "chunks").mkdir(parents=True, exist_ok=True)
-    fingerprint = model_fingerprint()
-    bar = _ProgressBar(samples_per_group, enabled=progress)
-    new_chunks = 0
-    try:
-        with executor(workers, ray=ray) as pool:
+    with executor(workers, ray=ray) as pool:  # first: a cluster that cannot run the chunks is refused at once
+        fingerprint = model_fingerprint()
+        bar = _ProgressBar(samples_per_group, enabled=progress)
+        new_chunks = 0
+        try:
             while True:
                 states = {g: _group_state(out, g, seed, config, samples_per_group, fingerprint) for g in GROUPS}
                 bar.set({g: s.counted for g, s in states.items()})
@@ -730,8 +730,8 @@ def collect(
                 for group, _index, samples, _wall in _run_tasks(pool, tasks):
                     new_chunks += 1
                     bar.add(group, samples)
-    finally:
-        bar.close()
+        finally:
+            bar.close()
     return _write_datasets(out, states, seed, config, fingerprint)
 
 

@@ -19,6 +19,7 @@ import sys
 from pathlib import Path
 
 from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS  # names only: no MuJoCo, no numpy
+from hexgym.parallel import add_ray_option  # no Ray until --ray is used
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
@@ -146,6 +147,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
         suite_only=args.suite_only,
         table_set=args.tables,
         tables_dir=args.tables_dir,
+        ray=args.ray,
     )
     print(json.dumps(summary, indent=2))
     plots = [] if args.suite_only else ["test1.png", "test2.png", "test3.png", "interactions.png"]
@@ -180,6 +182,18 @@ def _cmd_build_assets(args: argparse.Namespace) -> int:
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
+    if args.framework == "rllib":
+        if args.init_from is not None or args.n_envs is not None:
+            raise ValueError("--init-from and --n-envs are for --framework sb3 (RLlib: --num-env-runners)")
+        from hexgym.agents.rllib import train_rllib
+
+        path = train_rllib(args.algo, args.env, timesteps=args.timesteps, seed=args.seed, log_dir=args.log_dir,
+                           hyperparams=args.hyperparams, num_env_runners=args.num_env_runners, ray=args.ray,
+                           checkpoint_every=args.checkpoint_every)  # fmt: skip
+        print(f"checkpoint: {path}")
+        return 0
+    if args.num_env_runners is not None or args.ray is not None:
+        raise ValueError("--num-env-runners and --ray are for --framework rllib")
     from hexgym.agents.training import train
 
     path = train(args.algo, args.env, timesteps=args.timesteps, seed=args.seed, log_dir=args.log_dir,
@@ -204,7 +218,8 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     from hexgym.agents.evaluate import evaluate
 
     env_kwargs = {"time_limit": args.seconds} if args.seconds is not None else None
-    result = evaluate(args.policy, episodes=args.episodes, seed=args.seed, env_kwargs=env_kwargs, json_out=args.json)
+    result = evaluate(args.policy, episodes=args.episodes, seed=args.seed, env_kwargs=env_kwargs, json_out=args.json,
+                      workers=args.workers, ray=args.ray)  # fmt: skip
     print(json.dumps({k: v for k, v in result.items() if k != "per_episode"}, indent=2))
     if args.json:
         print(f"wrote {args.json}")
@@ -226,7 +241,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
 
     seeds = parse_seeds(args.seeds) if args.seeds is not None else [args.seed]
     result = run_plan(args.task, seeds, w_fuel=args.w_fuel, budget=args.budget, nthread=args.threads,
-                      json_out=args.json, margin_m=args.margin)  # fmt: skip
+                      json_out=args.json, margin_m=args.margin, ray=args.ray)  # fmt: skip
     shown = result.get("summary", {k: v for k, v in result.items() if not k.endswith("_mm") and k != "paths"})
     print(json.dumps(shown, indent=2))
     if args.plot:
@@ -383,6 +398,7 @@ def build_parser() -> argparse.ArgumentParser:
     validate.add_argument("--suite-seed", type=int, default=0, help="seed of the suite's logs (default: 0)")
     validate.add_argument("--workers", type=int, default=None, help="processes (default: one per CPU)")
     validate.add_argument("--suite-only", action="store_true", help="run the suite alone (no tests, interactions)")
+    add_ray_option(validate, "the interactions and the suite")
     validate.add_argument("--tables", **_TABLES_OPTION)
     validate.add_argument("--tables-dir", default=None, help="the tables' directory (default: the packaged ones)")
     validate.set_defaults(func=_cmd_validate)
@@ -436,6 +452,7 @@ def _add_planning_parsers(sub: argparse._SubParsersAction) -> None:
     plan.add_argument("--margin", type=float, default=0.5, help="clearance (m) the plan keeps from truck and ground "
                       "(default: 0.5)")  # fmt: skip
     plan.add_argument("--json", metavar="OUT", default=None, help="also write the figures to this JSON file")
+    add_ray_option(plan, "the seeds (each with --threads cores)")
     plan.set_defaults(func=_cmd_plan)
 
 
@@ -443,6 +460,11 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
     """``train``, ``clone``, ``evaluate`` and ``video``: agents for HexLoading-v0."""
     policy_help = "'shipped' (packaged agent), 'scripted' (the scripted loader) or a model .zip"
     train = sub.add_parser("train", help="train a PPO or SAC agent (rl-zoo3 hyperparameters; resumes checkpoints)")
+    train.add_argument("--framework", choices=("sb3", "rllib"), default="sb3", help="Stable-Baselines3, or RLlib's "
+                       "PPO with env runners on Ray (needs hexgym[cluster]) (default: sb3)")  # fmt: skip
+    train.add_argument("--num-env-runners", type=int, default=None, help="rllib: env runner actors (default: "
+                       "the Ray cluster's cores less one)")  # fmt: skip
+    add_ray_option(train, "rllib's env runners")
     train.add_argument("--algo", choices=("ppo", "sac"), default="ppo", help="algorithm (default: ppo)")
     train.add_argument("--env", default="HexLoading-v0", help="environment id (default: HexLoading-v0)")
     train.add_argument("--timesteps", type=int, default=None, help="total steps (default: the YAML's n_timesteps)")
@@ -477,11 +499,14 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
     clone.set_defaults(func=_cmd_clone)
 
     evaluate = sub.add_parser("evaluate", help="measure a policy on HexLoading-v0: success, t/h, cycle, fuel")
-    evaluate.add_argument("--policy", default="shipped", help=policy_help + " (default: shipped)")
+    evaluate.add_argument("--policy", default="shipped", help=policy_help + " or an RLlib checkpoint directory "
+                          "(default: shipped)")  # fmt: skip
     evaluate.add_argument("--episodes", type=int, default=20, help="episodes, seeds seed..seed+N-1 (default: 20)")
     evaluate.add_argument("--seed", type=int, default=0, help="first seed (default: 0)")
     evaluate.add_argument("--seconds", type=float, default=None, help="episode time limit, s (default: the env's)")
     evaluate.add_argument("--json", metavar="OUT", default=None, help="also write the figures to this JSON file")
+    evaluate.add_argument("--workers", type=int, default=1, help="processes running the episodes (default: 1)")
+    add_ray_option(evaluate, "the episodes")
     evaluate.set_defaults(func=_cmd_evaluate)
 
     video = sub.add_parser("video", help="render rollouts of a policy to an MP4 with a time/payload overlay")
@@ -507,7 +532,7 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
 # Option values, by option name, whatever the command: (check, argument) for hexgym.checks.
 _COUNTS = {"episodes": 1, "steps": 1, "samples": 1, "epochs": 1, "workers": 1, "n_envs": 1, "timesteps": 1,
            "frames": 1, "dagger_episodes": 1, "checkpoint_every": 1, "suite": 0, "dagger_rounds": 0,
-           "select_episodes": 0, "width": 1, "height": 1}  # fmt: skip
+           "select_episodes": 0, "width": 1, "height": 1, "num_env_runners": 1}  # fmt: skip
 _SEEDS = ("seed", "suite_seed")
 _POSITIVE = {"seconds": "s", "fps": "frames/s", "dt_out": "s"}
 # Paths, by (command, option): files and directories written, files and directories read.

@@ -32,6 +32,7 @@ import numpy as np
 from hexgym.agents.scripted import ScriptedLoader
 from hexgym.envs.loading import STEP_PERIOD, HexLoadingEnv
 from hexgym.machine import parameters as p
+from hexgym.parallel import executor
 from hexgym.planning.planner import MARGIN_M, Goal, Plan, dump_goal, plan_motion, return_goal
 from hexgym.planning.rollouts import MachineState, RolloutModel
 
@@ -269,8 +270,12 @@ def run_plan(
     nthread: int = 2,
     json_out: str | Path | None = None,
     margin_m: float = MARGIN_M,
+    ray: str | None = None,
 ) -> dict[str, Any]:
-    """Plan on each seed; one seed's figures, or with several a summary and the per-seed figures."""
+    """Plan on each seed; one seed's figures, or with several a summary and the per-seed figures.
+
+    ``ray``: the seeds as Ray tasks of ``nthread`` cores each ("local" or a cluster's address,
+    :mod:`hexgym.parallel`); the same figures but the wall times."""
     if not (math.isfinite(w_fuel) and w_fuel >= 0):
         raise ValueError(f"--w-fuel must be finite and >= 0, got {w_fuel}")
     if budget < 1:
@@ -280,7 +285,9 @@ def run_plan(
     if not (math.isfinite(margin_m) and 0 <= margin_m <= 2.0):
         raise ValueError(f"--margin must be within 0 and 2 m, got {margin_m}")
     start = time.perf_counter()
-    results = [plan_task(task, s, w_fuel, budget, nthread, margin_m=margin_m) for s in seeds]
+    jobs = [(task, s, w_fuel, budget, nthread, margin_m) for s in seeds]
+    with executor(1, ray, cpus_per_task=nthread) as pool:
+        results = pool.map(_plan_job, jobs)
     out: dict[str, Any] = results[0] if len(results) == 1 else {
         "task": task, "w_fuel": w_fuel, "summary": summarise(results), "per_seed": results,
     }  # fmt: skip
@@ -288,6 +295,11 @@ def run_plan(
     if json_out is not None:
         Path(json_out).write_text(json.dumps(out, indent=2) + "\n")
     return out
+
+
+def _plan_job(job: tuple[str, int, float, int, int, float]) -> dict[str, Any]:
+    task, seed, w_fuel, budget, nthread, margin_m = job
+    return plan_task(task, seed, w_fuel, budget, nthread, margin_m=margin_m)
 
 
 def plot_plan(result: dict[str, Any], out: str | Path) -> Path:

@@ -1,0 +1,220 @@
+"""``hexgym train --framework rllib``: RLlib's PPO (new API stack) on HexLoading-v0, env runners across a Ray cluster.
+
+The PPO hyperparameters come from the same rl-zoo3 YAML as the Stable-Baselines3 runs
+(``training/hyperparams/ppo.yml``, :func:`hexgym.agents.training.load_hyperparams`), mapped to
+RLlib's names: a training batch of ``n_steps`` x ``n_envs`` steps per iteration, minibatches of
+``batch_size``, ``n_epochs`` passes, ``gamma``, ``gae_lambda``, ``learning_rate``, ``clip_range``,
+``ent_coef``; the actor's hidden layers from ``policy_kwargs.net_arch.pi`` (the critic has its own
+network). Observations go in unnormalised (RLlib's filter state would have to travel with every
+policy; the SB3 path's ``VecNormalize`` has no RLlib counterpart in the checkpoint format).
+
+A run lives in ``<log_dir>/rllib_ppo_<env id>/``: ``checkpoint/`` is the newest RLlib checkpoint
+(replaced atomically every ``checkpoint_every`` steps and at the end); running the same command
+again resumes from it. ``hexgym evaluate --policy <that directory>`` measures its policy
+(:func:`load_rllib_policy`: the RL module's mean action, deterministic).
+
+Env runners (``num_env_runners``, default: the cluster's cores less one for the learner) are Ray
+actors, placed wherever the cluster has cores; the learner runs in the driver. Ray and torch are
+imported only when a function here is called: ``import hexgym`` never imports them.
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hexgym.checks import check_count, check_seed
+from hexgym.envs import ENV_ID
+from hexgym.files import check_output_dir
+from hexgym.parallel import connect, import_ray
+
+RLLIB_ENV = "hexgym-rllib"  # the name the env creator is registered under in Ray's registry
+CHECKPOINT = "checkpoint"
+_MODULE_PATH = ("learner_group", "learner", "rl_module", "default_policy")  # RLlib's component names
+
+
+def _make_env(config: dict[str, Any]) -> Any:
+    """An env runner's environment (importing hexgym registers it in that process)."""
+    import gymnasium as gym
+
+    import hexgym  # noqa: F401
+
+    config = dict(config)
+    return gym.make(config.pop("env_id", ENV_ID), **config)
+
+
+def ppo_config(
+    hp: dict[str, Any], env_id: str = ENV_ID, seed: int = 0, num_env_runners: int = 1, env_kwargs: dict | None = None
+) -> Any:
+    """RLlib's ``PPOConfig`` (new API stack) from rl-zoo3 PPO hyperparameters ``hp`` (see the module docstring)."""
+    from ray.rllib.algorithms.ppo import PPOConfig
+    from ray.rllib.core.rl_module.default_model_config import DefaultModelConfig
+
+    n_envs = int(hp.get("n_envs", 1))
+    net_arch = hp.get("policy_kwargs", {}).get("net_arch", {})
+    hidden = list(net_arch.get("pi", [256, 256])) if isinstance(net_arch, dict) else list(net_arch or [256, 256])
+    train_batch = int(hp.get("n_steps", 2048)) * n_envs
+    return (
+        PPOConfig()
+        .api_stack(enable_rl_module_and_learner=True, enable_env_runner_and_connector_v2=True)
+        .environment(RLLIB_ENV, env_config={"env_id": env_id, **(env_kwargs or hp.get("env_kwargs") or {})})
+        .framework("torch")
+        .env_runners(
+            num_env_runners=num_env_runners,
+            num_envs_per_env_runner=1,
+            num_cpus_per_env_runner=1,
+            rollout_fragment_length="auto",
+        )
+        .learners(num_learners=0)
+        .training(
+            train_batch_size_per_learner=train_batch,
+            minibatch_size=min(int(hp.get("batch_size", 64)), train_batch),
+            num_epochs=int(hp.get("n_epochs", 10)),
+            gamma=float(hp.get("gamma", 0.99)),
+            lambda_=float(hp.get("gae_lambda", 0.95)),
+            lr=float(hp.get("learning_rate", 3e-4)),
+            clip_param=float(hp.get("clip_range", 0.2)),
+            entropy_coeff=float(hp.get("ent_coef", 0.0)),
+        )
+        .rl_module(model_config=DefaultModelConfig(fcnet_hiddens=hidden, vf_share_layers=False))
+        .debugging(seed=seed, log_level="ERROR")
+    )
+
+
+def _steps_sampled(result: dict[str, Any]) -> int:
+    """Env steps sampled so far (lifetime) in a training result."""
+    return int(result.get("env_runners", {}).get("num_env_steps_sampled_lifetime", 0))
+
+
+def _save(algo: Any, run_dir: Path) -> Path:
+    """Replace ``run_dir/checkpoint`` by a new checkpoint of ``algo`` (written beside it first)."""
+    final = run_dir / CHECKPOINT
+    tmp = Path(tempfile.mkdtemp(prefix=".checkpoint-", dir=run_dir))
+    algo.save_to_path(str(tmp))
+    old = run_dir / ".checkpoint-old"
+    shutil.rmtree(old, ignore_errors=True)
+    if final.exists():
+        final.rename(old)
+    tmp.rename(final)
+    shutil.rmtree(old, ignore_errors=True)
+    return final
+
+
+def train_rllib(
+    algo: str = "ppo",
+    env_id: str = ENV_ID,
+    timesteps: int | None = None,
+    seed: int = 0,
+    log_dir: str | Path = "logs",
+    hyperparams: str | Path | None = None,
+    num_env_runners: int | None = None,
+    ray: str | None = None,
+    checkpoint_every: int = 20_000,
+    verbose: bool = True,
+) -> Path:
+    """Train (or resume) RLlib's PPO on ``env_id`` until ``timesteps`` env steps in all; the checkpoint's path.
+
+    ``ray``: a cluster's address, or None/"local" for a Ray started here (shut down at the end);
+    ``num_env_runners``: env runner actors (default: the cluster's cores less one, at least one).
+    """
+    if algo != "ppo":
+        raise ValueError(f"--framework rllib trains ppo only, got --algo {algo}")
+    from hexgym.agents.training import load_hyperparams
+
+    hp = load_hyperparams(algo, env_id, hyperparams)
+    total = check_count("timesteps", timesteps if timesteps is not None else hp.get("n_timesteps", 100_000))
+    check_seed("seed", seed)
+    check_count("checkpoint_every", checkpoint_every)
+    run_dir = check_output_dir(Path(log_dir) / f"rllib_{algo}_{env_id}", "run directory")
+    run_dir.mkdir(parents=True, exist_ok=True)
+    ray_module = import_ray()
+    started = connect(ray or "local")
+    try:
+        from ray.tune.registry import register_env
+
+        register_env(RLLIB_ENV, _make_env)
+        cpus = int(ray_module.cluster_resources().get("CPU", 1))
+        runners = check_count("num_env_runners", num_env_runners if num_env_runners is not None else max(1, cpus - 1))
+        algorithm = ppo_config(hp, env_id, seed, runners).build_algo()
+        try:
+            if (run_dir / CHECKPOINT).exists():
+                algorithm.restore_from_path(str((run_dir / CHECKPOINT).resolve()))
+            done = int(algorithm.metrics.peek(("env_runners", "num_env_steps_sampled_lifetime"), default=0))
+            if verbose and done:
+                print(f"resuming from {run_dir / CHECKPOINT} ({done} steps done)")
+            saved = done
+            while done < total:
+                t0 = time.perf_counter()
+                result = algorithm.train()
+                done = _steps_sampled(result)
+                if verbose:
+                    ret = result.get("env_runners", {}).get("episode_return_mean", float("nan"))
+                    print(f"iteration {result.get('training_iteration')}: {done} steps, "
+                          f"mean return {ret:.3g}, {time.perf_counter() - t0:.1f} s")  # fmt: skip
+                if done - saved >= checkpoint_every or done >= total:
+                    _save(algorithm, run_dir)
+                    saved = done
+            if not (run_dir / CHECKPOINT).exists():
+                _save(algorithm, run_dir)
+        finally:
+            algorithm.stop()
+    finally:
+        if started:
+            ray_module.shutdown()
+    return run_dir / CHECKPOINT
+
+
+class RLlibPolicy:
+    """An RLlib RL module from a checkpoint: the Gaussian's mean action, clipped to the action space."""
+
+    def __init__(self, module: Any) -> None:
+        self.module = module
+
+    def reset(self) -> None:
+        """Nothing to forget (the module is feed-forward)."""
+
+    def act(self, obs: np.ndarray, env: Any) -> np.ndarray:
+        """The mean action for ``obs``."""
+        import torch
+
+        with torch.no_grad():
+            out = self.module.forward_inference({"obs": torch.as_tensor(np.asarray(obs, np.float32)[None])})
+        inputs = out["action_dist_inputs"][0].numpy()
+        mean = inputs[: len(inputs) // 2]  # a diagonal Gaussian's inputs: means, then log-stds
+        return np.clip(mean, -1.0, 1.0).astype(np.float32)
+
+
+def rllib_module_path(path: str | Path) -> Path:
+    """The RL module directory inside an RLlib checkpoint (or a run directory holding ``checkpoint/``)."""
+    path = Path(path)
+    if (path / CHECKPOINT).is_dir() and not (path / _MODULE_PATH[0]).exists():
+        path = path / CHECKPOINT
+    module = path.joinpath(*_MODULE_PATH)
+    if not module.is_dir():
+        raise FileNotFoundError(
+            f"{path} is not an RLlib checkpoint of `hexgym train --framework rllib` (no {'/'.join(_MODULE_PATH)})"
+        )
+    return module
+
+
+def load_rllib_policy(path: str | Path) -> RLlibPolicy:
+    """The policy of an RLlib checkpoint directory (see :func:`rllib_module_path`); needs ``hexgym[cluster]``."""
+    module_path = rllib_module_path(path)
+    import_ray()
+    from ray.rllib.core.rl_module.rl_module import RLModule
+
+    from hexgym.envs.loading import task_spaces
+
+    module = RLModule.from_checkpoint(str(module_path.resolve()))
+    observation, action = task_spaces()
+    if module.observation_space.shape != observation.shape or module.action_space.shape != action.shape:
+        raise ValueError(
+            f"RLlib checkpoint {path} is for observations {module.observation_space.shape} and actions "
+            f"{module.action_space.shape}, HexLoading-v0 has {observation.shape} and {action.shape}"
+        )
+    return RLlibPolicy(module)

@@ -1,0 +1,217 @@
+"""Parallel tasks (:mod:`hexgym.parallel`): the local pool and Ray give the same results; a killed Ray worker's
+task is redone; a bad cluster is refused in one line within seconds. Ray tests are skipped without Ray."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import operator
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hexgym.mbl.collect import CollectConfig, chunk_path, collect, load_dataset
+from hexgym.parallel import LocalPool, executor
+from hexgym.tools.cli import build_parser
+
+ROOT = Path(__file__).resolve().parent.parent
+TINY = CollectConfig(segments_per_episode=3, episodes_per_chunk=1, hold_s=(0.7, 0.8), windows_per_segment=1)
+SEED = 6
+
+
+def data_hash(paths: dict[str, Path]) -> str:
+    """A digest of the data sets' samples (the files also hold wall times and zip timestamps)."""
+    digest = hashlib.sha256()
+    for table in sorted(paths):
+        ds = load_dataset(paths[table])
+        for key in ("X", "y", "episode", "segment"):
+            digest.update(np.ascontiguousarray(ds[key]).tobytes())
+    return digest.hexdigest()
+
+
+@pytest.fixture(scope="module")
+def ray_session():
+    """One local Ray (2 CPUs) for the module's Ray tests; hexgym's executors join it."""
+    ray = pytest.importorskip("ray")
+    ray.init(num_cpus=2, include_dashboard=False, logging_level="ERROR")
+    yield ray
+    ray.shutdown()
+
+
+@pytest.fixture(scope="module")
+def pool_data(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """A small collection in the local process pool (one worker: the reference for every other way)."""
+    out = tmp_path_factory.mktemp("pool")
+    return collect(out, samples_per_group=12, seed=SEED, workers=1, progress=False, config=TINY)
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_local_pool_maps_in_order_and_unordered(workers: int) -> None:
+    with LocalPool(workers) as pool:
+        assert pool.map(operator.neg, range(5)) == [0, -1, -2, -3, -4]
+        assert sorted(pool.map_unordered(abs, [-3, 1, -2])) == [1, 2, 3]
+    with pytest.raises(ValueError, match="workers"):
+        LocalPool(0)
+
+
+def test_ray_option_on_every_parallel_command() -> None:
+    parser = build_parser()
+    for argv in (["collect"], ["validate", "--suite", "1"], ["evaluate"], ["plan", "--task", "dump", "--seeds", "0-1"]):
+        assert parser.parse_args(argv).ray is None
+        assert parser.parse_args([*argv, "--ray"]).ray == "local"
+        assert parser.parse_args([*argv, "--ray", "10.0.0.1:6379"]).ray == "10.0.0.1:6379"
+    args = parser.parse_args(["train", "--framework", "rllib", "--num-env-runners", "3", "--ray", "auto"])
+    assert (args.framework, args.num_env_runners, args.ray) == ("rllib", 3, "auto")
+
+
+def _hexgym(*argv: str, code: str = "") -> subprocess.CompletedProcess:
+    """``hexgym ARGV`` in a fresh interpreter (``code`` run first), with a time limit."""
+    script = f"import sys\n{code}\nfrom hexgym.tools.cli import main\nsys.exit(main({list(argv)!r}))"
+    return subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120, cwd=ROOT)
+
+
+def test_without_ray_the_ray_option_says_what_to_install(tmp_path: Path) -> None:
+    run = _hexgym("collect", "--out", str(tmp_path), "--samples", "4", "--ray", code="sys.modules['ray'] = None")
+    assert run.returncode == 2
+    assert run.stderr.count("\n") == 1 and 'pip install "hexgym[cluster]"' in run.stderr, run.stderr
+    assert not list(tmp_path.rglob("*.npz"))
+
+
+def test_unreachable_address_is_one_line_within_seconds(tmp_path: Path) -> None:
+    pytest.importorskip("ray")
+    t0 = time.perf_counter()
+    run = _hexgym("collect", "--out", str(tmp_path), "--samples", "4", "--ray", "127.0.0.1:9")
+    assert time.perf_counter() - t0 < 30
+    assert run.returncode == 2 and run.stderr.count("\n") == 1, run.stderr
+    assert "no Ray cluster at 127.0.0.1:9" in run.stderr
+
+
+def test_ray_collection_equals_the_local_pool(ray_session, pool_data: dict[str, Path], tmp_path: Path) -> None:
+    paths = collect(tmp_path, samples_per_group=12, seed=SEED, progress=False, config=TINY, ray="local")
+    assert data_hash(paths) == data_hash(pool_data)
+    assert ray_session.is_initialized()  # a Ray this process was connected to stays up
+
+
+def _worker_running_a_task() -> int | None:
+    """The pid of a Ray worker process that is running one of hexgym's tasks, if any."""
+    import psutil
+
+    for proc in psutil.process_iter(["pid", "cmdline"]):
+        if " ".join(proc.info["cmdline"] or []).startswith("ray::_call"):
+            return proc.info["pid"]
+    return None
+
+
+def test_a_killed_worker_loses_no_finished_chunk(ray_session, pool_data: dict[str, Path], tmp_path: Path) -> None:
+    result: dict[str, object] = {}
+    run = threading.Thread(target=lambda: result.update(paths=collect(
+        tmp_path, samples_per_group=12, seed=SEED, progress=False, config=TINY, ray="local")))  # fmt: skip
+    run.start()
+    deadline, killed, before = time.time() + 120, None, {}
+    while killed is None and run.is_alive() and time.time() < deadline:
+        pid = _worker_running_a_task()
+        if pid is not None and any((tmp_path / "chunks").glob("*.npz")):  # mid-run: a chunk is already stored
+            before = {p: p.stat().st_mtime_ns for p in (tmp_path / "chunks").glob("*.npz")}
+            os.kill(pid, signal.SIGKILL)
+            killed = pid
+        time.sleep(0.02)
+    run.join(timeout=300)
+    assert killed is not None, "no Ray worker was caught running a chunk"
+    assert data_hash(result["paths"]) == data_hash(pool_data)  # the killed task was run again
+    assert all(p.stat().st_mtime_ns == t for p, t in before.items())  # finished chunks kept, not redone
+
+
+def test_a_ray_collection_interrupted_resumes_in_the_pool(ray_session, pool_data, tmp_path: Path) -> None:
+    kwargs = {"samples_per_group": 12, "seed": SEED, "progress": False, "config": TINY}
+    assert collect(tmp_path, **kwargs, ray="local", max_chunks=2) == {}
+    first = chunk_path(tmp_path, "boom_bucket", 0).read_bytes()
+    resumed = collect(tmp_path, **kwargs, workers=2)
+    assert chunk_path(tmp_path, "boom_bucket", 0).read_bytes() == first
+    assert data_hash(resumed) == data_hash(pool_data)
+
+
+def test_ray_validation_suite_and_figure_equal_the_pool(ray_session, tmp_path: Path) -> None:
+    from hexgym.tools.validate import run_validation
+
+    kwargs = {"suite": 2, "suite_seed": 5, "suite_only": True, "suite_duration_s": 4.0}
+    # two processes: one log per fresh model, as on Ray (one process replaying both logs on one model
+    # differs in the last digits)
+    pool = run_validation(tmp_path / "pool", workers=2, **kwargs)
+    on_ray = run_validation(tmp_path / "ray", ray="local", **kwargs)
+    assert json.dumps(on_ray, sort_keys=True) == json.dumps(pool, sort_keys=True)
+    figure = [(tmp_path / way / "suite_worst.png").read_bytes() for way in ("pool", "ray")]
+    assert figure[0] == figure[1]
+
+
+def test_ray_evaluation_equals_one_process(ray_session) -> None:
+    from hexgym.agents.evaluate import evaluate
+
+    kwargs = {"episodes": 2, "seed": 3, "env_kwargs": {"time_limit": 3.0}}
+    assert evaluate("scripted", ray="local", **kwargs) == evaluate("scripted", **kwargs)
+
+
+# Stand-ins for badly installed nodes: run in each worker process before any task (Ray's setup hook).
+FAKE_NODES = """
+import sys
+
+
+def old_hexgym():
+    import hexgym
+
+    hexgym.__version__ = "0.0.1"
+
+
+class _Hide:
+    def find_spec(self, name, path=None, target=None):
+        if name == "hexgym" or name.startswith("hexgym."):
+            raise ModuleNotFoundError(f"No module named {name!r}", name=name)
+
+
+def no_hexgym():
+    sys.meta_path.insert(0, _Hide())
+    for name in [m for m in sys.modules if m == "hexgym" or m.startswith("hexgym.")]:
+        del sys.modules[name]
+"""
+
+
+def _join(address: str, hook: str | None, hooks_dir: Path) -> str:
+    """Join the cluster at ``address`` from a new driver whose workers run ``hook``: 'ok' or the error line."""
+    env = {"env_vars": {"PYTHONPATH": str(hooks_dir)}, "worker_process_setup_hook": hook} if hook else None
+    code = (
+        "from hexgym.parallel import ClusterError, connect\n"
+        f"try:\n    connect({address!r}, runtime_env={env!r})\n    print('ok')\n"
+        "except ClusterError as exc:\n    print(exc)\n"
+    )
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120).stdout.strip()
+
+
+def test_nodes_report_versions_and_a_bad_install_is_named(ray_session, tmp_path: Path) -> None:
+    from hexgym.parallel import check_nodes, versions
+
+    assert list(check_nodes().values()) == [versions()]
+    (tmp_path / "fake_nodes.py").write_text(FAKE_NODES)
+    address = ray_session.get_runtime_context().gcs_address
+    assert _join(address, None, tmp_path) == "ok"
+    t0 = time.perf_counter()
+    line = _join(address, "fake_nodes.old_hexgym", tmp_path)
+    assert re.fullmatch(r"Ray node \S+ runs other versions than this driver: hexgym 0\.0\.1 \(here \S+\)", line), line
+    line = _join(address, "fake_nodes.no_hexgym", tmp_path)
+    assert re.fullmatch(
+        r'Ray node \S+ cannot import hexgym: install it there \(pip install "hexgym\[cluster\]"\)', line
+    )
+    assert time.perf_counter() - t0 < 60  # seconds each, not a hang
+
+
+def test_executor_refuses_tasks_larger_than_any_node(ray_session) -> None:
+    from hexgym.parallel import ClusterError
+
+    with pytest.raises(ClusterError, match="needs 64 cores"):
+        executor(ray="local", cpus_per_task=64)
