@@ -57,6 +57,12 @@ def _servo_bands(model: mujoco.MjModel) -> tuple[np.ndarray, ...]:
     )
 
 
+def _read_only(array: np.ndarray) -> np.ndarray:
+    """``array`` marked read-only (the task only reads the sites' arrays: one compiled version for both kinds)."""
+    array.flags.writeable = False
+    return array
+
+
 class MachineSites:
     """N learned machine models (any backend, the same site model) as the task's sites.
 
@@ -79,24 +85,27 @@ class MachineSites:
 
     def _bind(self) -> None:
         datas = [m.physics.data for m in self.machines]
+        self._copies = {}
         for name in _ARRAYS:
             if len(datas) == 1:
-                setattr(self, name, getattr(datas[0], name)[None])  # a view: always current
+                array = getattr(datas[0], name)[None]  # a view: always current
             else:
-                setattr(self, name, np.stack([getattr(d, name) for d in datas]))
+                self._copies[name] = np.stack([getattr(d, name) for d in datas])
+                array = self._copies[name].view()
+            setattr(self, name, _read_only(array))
 
     def refresh(self, ids: np.ndarray) -> None:
         """Gather the sites' arrays after their machines changed outside the task (a start)."""
-        if len(self.machines) == 1:
+        if not self._copies:
             return
         for i in ids.tolist():
             d = self.machines[i].physics.data
-            for name in _ARRAYS:
-                getattr(self, name)[i] = getattr(d, name)
+            for name, copy in self._copies.items():
+                copy[i] = getattr(d, name)
 
     def __getstate__(self) -> dict:
         state = self.__dict__.copy()
-        for name in _ARRAYS:
+        for name in (*_ARRAYS, "_copies"):
             del state[name]  # views or copies: rebound to the unpickled MjData
         return state
 
@@ -163,7 +172,10 @@ class BatchSites:
         self.model = model
         self.batch = b = mjbatch.Batch(model, count, nthread=nthread, persistent=True)
         self.state = b.state
-        self.qpos, self.qvel = b.bind("qpos"), b.bind("qvel")
+        # joints: contiguous read-only copies of the state rows' (as the single environment's arrays are typed)
+        self._qpos, self._qvel = b.bind("qpos"), b.bind("qvel")
+        self._joints = np.zeros(self._qpos.shape), np.zeros(self._qvel.shape)
+        self.qpos, self.qvel = (_read_only(copy.view()) for copy in self._joints)
         self.ctrl, self._qfrc_applied = b.bind("ctrl"), b.bind("qfrc_applied")
         self._plugin_state = b.bind("plugin_state")
         self.site_xpos, self.xpos, self.xmat = b.bind("site_xpos"), b.bind("xpos"), b.bind("xmat")
@@ -182,6 +194,7 @@ class BatchSites:
         self._load_slots = state + PLUGIN_STATE["load"] + np.arange(4)  # the plugin's last constraint load
         self._acceleration_slot = state + PLUGIN_STATE["acceleration"]  # its last swing acceleration
         self.contact_adr = int(m.sensor(TOOL_CONTACT_SENSOR).adr[0])
+        self.refresh(np.arange(count))
         self.seconds = 0.0  # wall time spent in the batch's steps (the rest is the task logic)
         self.steps = 0  # MuJoCo steps (of one site) they made
 
@@ -200,6 +213,12 @@ class BatchSites:
                 self.batch.step(ids[k : k + 1], nstep=periods, stage=_VEL)
         self.seconds += time.perf_counter() - start
         self.steps += len(ids) * periods
+        self.refresh(ids)
+
+    def refresh(self, ids: np.ndarray) -> None:
+        """Copy the sites' joint positions and velocities from their state rows (after a step or a start)."""
+        self._joints[0][ids] = self._qpos[ids]
+        self._joints[1][ids] = self._qvel[ids]
 
     def apply_tip_force(self, ids: np.ndarray, force: np.ndarray) -> None:
         """ExcavatorPhysics.apply_tip_force of the sites ``ids``: ``qfrc_applied = J^T force`` at the teeth.
@@ -230,7 +249,7 @@ class BatchSites:
     def joint_loads(self, ids: np.ndarray) -> np.ndarray:
         """NativeLearnedModel.joint_loads of the sites ``ids`` (N m), (k, 4)."""
         tau = self._qfrc_bias[ids] - self._qfrc_passive[ids] - self._qfrc_applied[ids]
-        return tau[:, self.dadr] - self._plugin_state[ids][:, self._load_slots]
+        return np.ascontiguousarray(tau[:, self.dadr] - self._plugin_state[ids][:, self._load_slots])
 
     def swing_torques(self, ids: np.ndarray) -> np.ndarray:
         """The swing's inertia times the plugin's last swing acceleration of the sites ``ids``, N m."""

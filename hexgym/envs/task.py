@@ -83,10 +83,11 @@ _CLIP_LOW, _CLIP_HIGH = OBS_LOW.astype(float), OBS_HIGH.astype(float)  # as floa
 class SitePhysics(Protocol):
     """The machines of N sites as the task sees them.
 
-    Arrays with a leading site axis, views that stay valid (the task reads them after every call):
-    ``site_xpos`` (N, nsite, 3), ``xpos`` (N, nbody, 3), ``xmat`` (N, nbody, 9), ``qpos`` (N, nq),
-    ``qvel`` (N, nv), ``sensordata`` (N, nsensor); ``tip_site``, ``bucket_body`` ids; ``qadr``, ``dadr``
-    (4,) the main joints' addresses; ``contact_adr`` the tool-contact sensor's first slot.
+    Read-only arrays with a leading site axis, current after each of the calls below (views of the
+    simulation or copies refreshed by them; C-contiguous, so that one compiled version of each stage
+    serves every kind of site): ``site_xpos`` (N, nsite, 3), ``xpos`` (N, nbody, 3), ``xmat`` (N, nbody, 9),
+    ``qpos`` (N, nq), ``qvel`` (N, nv), ``sensordata`` (N, nsensor); ``tip_site``, ``bucket_body`` ids;
+    ``qadr``, ``dadr`` (4,) the main joints' addresses; ``contact_adr`` the tool-contact sensor's first slot.
     """
 
     site_xpos: np.ndarray

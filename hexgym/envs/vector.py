@@ -267,8 +267,7 @@ class HexLoadingVectorEnv(VectorEnv):
         if isinstance(self.sites, BatchSites):
             self.sites.batch.set_const(ids)
             self.sites.batch.forward(ids, stage=_ACC)
-        else:
-            self.sites.refresh(ids)
+        self.sites.refresh(ids)
         self.task.finish_starts(ids)
 
     # -- info ---------------------------------------------------------------------------------------
