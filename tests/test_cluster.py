@@ -101,15 +101,17 @@ def test_ray_collection_equals_the_local_pool(ray_session, pool_data: dict[str, 
 
 
 def _worker_running_a_task() -> int | None:
-    """The pid of a Ray worker process that is running one of hexgym's tasks, if any."""
-    import psutil
-
-    for proc in psutil.process_iter(["pid", "cmdline"]):
-        if " ".join(proc.info["cmdline"] or []).startswith("ray::_call"):
-            return proc.info["pid"]
+    """The pid of a Ray worker process that is running one of hexgym's tasks (its title ``ray::_call``), if any."""
+    for entry in Path("/proc").iterdir():
+        try:
+            if entry.name.isdigit() and (entry / "cmdline").read_bytes().startswith(b"ray::_call"):
+                return int(entry.name)
+        except OSError:  # ended while listed
+            continue
     return None
 
 
+@pytest.mark.skipif(not Path("/proc/self/cmdline").exists(), reason="finds the worker through /proc")
 def test_a_killed_worker_loses_no_finished_chunk(ray_session, pool_data: dict[str, Path], tmp_path: Path) -> None:
     result: dict[str, object] = {}
     run = threading.Thread(target=lambda: result.update(paths=collect(
@@ -215,3 +217,14 @@ def test_executor_refuses_tasks_larger_than_any_node(ray_session) -> None:
 
     with pytest.raises(ClusterError, match="needs 64 cores"):
         executor(ray="local", cpus_per_task=64)
+
+
+@pytest.mark.slow
+def test_ray_planning_sweep_equals_the_sequential_one(ray_session) -> None:
+    from hexgym.tools.plan import run_plan
+
+    def figures(result: dict) -> list[dict]:
+        return [{k: v for k, v in r.items() if not k.endswith("wall_s")} for r in result["per_seed"]]
+
+    kwargs = {"budget": 40, "nthread": 1}
+    assert figures(run_plan("dump", [0, 1], ray="local", **kwargs)) == figures(run_plan("dump", [0, 1], **kwargs))

@@ -63,3 +63,5 @@ def test_rllib_refuses_what_it_does_not_do(tmp_path: Path, capsys: pytest.Captur
     assert "--framework rllib" in capsys.readouterr().err
     assert main(["evaluate", "--policy", str(tmp_path), "--episodes", "1"]) == 2  # a directory, no checkpoint
     assert "not an RLlib checkpoint" in capsys.readouterr().err
+    assert main(["train", "--framework", "rllib", "--num-env-runners", "64", "--ray", "-f", str(tmp_path)]) == 2
+    assert "--num-env-runners 64 needs 64 cores" in capsys.readouterr().err

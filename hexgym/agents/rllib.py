@@ -140,6 +140,8 @@ def train_rllib(
         register_env(RLLIB_ENV, _make_env)
         cpus = int(ray_module.cluster_resources().get("CPU", 1))
         runners = check_count("num_env_runners", num_env_runners if num_env_runners is not None else max(1, cpus - 1))
+        if runners > cpus:  # each env runner holds a core: more would wait for cores forever
+            raise ValueError(f"--num-env-runners {runners} needs {runners} cores, the Ray cluster has {cpus}")
         algorithm = ppo_config(hp, env_id, seed, runners).build_algo()
         try:
             if (run_dir / CHECKPOINT).exists():
