@@ -30,6 +30,7 @@
 #include <cstring>
 #include <map>
 #include <memory>
+#include <utility>
 #include <mutex>
 #include <sstream>
 #include <string>
@@ -148,7 +149,8 @@ Triangle ReadTriangle(const mjModel* m, int instance, const char* key) {
 // Everything one instance needs: model indices, geometry, limits (per mjData, read-only in steps).
 struct Instance {
   std::shared_ptr<const LoadedTables> tables;
-  int boom_table, bucket_table, stick_table, swing_table, pump1_table, pump2_table;  // -1: not in the set
+  int boom_table, bucket_table, stick_table, swing_table;
+  std::vector<std::pair<int, int>> feeding;  // (table, quantity): tables whose output is a quantity, looked up first
   bool swing_torque;  // the swing table gives the motor torque (else the acceleration)
   Linkage linkage;
   double retracted[3], stroke[3], push_limit[3], pull_limit[3], rate_lo[4], rate_hi[4];
@@ -165,6 +167,7 @@ struct Instance {
   bool queried = false;
   double next_rate = 0.0, swing_acceleration = 0.0, target[4] = {0, 0, 0, 0};
   double next_pressure[2] = {0, 0};  // the pump pressure tables' outputs (extended tables)
+  double next_inertia = 0.0;          // the swing inertia at this query
   std::vector<mjtNum> limit_force, limit_qfrc;  // scratch: efc forces of joint-limit rows, J^T of them
   std::vector<bool> machine_body;                // per body: carried by the swinging upper structure
   std::vector<mjtNum> jacp;                       // scratch: a contact point's translation Jacobian
@@ -176,9 +179,14 @@ struct Instance {
     tables = LoadTables(dir && dir[0] ? std::string(dir) : LibraryDirectory() + "/mbl_tables/" + table_set.name,
                         table_set);
     boom_table = tables->Find("boom"), bucket_table = tables->Find("bucket"), stick_table = tables->Find("stick");
-    swing_table = tables->Find("swing"), pump1_table = tables->Find("pump1"), pump2_table = tables->Find("pump2");
-    if (boom_table < 0 || bucket_table < 0 || stick_table < 0 || swing_table < 0 || (pump1_table < 0) != (pump2_table < 0)) {
-      throw SetupError(std::string("table set '") + table_set.name + "' lacks a function's or a pump's table");
+    swing_table = tables->Find("swing");
+    if (boom_table < 0 || bucket_table < 0 || stick_table < 0 || swing_table < 0) {
+      throw SetupError(std::string("table set '") + table_set.name + "' lacks a function's table");
+    }
+    for (int t = 0; t < table_set.num_tables; ++t) {
+      for (int q = 0; q < kNumQuantities; ++q) {
+        if (std::strcmp(table_set.tables[t].output, kQuantityNames[q]) == 0) feeding.emplace_back(t, q);
+      }
     }
     linkage.boom = ReadTriangle(m, instance, "boom_triangle");
     linkage.stick = ReadTriangle(m, instance, "stick_triangle");
@@ -333,22 +341,22 @@ struct Instance {
     bool closed[4];
     for (int k = 0; k < 4; ++k) closed[k] = std::fabs(u[k]) < dead_band;
     double rate = integrated ? d->plugin_state[stateadr + kTargets] : d->act[swing_actadr];
+    double last_inertia = d->plugin_state[stateadr + kInertia];
+    if (swing_torque && last_inertia > 0.0) rate *= last_inertia / inertia;  // the momentum is kept
+    next_inertia = inertia;
     double q[kNumQuantities];
     q[kQSwingSpoolM] = u[0], q[kQBoomSpoolM] = u[1], q[kQStickSpoolM] = u[2], q[kQBucketSpoolM] = u[3];
     q[kQBoomForceN] = f[0], q[kQStickForceN] = f[1], q[kQBucketForceN] = f[2];
+    q[kQStickDriveForceN] = closed[2] ? 0.0 : f[1];
     q[kQSwingInertiaKgm2] = inertia, q[kQSwingRateRadps] = rate;
-    q[kQPump1PressurePa] = d->plugin_state[stateadr + kPressures];
-    q[kQPump2PressurePa] = d->plugin_state[stateadr + kPressures + 1];
+    q[kQPump1PressurePa] = q[kQPump2PressurePa] = 0.0;
+    for (const auto& [table, quantity] : feeding) q[quantity] = Lookup(table, q);  // first: the others read them
+    next_pressure[0] = q[kQPump1PressurePa], next_pressure[1] = q[kQPump2PressurePa];
     double v_boom = closed[1] ? 0.0 : Lookup(boom_table, q);
     double v_bucket = closed[3] ? 0.0 : Lookup(bucket_table, q);
     double v_stick = closed[2] ? 0.0 : Lookup(stick_table, q);
     swing_acceleration = Lookup(swing_table, q);
     if (swing_torque) swing_acceleration /= inertia;  // a torque table (extended): through this inertia
-    next_pressure[0] = q[kQPump1PressurePa], next_pressure[1] = q[kQPump2PressurePa];
-    if (pump1_table >= 0) {  // the pumps' pressures for the next period, from this period's inputs
-      next_pressure[0] = Lookup(pump1_table, q);
-      next_pressure[1] = Lookup(pump2_table, q);
-    }
     if (!(slowest_swing < rate && rate < fastest_swing) && swing_acceleration * rate > 0.0) {
       // the table clamps the rate to its grid (the fastest swing in its data): beyond it, it
       // would keep accelerating at that edge's value; it must not go faster
@@ -414,6 +422,7 @@ struct Instance {
       for (int k = 0; k < 4; ++k) state[kTargets + k] = target[k];
       state[kTargets] = next_rate;  // the swing's rate, unclipped (the servo clips it when used)
       state[kPressures] = next_pressure[0], state[kPressures + 1] = next_pressure[1];
+      state[kInertia] = next_inertia;
     }
     // whole periods are subtracted, not the phase zeroed: a period of 12.5 steps alternates 13 and 12
     double phase = state[kPhase] + 1.0;

@@ -16,7 +16,8 @@ constexpr int kAcceleration = 4;  // 1 value(s)
 constexpr int kPhase = 5;  // 1 value(s)
 constexpr int kTargets = 6;  // 4 value(s)
 constexpr int kPressures = 10;  // 2 value(s)
-constexpr int kStateSize = 12;
+constexpr int kInertia = 12;  // 1 value(s)
+constexpr int kStateSize = 13;
 
 // Config keys, in the declared order
 constexpr const char* kAttributes[] = {
@@ -47,6 +48,7 @@ enum Quantity {
   kQBoomForceN,
   kQStickForceN,
   kQBucketForceN,
+  kQStickDriveForceN,
   kQSwingInertiaKgm2,
   kQSwingRateRadps,
   kQPump1PressurePa,
@@ -61,6 +63,7 @@ constexpr const char* kQuantityNames[kNumQuantities] = {
     "boom_force_n",
     "stick_force_n",
     "bucket_force_n",
+    "stick_drive_force_n",
     "swing_inertia_kgm2",
     "swing_rate_radps",
     "pump1_pressure_pa",
@@ -81,12 +84,11 @@ constexpr TableSchema kPaperTables[] = {
     {"swing", 5, {kQSwingSpoolM, kQStickSpoolM, kQStickForceN, kQSwingInertiaKgm2, kQSwingRateRadps}, "swing_acceleration_radps2"},
 };
 constexpr TableSchema kExtendedTables[] = {
-    {"boom", 5, {kQBoomSpoolM, kQBucketSpoolM, kQBoomForceN, kQBucketForceN, kQPump2PressurePa}, "boom_velocity_mps"},
-    {"bucket", 5, {kQBoomSpoolM, kQBucketSpoolM, kQBoomForceN, kQBucketForceN, kQPump2PressurePa}, "bucket_velocity_mps"},
-    {"pump1", 5, {kQBoomSpoolM, kQBucketSpoolM, kQBoomForceN, kQBucketForceN, kQPump2PressurePa}, "pump1_pressure_pa"},
-    {"stick", 5, {kQSwingSpoolM, kQStickSpoolM, kQSwingInertiaKgm2, kQStickForceN, kQPump1PressurePa}, "stick_velocity_mps"},
-    {"swing", 5, {kQSwingSpoolM, kQStickSpoolM, kQStickForceN, kQSwingRateRadps, kQPump1PressurePa}, "swing_torque_nm"},
-    {"pump2", 5, {kQSwingSpoolM, kQStickSpoolM, kQStickForceN, kQSwingRateRadps, kQPump1PressurePa}, "pump2_pressure_pa"},
+    {"boom", 4, {kQBoomSpoolM, kQBucketSpoolM, kQBoomForceN, kQBucketForceN}, "boom_velocity_mps"},
+    {"bucket", 4, {kQBoomSpoolM, kQBucketSpoolM, kQBoomForceN, kQBucketForceN}, "bucket_velocity_mps"},
+    {"stick", 4, {kQSwingSpoolM, kQStickSpoolM, kQSwingInertiaKgm2, kQStickForceN}, "stick_velocity_mps"},
+    {"swing", 3, {kQSwingSpoolM, kQPump2PressurePa, kQSwingRateRadps}, "swing_torque_nm"},
+    {"pump2", 4, {kQSwingSpoolM, kQStickSpoolM, kQStickDriveForceN, kQSwingRateRadps}, "pump2_pressure_pa"},
 };
 struct TableSet {
   const char* name;
@@ -96,12 +98,12 @@ struct TableSet {
 constexpr int kNumTableSets = 2;
 constexpr TableSet kTableSets[kNumTableSets] = {
     {"paper", 4, kPaperTables},
-    {"extended", 6, kExtendedTables},
+    {"extended", 5, kExtendedTables},
 };
 constexpr char kDefaultTableSet[] = "paper";
 
 // All of the above as JSON, returned by hexgym_mbl_interface() for the Python side's check
-constexpr char kInterfaceJson[] = "{\"config_keys\":[\"tables\",\"boom_triangle\",\"stick_triangle\",\"bucket_four_bar\",\"retracted_length\",\"stroke\",\"end_margin\",\"push_limit\",\"pull_limit\",\"swing_torque_limit\",\"dead_band\",\"swing_rest_rate\",\"rate_range\",\"control_period\",\"table_set\"],\"ctrl_per_spool_m\":1000.0,\"default_table_set\":\"paper\",\"joints\":[\"swing\",\"boom\",\"stick\",\"bucket\"],\"plugin\":\"hexgym.mbl\",\"quantities\":[\"swing_spool_m\",\"boom_spool_m\",\"stick_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"stick_force_n\",\"bucket_force_n\",\"swing_inertia_kgm2\",\"swing_rate_radps\",\"pump1_pressure_pa\",\"pump2_pressure_pa\"],\"state\":{\"acceleration\":[4,1],\"load\":[0,4],\"phase\":[5,1],\"pressures\":[10,2],\"targets\":[6,4]},\"state_size\":12,\"table_format_version\":1,\"table_sets\":{\"extended\":[{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\",\"pump2_pressure_pa\"],\"name\":\"boom\",\"output\":\"boom_velocity_mps\"},{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\",\"pump2_pressure_pa\"],\"name\":\"bucket\",\"output\":\"bucket_velocity_mps\"},{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\",\"pump2_pressure_pa\"],\"name\":\"pump1\",\"output\":\"pump1_pressure_pa\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"swing_inertia_kgm2\",\"stick_force_n\",\"pump1_pressure_pa\"],\"name\":\"stick\",\"output\":\"stick_velocity_mps\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"stick_force_n\",\"swing_rate_radps\",\"pump1_pressure_pa\"],\"name\":\"swing\",\"output\":\"swing_torque_nm\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"stick_force_n\",\"swing_rate_radps\",\"pump1_pressure_pa\"],\"name\":\"pump2\",\"output\":\"pump2_pressure_pa\"}],\"paper\":[{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\"],\"name\":\"boom\",\"output\":\"boom_velocity_mps\"},{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\"],\"name\":\"bucket\",\"output\":\"bucket_velocity_mps\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"swing_inertia_kgm2\",\"stick_force_n\"],\"name\":\"stick\",\"output\":\"stick_velocity_mps\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"stick_force_n\",\"swing_inertia_kgm2\",\"swing_rate_radps\"],\"name\":\"swing\",\"output\":\"swing_acceleration_radps2\"}]}}";
+constexpr char kInterfaceJson[] = "{\"config_keys\":[\"tables\",\"boom_triangle\",\"stick_triangle\",\"bucket_four_bar\",\"retracted_length\",\"stroke\",\"end_margin\",\"push_limit\",\"pull_limit\",\"swing_torque_limit\",\"dead_band\",\"swing_rest_rate\",\"rate_range\",\"control_period\",\"table_set\"],\"ctrl_per_spool_m\":1000.0,\"default_table_set\":\"paper\",\"joints\":[\"swing\",\"boom\",\"stick\",\"bucket\"],\"plugin\":\"hexgym.mbl\",\"quantities\":[\"swing_spool_m\",\"boom_spool_m\",\"stick_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"stick_force_n\",\"bucket_force_n\",\"stick_drive_force_n\",\"swing_inertia_kgm2\",\"swing_rate_radps\",\"pump1_pressure_pa\",\"pump2_pressure_pa\"],\"state\":{\"acceleration\":[4,1],\"inertia\":[12,1],\"load\":[0,4],\"phase\":[5,1],\"pressures\":[10,2],\"targets\":[6,4]},\"state_size\":13,\"table_format_version\":1,\"table_sets\":{\"extended\":[{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\"],\"name\":\"boom\",\"output\":\"boom_velocity_mps\"},{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\"],\"name\":\"bucket\",\"output\":\"bucket_velocity_mps\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"swing_inertia_kgm2\",\"stick_force_n\"],\"name\":\"stick\",\"output\":\"stick_velocity_mps\"},{\"inputs\":[\"swing_spool_m\",\"pump2_pressure_pa\",\"swing_rate_radps\"],\"name\":\"swing\",\"output\":\"swing_torque_nm\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"stick_drive_force_n\",\"swing_rate_radps\"],\"name\":\"pump2\",\"output\":\"pump2_pressure_pa\"}],\"paper\":[{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\"],\"name\":\"boom\",\"output\":\"boom_velocity_mps\"},{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\"],\"name\":\"bucket\",\"output\":\"bucket_velocity_mps\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"swing_inertia_kgm2\",\"stick_force_n\"],\"name\":\"stick\",\"output\":\"stick_velocity_mps\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"stick_force_n\",\"swing_inertia_kgm2\",\"swing_rate_radps\"],\"name\":\"swing\",\"output\":\"swing_acceleration_radps2\"}]}}";
 
 }  // namespace hexgym
 

@@ -17,11 +17,11 @@ from hexgym.mbl.collect import (
     add_collect_parser,
     chunk_path,
     collect,
+    collect_operator_episode,
     episode_rng,
     episode_setup,
     load_dataset,
     model_fingerprint,
-    plan_segment,
     run_collect,
     run_segment,
     tip_force_world,
@@ -30,7 +30,9 @@ from hexgym.mbl.schema import TABLE_SETS
 
 TABLES = TABLE_SETS["paper"]
 # Short segments and episodes: a few seconds per collection, every code path.
-TINY = CollectConfig(segments_per_episode=3, episodes_per_chunk=1, hold_s=(0.7, 0.8), windows_per_segment=1)
+TINY = CollectConfig(
+    segments_per_episode=3, episodes_per_chunk=1, hold_s=(0.7, 0.8), windows_per_segment=1, operator_duration_s=6.0
+)
 SAMPLES = 4
 SEED = 6
 
@@ -188,22 +190,28 @@ def test_cli_parser_defaults() -> None:
     assert (args.out, args.samples, args.seed, args.workers) == ("x", 10, 3, 1)
 
 
-def test_extended_collection_moves_both_pumps_and_names_the_extended_inputs(tmp_path: Path) -> None:
+def test_extended_collection_adds_operator_logs_named_as_the_schema_says(tmp_path: Path) -> None:
     config = CollectConfig(**{**TINY.__dict__, "table_set": "extended"})
     paths = collect(tmp_path, samples_per_group=SAMPLES, seed=SEED, workers=1, progress=False, config=config)
     assert paths.keys() == TABLE_SETS["extended"].keys()
     for table, spec in TABLE_SETS["extended"].items():
         ds = load_dataset(paths[table])
         assert ds["inputs"] == spec.inputs and ds["output"] == spec.output and np.isfinite(ds["X"]).all()
+    pump2 = load_dataset(paths["pump2"])
+    stick_spool = pump2["X"][:, pump2["inputs"].index("stick_spool_m")]
+    drive = pump2["X"][:, pump2["inputs"].index("stick_drive_force_n")]
+    assert np.all(drive[np.abs(stick_spool) < p.SPOOL_DEAD_BAND] == 0.0)  # a closed spool's load is not seen
+    assert len(pump2["y"]) >= config.target("operator", SAMPLES)
 
 
-@pytest.mark.parametrize("table_set", ["paper", "extended"])
-def test_the_other_pump_moves_only_for_the_extended_tables(table_set: str) -> None:
-    config = CollectConfig(table_set=table_set)
-    rng, ext = np.random.default_rng(0), np.array([0.6, 0.8, 0.5])
-    spools = np.array([plan_segment(rng, "boom_bucket", np.zeros(4), ext, 0.002, config)[0] for _ in range(400)])
-    other_moves = np.any(spools[:, [0, 2]] != 0.0, axis=1).mean()  # swing, stick: pump 2
-    if table_set == "paper":
-        assert other_moves == 0.0
-    else:  # idle in about other_pump_idle_probability of the segments
-        assert 0.5 < other_moves < 0.8
+def test_operator_rows_give_the_torque_that_turned_the_swing(sim: ReferenceModel) -> None:
+    config = CollectConfig(table_set="extended")
+    result = collect_operator_episode(sim, 0, SEED, config)
+    rows, torque = np.array([r[0] for r in result.rows["swing"]]), np.array([r[1] for r in result.rows["swing"]])
+    assert len(torque) > 100 and not result.error
+    spool, pressure, rate = rows[:, 0], rows[:, 1], rows[:, 2]
+    # accelerating from a full spool against the crossover relief: about the rated torque, in its direction
+    hard = (np.abs(spool) > 0.009) & (pressure > 25e6) & (np.abs(rate) < 0.3)
+    assert hard.any()
+    assert np.all(np.sign(torque[hard]) == np.sign(spool[hard]))
+    assert np.median(np.abs(torque[hard])) == pytest.approx(p.SWING_TORQUE_AT_RELIEF, rel=0.3)

@@ -1,6 +1,6 @@
-"""The two table sets: the paper's ships and loads; the extended set (not shipped: made by `hexgym
-collect/fit --tables extended`) runs on both backends alike, here on small synthetic tables with its
-schema; a set's files are refused where the other set's are expected, naming the file and what differs."""
+"""The two table sets: both load; the extended set runs on both backends alike, here on small
+synthetic tables with its schema; a set's files are refused where the other set's are expected,
+naming the file and what differs."""
 
 import shutil
 from pathlib import Path
@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hexgym.mbl import table
 from hexgym.mbl.lwr_params import LWRParams
 from hexgym.mbl.schema import TABLE_SETS, table_set_of
 from hexgym.mbl.table import MBLTable, load_tables, packaged_tables_dir
@@ -52,16 +53,16 @@ def extended_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return directory
 
 
-def test_the_paper_set_ships_and_loads():
-    tables = load_tables(table_set="paper")
-    assert table_set_of(tables) == "paper"
-    for name, spec in TABLE_SETS["paper"].items():
+@pytest.mark.parametrize("table_set", list(TABLE_SETS))
+def test_each_set_ships_and_loads(table_set):
+    tables = load_tables(table_set=table_set)
+    assert table_set_of(tables) == table_set
+    for name, spec in TABLE_SETS[table_set].items():
         assert (tables[name].inputs, tables[name].output) == (spec.inputs, spec.output)
 
 
-def test_a_set_that_is_not_shipped_says_how_to_make_it():
-    if packaged_tables_dir("extended").is_dir():
-        pytest.skip("extended tables were fitted into this checkout")
+def test_a_set_that_is_not_shipped_says_how_to_make_it(monkeypatch, tmp_path):
+    monkeypatch.setattr(table, "packaged_tables_dir", lambda table_set: tmp_path / table_set)
     with pytest.raises(FileNotFoundError, match=r"extended tables are not shipped: .*hexgym collect --tables extended"):
         load_tables(table_set="extended")
 
@@ -69,29 +70,52 @@ def test_a_set_that_is_not_shipped_says_how_to_make_it():
 def test_a_paper_file_where_an_extended_one_is_expected_is_refused(extended_dir, tmp_path):
     for path in extended_dir.glob("*.npz"):
         shutil.copy(path, tmp_path)
-    shutil.copy(packaged_tables_dir("paper") / "boom.npz", tmp_path / "boom.npz")
-    with pytest.raises(ValueError, match=r"boom\.npz: table 'boom' does not match the 'extended' schema: missing"):
+    shutil.copy(packaged_tables_dir("paper") / "swing.npz", tmp_path / "swing.npz")
+    with pytest.raises(ValueError, match=r"swing\.npz: table 'swing' does not match the 'extended' schema: missing"):
         load_tables(tmp_path, "extended")
-    with pytest.raises(ValueError, match=r"paper/boom\.npz: table 'boom' does not match the 'extended' schema"):
+    with pytest.raises(ValueError, match=r"paper/swing\.npz: table 'swing' does not match the 'extended' schema"):
         load_tables(packaged_tables_dir("paper"), "extended")
-    (tmp_path / "pump1.npz").unlink()
-    shutil.copy(extended_dir / "boom.npz", tmp_path)
-    with pytest.raises(FileNotFoundError, match="pump1.npz"):
+    (tmp_path / "pump2.npz").unlink()
+    shutil.copy(extended_dir / "swing.npz", tmp_path)
+    with pytest.raises(FileNotFoundError, match="pump2.npz"):
         load_tables(tmp_path, "extended")
 
 
-def test_the_extended_model_feeds_the_pump_pressures_forward(extended_dir):
+def test_the_extended_model_reads_pump_2s_pressure_first(extended_dir):
     from hexgym.model.python_backend import LearnedModel
 
     model = LearnedModel(load_tables(extended_dir, "extended"))
     log, pose = scenarios()["test3"]
     model.reset(pose)
     assert model._pressures == (0.0, 0.0)
-    model.step(log.spools_at(3.0) * 1e-3)
-    first = model._pressures
-    assert all(p > 1e6 for p in first)  # the pressure tables' outputs, for the next period's lookups
-    model.step(log.spools_at(3.0) * 1e-3)
-    assert model._pressures != first  # their own inputs include the other pump's pressure
+    spools = log.spools_at(3.0) * 1e-3
+    model.step(spools)
+    pressure = model._pressures[1]
+    q = {"swing_spool_m": spools[0], "stick_spool_m": spools[2], "swing_rate_radps": 0.0, "stick_drive_force_n": 0.0}
+    assert pressure > 1e6 and model._pressures[0] == 0.0  # pump 2's table; pump 1 has none
+    assert pressure != model.tables["pump2"](tuple(q[i] for i in TABLE_SETS["extended"]["pump2"].inputs))
+
+
+def test_a_torque_table_keeps_the_swings_angular_momentum(extended_dir, tmp_path):
+    from hexgym.model.python_backend import LearnedModel
+
+    for path in extended_dir.glob("*.npz"):
+        shutil.copy(path, tmp_path)
+    torque = load_tables(extended_dir, "extended")["swing"]
+    free = MBLTable("swing", torque.inputs, torque.output, torque.axes, 0.0 * torque.values, torque.confidence,
+                    torque.params, {"n_points": 0}, "synthetic")  # fmt: skip
+    free.save(tmp_path / "swing.npz")
+    model = LearnedModel(load_tables(tmp_path, "extended"))
+    log, pose = scenarios()["test3"]
+    model.reset(pose)
+    model._swing_rate_target = 0.5
+    inertia, momentum = [], []
+    for _ in range(40):  # no torque: as the stick moves the inertia changes, and the rate with it
+        model.step(np.array([0.005, 0.0, 0.011, 0.0]))
+        inertia.append(model.physics.swing_inertia())
+        momentum.append(model._swing_rate_target * inertia[-1])
+    assert np.ptp(inertia) / inertia[0] > 0.05
+    assert np.ptp(momentum) / momentum[0] < 0.005
 
 
 @needs_plugin

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from hexgym.machine import kinematics
+from hexgym.mbl import operator_logs as ol
 from hexgym.mbl.schema import DEFAULT_TABLE_SET
-from hexgym.tools import operator_logs as ol
 from hexgym.tools.cli import main
 from hexgym.tools.validate import interaction_cases, run_validation
 
@@ -16,15 +16,15 @@ LOGS = [ol.suite_log(7, i) for i in range(50)]
 
 def test_each_log_is_reproducible_on_its_own():
     again = ol.suite_log(7, 3)
-    assert np.array_equal(again.log.spools_mm, LOGS[3].log.spools_mm)
+    assert np.array_equal(again.spools_mm, LOGS[3].spools_mm)
     assert np.array_equal(again.start_pose, LOGS[3].start_pose) and again.payload_kg == LOGS[3].payload_kg
-    assert not np.array_equal(ol.suite_log(8, 3).log.spools_mm[:200], LOGS[3].log.spools_mm[:200])
+    assert not np.array_equal(ol.suite_log(8, 3).spools_mm[:200], LOGS[3].spools_mm[:200])
 
 
 @pytest.mark.parametrize("drawn", LOGS[:10])
 def test_log_shape(drawn):
-    t, u = drawn.log.t, drawn.log.spools_mm
-    assert 30.0 <= drawn.log.duration <= 60.0
+    t, u = drawn.t, drawn.spools_mm
+    assert 30.0 <= drawn.duration <= 60.0
     assert np.allclose(np.diff(t), 0.05)
     assert np.abs(u).max() <= 11.0
     assert (np.count_nonzero(u, axis=1) <= 3).all()
@@ -42,9 +42,9 @@ def test_log_shape(drawn):
 
 def test_rows_are_the_strokes():
     drawn = LOGS[0]
-    t = drawn.log.t
+    t = drawn.t
     for s in drawn.strokes:
-        column = drawn.log.spools_mm[:, kinematics.JOINTS.index(s.function)]
+        column = drawn.spools_mm[:, kinematics.JOINTS.index(s.function)]
         inside = (t >= s.start_s) & (t <= s.end_s)
         assert np.allclose(column[inside], s.spool_mm(t[inside]), atol=0.01)
         hold = (t >= s.start_s + s.ramp_up_s - 1e-9) & (t <= s.end_s - s.ramp_down_s + 1e-9)
@@ -57,7 +57,7 @@ def test_over_fifty_logs_every_direction_payload_and_phase_kind_occurs():
     for drawn in LOGS:
         moves |= set(drawn.describe()["moves"])
         payloads.add(drawn.payload_kg)
-        active = np.count_nonzero(drawn.log.spools_mm, axis=1)
+        active = np.count_nonzero(drawn.spools_mm, axis=1)
         for k in phases:
             phases[k] += int((active == k).any())
         for s in drawn.strokes:
@@ -77,7 +77,7 @@ def _driven_at_a_stroke_end(drawn: ol.OperatorLog) -> float:
     for k, name in enumerate(kinematics.FRONT_CYLINDERS, start=1):
         stroke = ol.p.CYLINDERS[name].stroke
         f = (kinematics.cylinder_length(name, drawn.start_pose[k]) - ol.p.CYLINDERS[name].retracted_length) / stroke
-        for u in drawn.log.spools_mm[:, k] / 11.0:
+        for u in drawn.spools_mm[:, k] / 11.0:
             f = min(1.0, max(0.0, f + ol.NOMINAL_SPEED_MPS[name][0 if u > 0 else 1] * u * 0.05 / stroke))
             driven += u != 0.0
             at_end += u != 0.0 and f in (0.0, 1.0)

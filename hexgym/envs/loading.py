@@ -287,7 +287,7 @@ class HexLoadingEnv(gym.Env):
     | scene_path | None | MJCF scene to build the site on (default: the lean machine's ``scene_lean.xml``) |
     | backend | ``"auto"`` | ``"native"`` (MuJoCo plugin), ``"python"`` (LearnedModel), ``"auto"`` (native if built) |
     | earthwork_periods | 4 | control periods (25 ms) per dig (fill, pile cut, spill) near the pile; 1: every period |
-    | tables | ``"paper"`` | the learned model's tables: ``"paper"`` (the paper's four) or ``"extended"`` (both pumps) |
+    | tables | ``"paper"`` | the learned model's table set: ``"paper"`` or ``"extended"`` (:mod:`hexgym.mbl.schema`) |
 
     Metadata: ``render_fps`` = 10, the control rate.
     """

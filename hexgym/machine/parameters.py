@@ -177,6 +177,7 @@ SWING_PORT_VOLUME = 1.5e-3  # m^3 per motor port incl. hoses [est]
 # linearly by BYPASS_CLOSED, so with standby flow the pump pressure builds over mid-stroke
 # (~2 MPa at 4 mm, ~10 MPa at 7 mm, ~30 MPa at 8 mm above the NFC pressure): open-centre metering.
 SPOOL_DEAD_BAND = 1.5e-3  # m [est, 1-2 mm overlap]
+STROKE_END_MARGIN = 0.005  # m from a stroke end: the cylinder is at its stop [est]
 BYPASS_CLOSE_START = 0.8e-3  # m [est]
 BYPASS_LAND_CLOSED = 3.0e-3  # m [est]
 BYPASS_CLOSED = 9.5e-3  # m [est: fully closed before full stroke]

@@ -1,4 +1,4 @@
-"""Training data for the four MBL tables: the reference model driven through motion sequences.
+"""Training data for the MBL tables: the reference model driven through motion sequences.
 
 The paper (Sec III, "Data Collection") drove its slow analytical model through motion sequences
 that cover each table's input space: the spools over ±11 mm at 1 mm resolution in combinations
@@ -7,7 +7,8 @@ cylinder forces following from the machine's configuration. This module does the
 :class:`hexgym.hydraulics.reference.ReferenceModel`, and also applies digging-like tip forces so that the
 learned model does not extrapolate when the environment digs.
 
-Tables (inputs -> output, SI units; spools in m, + extends / turns counter-clockwise):
+The paper's tables (inputs -> output, SI units; spools in m, + extends / turns counter-clockwise;
+every set's in :mod:`hexgym.mbl.schema`):
 
 ======  =====================================================================  ===========================
 table   inputs                                                                 output
@@ -49,6 +50,14 @@ Its spool is kept over several segments with probability ``swing_persistence``, 
 reaches full speed (about 3 s at full spool) and brakes (spool reversed or zero while turning:
 the crossover reliefs brake it).
 
+Operator-like logs (group ``operator``: the ``extended`` set's swing torque and pump-2 pressure).
+Held segments sampled after they settle cannot show the pump line's pressure transients, which
+decide the swing's response to joystick ramps and to the stick taking the flow. These episodes
+replay one seeded operator-like log each (:mod:`hexgym.mbl.operator_logs`: ramps, one to three
+functions, long swings with and without the stick, payloads 0-2 t) and take a row every
+``operator_interval_s`` along the motion; the group collects ``operator_sample_factor`` times the
+samples of the others (rows of one log are correlated; ~60 logs by default).
+
 Reproducibility and resumption. Each episode has its own random generator, seeded by
 ``SeedSequence(seed, spawn_key=(group, episode))``; episodes are computed in chunks of
 ``episodes_per_chunk``, each written atomically to ``<out>/chunks/<group>_<index>.npz``. A
@@ -77,6 +86,8 @@ import numpy as np
 from hexgym.files import atomic_path, check_output_dir
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
+from hexgym.mbl.operator_logs import DT as OPERATOR_DT
+from hexgym.mbl.operator_logs import operator_log
 from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS
 from hexgym.parallel import Executor, add_ray_option, executor
 
@@ -93,8 +104,12 @@ _SPEED_IN = np.array([1.6 * p.PUMP_MAX_FLOW / p.CYLINDERS[n].rod_area for n in k
 
 
 # group -> the functions whose spools its episodes move (its tables: CollectConfig.tables)
-GROUPS: dict[str, tuple[str, str]] = {"boom_bucket": ("boom", "bucket"), "stick_swing": ("swing", "stick")}
-_GROUP_ID = {"boom_bucket": 0, "stick_swing": 1}
+GROUPS: dict[str, tuple[str, ...]] = {
+    "boom_bucket": ("boom", "bucket"),
+    "stick_swing": ("swing", "stick"),
+    "operator": kinematics.JOINTS,  # operator-like logs: any function, ramps, long swings
+}
+_GROUP_ID = {"boom_bucket": 0, "stick_swing": 1, "operator": 2}
 
 
 @dataclass(frozen=True)
@@ -119,13 +134,18 @@ class CollectConfig:
     swing_half_width_s: float = 0.024  # central difference over twice this
     record_every: int = 10  # steps between force records in the window and limit checks
     table_set: str = "paper"  # which tables' data sets to write (hexgym.mbl.schema.TABLE_SETS)
-    # extended tables: the other pump's spools move too (both idle with this probability per segment)
-    other_pump_idle_probability: float = 0.3
+    operator_interval_s: float = 0.2  # operator group: one row this often along each log
+    operator_duration_s: float | None = None  # operator group: each log this long (None: 30-60 s)
+    operator_sample_factor: int = 2  # operator group: this many times the samples per group
 
-    @property
-    def both_pumps(self) -> bool:
-        """Whether the other pump's functions move too (the extended tables see both pumps)."""
-        return self.table_set != "paper"
+    def groups(self) -> tuple[str, ...]:
+        """The collection groups the table set's tables learn from, in ``GROUPS`` order."""
+        used = {spec.group for spec in TABLE_SETS[self.table_set].values()}
+        return tuple(g for g in GROUPS if g in used)
+
+    def target(self, group: str, samples_per_group: int) -> int:
+        """Samples ``group``'s first table needs: operator rows are many per episode but correlated."""
+        return samples_per_group * (self.operator_sample_factor if group == "operator" else 1)
 
     def tables(self, group: str) -> tuple[str, ...]:
         """The tables whose samples ``group``'s episodes give, the first the one counted."""
@@ -356,18 +376,12 @@ def plan_segment(
     keep_swing = rng.uniform() < config.swing_persistence
     spools = np.zeros(4)
     _set_spools(spools, GROUPS[group], draws, keep_swing, previous, ext, hold, config)
-    if config.both_pumps:  # drawn after the group's own: the paper's data sets stay as they were
-        idle = rng.uniform() < config.other_pump_idle_probability
-        draws = [0.0 if idle else _draw_spool(rng, config) for _ in range(2)]
-        keep_swing = rng.uniform() < config.swing_persistence
-        other = next(functions for g, functions in GROUPS.items() if g != group)
-        _set_spools(spools, other, draws, keep_swing and not idle, previous, ext, hold, config)
     return spools, max(1, round(hold / dt))
 
 
 def _set_spools(
     spools: np.ndarray,
-    functions: tuple[str, str],
+    functions: tuple[str, ...],
     draws: list[float],
     keep_swing: bool,
     previous: np.ndarray,
@@ -425,6 +439,69 @@ def collect_episode(sim: Any, group: str, episode: int, seed: int, config: Colle
     return result
 
 
+def collect_operator_episode(sim: Any, episode: int, seed: int, config: CollectConfig) -> EpisodeResult:
+    """One operator-like log (:func:`hexgym.mbl.operator_logs.operator_log`) replayed on ``sim``.
+
+    Rows along the motion every ``operator_interval_s``, each with the spools about to act, the
+    stick's load while its spool is open, the swing rate, pump 2's pressure and the swing's torque
+    d(I w)/dt (central difference over twice ``swing_half_width_s``: the torque that turned the
+    upper structure, its friction included, whatever the inertia did meanwhile). Rows where a
+    cylinder on pump 2 (the stick) is driven into its stroke end are left out: there its relief,
+    not the valve, sets the pressure, and the learned model closes that spool.
+    """
+    drawn = operator_log(episode_rng(seed, "operator", episode), config.operator_duration_s)
+    sim.reset("home", drawn.payload_kg)  # clears what a reset to joint angles keeps (see collect_episode)
+    sim.reset(drawn.start_pose, drawn.payload_kg)
+    ph, dt = sim.physics, sim.timestep
+    half = max(1, round(config.swing_half_width_s / dt))
+    every = max(1, round(config.operator_interval_s / dt))
+    steps = int(round(drawn.duration / dt))
+    row_of_step = np.minimum(((np.arange(steps + 1) * dt) / OPERATOR_DT + 1e-6).astype(int), len(drawn.t) - 1)
+    spools_m = drawn.spools_mm[row_of_step] * 1e-3  # the spools acting from each step on
+    momentum = np.empty(steps + 1)
+    momentum[0] = ph.swing_inertia() * ph.joint_velocities()[0]
+    pending: dict[int, dict[str, float]] = {}
+    result = EpisodeResult(rows={t: [] for t in config.tables("operator")})
+    stick, stroke = _CYL["stick"], _STROKE[_CYL["stick"]]
+    for k in range(1, steps + 1):
+        try:
+            sim.step(spools_m[k - 1])
+        except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:  # a diverged model: end it here
+            result.error = f"step {k}: {exc}"
+            break
+        result.sim_seconds += dt
+        momentum[k] = ph.swing_inertia() * ph.joint_velocities()[0]
+        if k % every == 0 and half <= k <= steps - half:
+            u = spools_m[k]
+            ext = ph.cylinder_extensions()[stick]
+            stalled = (ext <= p.STROKE_END_MARGIN and u[2] < 0) or (ext >= stroke - p.STROKE_END_MARGIN and u[2] > 0)
+            if stalled:
+                result.rejected_windows += 1
+                continue
+            force = float(_forces(sim)[stick]) if abs(u[2]) >= p.SPOOL_DEAD_BAND else 0.0
+            pending[k] = {f"{name}_spool_m": float(u[i]) for name, i in _SPOOL.items()} | {
+                "stick_drive_force_n": force,
+                "swing_rate_radps": float(ph.joint_velocities()[0]),
+                "swing_inertia_kgm2": ph.swing_inertia(),
+                "pump1_pressure_pa": float(sim.state[0]),
+                "pump2_pressure_pa": float(sim.state[1]),
+            }
+        for c in [c for c in pending if c + half <= k]:
+            q = pending.pop(c) | {"swing_torque_nm": float((momentum[c + half] - momentum[c - half]) / (2 * half * dt))}
+            for table in config.tables("operator"):
+                spec = TABLE_SETS[config.table_set][table]
+                result.rows[table].append((np.array([q[name] for name in spec.inputs]), q[spec.output], c))
+    result.segments = 1
+    return result
+
+
+def _episode(sim: Any, group: str, episode: int, seed: int, config: CollectConfig) -> EpisodeResult:
+    """One episode of ``group``: held-spool segments, or an operator-like log."""
+    if group == "operator":
+        return collect_operator_episode(sim, episode, seed, config)
+    return collect_episode(sim, group, episode, seed, config)
+
+
 def _add_rows(result: EpisodeResult, group: str, seg: int, r: SegmentResult, config: CollectConfig) -> None:
     """The segment's samples as rows of each of the group's tables, its inputs picked by name."""
     result.swing_rejected += r.swing_rejected
@@ -464,7 +541,7 @@ _SIM: Any = None  # one reference model per process, made on first use
 # Samples per episode as a fraction of segments x windows, measured on the default data set
 # (episodes end at a stroke end; the bucket's runs there most often), a little low so the first
 # round of chunks rather overshoots than needs a second one.
-_YIELD = {"boom_bucket": 0.57, "stick_swing": 0.83}
+_YIELD = {"boom_bucket": 0.57, "stick_swing": 0.83, "operator": 200 / 24}  # operator: ~200 rows a log
 
 
 def _simulator() -> Any:
@@ -542,9 +619,7 @@ def _compute_chunk(task: tuple[str, str, int, int, str, str]) -> tuple[str, int,
     sim = _simulator()
     t0 = time.perf_counter()
     first = index * config.episodes_per_chunk
-    episodes = [
-        (e, collect_episode(sim, group, e, seed, config)) for e in range(first, first + config.episodes_per_chunk)
-    ]
+    episodes = [(e, _episode(sim, group, e, seed, config)) for e in range(first, first + config.episodes_per_chunk)]
     wall = time.perf_counter() - t0
     arrays = _chunk_arrays(group, episodes, config)
     meta = _chunk_meta(group, index, seed, config, fingerprint) | {
@@ -708,17 +783,20 @@ def collect(
     (out / "chunks").mkdir(parents=True, exist_ok=True)
     with executor(workers, ray=ray) as pool:  # first: a cluster that cannot run the chunks is refused at once
         fingerprint = model_fingerprint()
-        bar = _ProgressBar(samples_per_group, enabled=progress)
+        bar = _ProgressBar({g: config.target(g, samples_per_group) for g in config.groups()}, enabled=progress)
         new_chunks = 0
         try:
             while True:
-                states = {g: _group_state(out, g, seed, config, samples_per_group, fingerprint) for g in GROUPS}
+                states = {
+                    g: _group_state(out, g, seed, config, config.target(g, samples_per_group), fingerprint)
+                    for g in config.groups()
+                }
                 bar.set({g: s.counted for g, s in states.items()})
                 todo = sorted(  # by index: the groups advance together
                     (i, g)
                     for g, s in states.items()
                     if s.episodes_needed is None
-                    for i in _missing_chunks(out, g, s, samples_per_group, config)
+                    for i in _missing_chunks(out, g, s, config.target(g, samples_per_group), config)
                 )
                 if not todo:
                     break
@@ -738,22 +816,22 @@ def collect(
 class _ProgressBar:
     """A tqdm bar over samples (per group, capped at the target), or nothing without tqdm."""
 
-    def __init__(self, per_group: int, enabled: bool) -> None:
-        self._bar, self._cap = None, per_group
+    def __init__(self, targets: dict[str, int], enabled: bool) -> None:
+        self._bar, self._caps = None, targets
         self._counts: dict[str, int] = {}
         if enabled:
             try:
                 from tqdm.auto import tqdm
             except ImportError:
                 return
-            self._bar = tqdm(total=per_group * len(GROUPS), unit="sample", desc="collect", smoothing=0.05)
+            self._bar = tqdm(total=sum(targets.values()), unit="sample", desc="collect", smoothing=0.05)
 
     def set(self, counts: dict[str, int]) -> None:
-        self._counts = {g: min(self._cap, n) for g, n in counts.items()}
+        self._counts = {g: min(self._caps[g], n) for g, n in counts.items()}
         self._refresh()
 
     def add(self, group: str, samples: int) -> None:
-        self._counts[group] = min(self._cap, self._counts.get(group, 0) + samples)
+        self._counts[group] = min(self._caps[group], self._counts.get(group, 0) + samples)
         self._refresh()
 
     def _refresh(self) -> None:
@@ -876,7 +954,7 @@ def add_collect_parser(subparsers: Any) -> argparse.ArgumentParser:
         "--tables",
         choices=tuple(TABLE_SETS),
         default=DEFAULT_TABLE_SET,
-        help=f"which table set's data: paper, or extended (the other pump's spools move too) "
+        help=f"which table set's data: paper, or extended (also operator-like logs for the swing's tables) "
         f"(default: {DEFAULT_TABLE_SET})",
     )
     parser.set_defaults(func=run_collect)

@@ -26,13 +26,11 @@ from hexgym.mbl.table import MBLTable, load_tables, table_path
 SPOOL_STEP = 0.001  # m: the data's spool levels (1 mm, as the paper sampled)
 HOLDOUT_FRACTION = 0.2  # of the episodes
 # Grid nodes per table: spool axes at 1 mm take 23 x 23 nodes; the rest share what is left. The
-# swing tables need more to resolve their loads and rate (measured: grid_rmse_rel). The extended tables
-# have one more axis to share: boom and bucket get enough for their force axes (Test 1 went from 0.39 m
-# at 150,000 nodes to 0.14 m at 400,000), the pressure tables less; all tables stay within ~20 MB.
+# swing tables need more to resolve their loads and rate (measured: grid_rmse_rel). The extended set's
+# swing torque has one spool and two smooth axes (pressure, rate), its pump-2 pressure two spools.
 MAX_GRID_NODES = {
     "paper": {"boom": 60_000, "bucket": 60_000, "stick": 60_000, "swing": 200_000},
-    "extended": {"boom": 250_000, "bucket": 250_000, "pump1": 120_000, "stick": 200_000, "swing": 350_000,
-                 "pump2": 120_000},
+    "extended": {"boom": 60_000, "bucket": 60_000, "stick": 60_000, "swing": 150_000, "pump2": 250_000},
 }  # fmt: skip
 MAX_POINTS = 12_000  # a seeded subsample above this: LOO selection and the grid stay minutes, not hours
 

@@ -7,13 +7,18 @@ them with this schema. Adding an input is one edit here plus computing the new q
 backends gather their quantities.
 
 Two table sets: ``paper``, the paper's four tables (each function's velocity, or the swing's
-acceleration, from its own pump's spools and loads), and ``extended``, which also sees the other
-pump: the pumps' cross-sensing power control makes each pump's delivery depend on both delivery
-pressures, so each pump's pressure is learned as a table of its own and fed, one control period old
-(the regulator's lag allows it), into the other pump's tables.
+acceleration, from its own pump's spools and loads), and ``extended``, which gives the swing the
+state the paper's inputs cannot see: pump 2's delivery pressure. Given that pressure the swing
+motor's torque is a clean function of its spool and its rate (the valve meters from the pump line
+into the motor), and the pressure itself is a table of the spools on pump 2, the stick's load while
+its spool is open and the swing rate. Both learn from operator-like motion (group ``operator``:
+joystick ramps, swings with and without the stick), where the pressure's transients the steady
+segments never show take place. Boom, bucket and stick keep the paper's tables.
 
 Quantity names carry their SI unit as a suffix: ``_m`` m, ``_n`` N, ``_nm`` N m, ``_kgm2`` kg m^2,
-``_radps`` rad/s, ``_mps`` m/s, ``_radps2`` rad/s^2, ``_pa`` Pa.
+``_radps`` rad/s, ``_mps`` m/s, ``_radps2`` rad/s^2, ``_pa`` Pa. ``stick_drive_force_n`` is the stick
+cylinder's force load while its spool is open and 0 while it is closed (the closed spool cuts the
+cylinder off from the pump, so its load then says nothing about the pump's pressure).
 """
 
 from __future__ import annotations
@@ -29,6 +34,7 @@ QUANTITIES = (
     "boom_force_n",
     "stick_force_n",
     "bucket_force_n",
+    "stick_drive_force_n",
     "swing_inertia_kgm2",
     "swing_rate_radps",
     "pump1_pressure_pa",
@@ -69,25 +75,24 @@ TABLE_SETS: dict[str, dict[str, TableSchema]] = {
         TableSchema("stick", "stick_swing", _STICK, "stick_velocity_mps"),
         TableSchema("swing", "stick_swing", _SWING, "swing_acceleration_radps2", "trajectory"),
     ),
-    # Each pump's tables also read the other pump's delivery pressure; the pressures are tables too.
+    # The paper's boom, bucket and stick; the swing's torque from pump 2's pressure, itself a table.
     "extended": _tables(
-        TableSchema("boom", "boom_bucket", (*_BOOM_BUCKET, "pump2_pressure_pa"), "boom_velocity_mps"),
-        TableSchema("bucket", "boom_bucket", (*_BOOM_BUCKET, "pump2_pressure_pa"), "bucket_velocity_mps"),
-        TableSchema("pump1", "boom_bucket", (*_BOOM_BUCKET, "pump2_pressure_pa"), "pump1_pressure_pa"),
-        TableSchema("stick", "stick_swing", (*_STICK, "pump1_pressure_pa"), "stick_velocity_mps"),
-        # the swing's motor torque, not its acceleration: the torque follows the line pressure, which the
-        # valve and pump set whatever the inertia; the model divides by the inertia (MuJoCo's mass matrix)
+        TableSchema("boom", "boom_bucket", _BOOM_BUCKET, "boom_velocity_mps"),
+        TableSchema("bucket", "boom_bucket", _BOOM_BUCKET, "bucket_velocity_mps"),
+        TableSchema("stick", "stick_swing", _STICK, "stick_velocity_mps"),
+        # the torque, not the acceleration: the model integrates the angular momentum, d(I w)/dt =
+        # torque, so the swing speeds up when the boom comes in (the inertia falls) as it does
         TableSchema(
             "swing",
-            "stick_swing",
-            ("swing_spool_m", "stick_spool_m", "stick_force_n", "swing_rate_radps", "pump1_pressure_pa"),
+            "operator",
+            ("swing_spool_m", "pump2_pressure_pa", "swing_rate_radps"),
             "swing_torque_nm",
             "trajectory",
         ),
         TableSchema(
             "pump2",
-            "stick_swing",
-            ("swing_spool_m", "stick_spool_m", "stick_force_n", "swing_rate_radps", "pump1_pressure_pa"),
+            "operator",
+            ("swing_spool_m", "stick_spool_m", "stick_drive_force_n", "swing_rate_radps"),
             "pump2_pressure_pa",
             "trajectory",
         ),

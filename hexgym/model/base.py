@@ -18,7 +18,7 @@ from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.machine.physics import ExcavatorPhysics
 
-END_MARGIN = 0.005  # m from a stroke end: the cylinder is at its stop
+END_MARGIN = p.STROKE_END_MARGIN  # m from a stroke end: the cylinder is at its stop
 STROKES = np.array([p.CYLINDERS[n].stroke for n in kinematics.FRONT_CYLINDERS])
 # The most a cylinder can push (head side) or pull (rod side) at its line relief, N
 PUSH_LIMIT = np.array([p.LINE_RELIEF[n] * p.CYLINDERS[n].head_area for n in kinematics.FRONT_CYLINDERS])

@@ -306,8 +306,8 @@ class _Parser(argparse.ArgumentParser):
 _TABLES_OPTION = {  # --tables of the commands that use the learned model's tables
     "choices": tuple(TABLE_SETS),
     "default": DEFAULT_TABLE_SET,
-    "help": f"the learned model's table set: paper (the paper's four tables) or extended (both pumps) "
-    f"(default: {DEFAULT_TABLE_SET})",
+    "help": "the learned model's table set: paper (the paper's four tables) or extended (swing from pump 2's "
+    f"pressure) (default: {DEFAULT_TABLE_SET})",
 }
 
 

@@ -33,13 +33,13 @@ from hexgym.files import save_figure, write_json
 from hexgym.hydraulics.reference import ReferenceModel
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
+from hexgym.mbl.operator_logs import pose_from_fractions, suite_log
 from hexgym.mbl.schema import DEFAULT_TABLE_SET
 from hexgym.mbl.table import load_tables
 from hexgym.model.commandlog import CommandLog
 from hexgym.model.python_backend import LearnedModel
 from hexgym.model.replay import replay
 from hexgym.parallel import executor
-from hexgym.tools.operator_logs import pose_from_fractions, suite_log
 from hexgym.tools.scenarios import POSE_CYCLE, ramped_log, scenarios  # noqa: F401 (POSE_CYCLE: re-exported)
 
 DT_OUT = 0.05  # s
@@ -279,7 +279,7 @@ def run_validation(
     """The three tests, the interactions and ``suite`` random operator logs; plots and ``summary.json``
     in ``out_dir``; returns the summary.
 
-    ``suite_seed``: log ``i`` is :func:`hexgym.tools.operator_logs.suite_log` ``(suite_seed, i)``;
+    ``suite_seed``: log ``i`` is :func:`hexgym.mbl.operator_logs.suite_log` ``(suite_seed, i)``;
     ``workers``: processes for the interactions and the suite (default: one per CPU);
     ``suite_only``: the suite alone; ``suite_duration_s``: every suite log this long (default 30-60 s);
     ``table_set``, ``tables_dir``: the learned model's tables (default: the packaged ones of the set), unless
@@ -305,7 +305,7 @@ def run_validation(
     interactions = {} if suite_only else interaction_cases()
     logs = {f"suite log {i} (seed {suite_seed})": suite_log(suite_seed, i, suite_duration_s) for i in range(suite)}
     jobs = [(name, *case) for name, case in interactions.items()]
-    jobs += [(name, o.log, o.start_pose, o.payload_kg) for name, o in logs.items()]
+    jobs += [(name, CommandLog(o.t, o.spools_mm), o.start_pose, o.payload_kg) for name, o in logs.items()]
     results = run_jobs(jobs, learned, workers, ray)
     if interactions:
         summary["interactions"] = {name: _interaction_summary(name, results[name]) for name in interactions}

@@ -1,4 +1,5 @@
-"""Seeded random operator-like command logs: the generalisation suite of ``hexgym validate --suite``.
+"""Seeded random operator-like command logs: the generalisation suite of ``hexgym validate --suite``
+and the collection program of the tables that learn from operator-like motion (:mod:`hexgym.mbl.collect`).
 
 The paper's Tests 1-3 are three fixed logs; the learned model was tuned while looking at them.
 These logs are drawn afresh from a seed, as an operator would move the joysticks:
@@ -27,8 +28,8 @@ import numpy as np
 
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
-from hexgym.model.commandlog import SPOOL_LIMIT_MM, CommandLog
 
+SPOOL_LIMIT_MM = p.SPOOL_STROKE * 1e3
 DT = 0.05  # s between rows
 DURATION_S = (30.0, 60.0)
 RAMP_S = (0.2, 0.6)
@@ -72,10 +73,16 @@ class Stroke:
 class OperatorLog:
     """A drawn log with the start and load it is replayed from."""
 
-    log: CommandLog
+    t: np.ndarray  # s, every DT from 0
+    spools_mm: np.ndarray  # (rows, 4): swing, boom, stick, bucket
     start_pose: np.ndarray  # rad: swing, boom, stick, bucket
     payload_kg: float
     strokes: tuple[Stroke, ...]
+
+    @property
+    def duration(self) -> float:
+        """Seconds from the first row to the last."""
+        return float(self.t[-1] - self.t[0])
 
     def describe(self) -> dict[str, object]:
         """JSON-ready: duration, payload, start pose, the functions used and their moves by direction."""
@@ -84,7 +91,7 @@ class OperatorLog:
             key = f"{s.function}{'+' if s.level_mm > 0 else '-'}"
             moves[key] = moves.get(key, 0) + 1
         return {
-            "duration_s": self.log.duration,
+            "duration_s": self.duration,
             "payload_kg": self.payload_kg,
             "start_pose_rad": [round(float(q), 4) for q in self.start_pose],
             "functions": [f for f in kinematics.JOINTS if any(s.function == f for s in self.strokes)],
@@ -164,7 +171,7 @@ def operator_log(rng: np.random.Generator, duration_s: float | None = None) -> O
     spools = np.zeros((len(times), 4))
     for s in strokes:
         spools[:, kinematics.JOINTS.index(s.function)] += s.spool_mm(times)
-    return OperatorLog(CommandLog(times, np.round(spools, 2)), pose, payload, tuple(strokes))
+    return OperatorLog(times, np.round(spools, 2), pose, payload, tuple(strokes))
 
 
 def suite_log(suite_seed: int, index: int, duration_s: float | None = None) -> OperatorLog:
