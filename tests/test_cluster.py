@@ -228,3 +228,39 @@ def test_ray_planning_sweep_equals_the_sequential_one(ray_session) -> None:
 
     kwargs = {"budget": 40, "nthread": 1}
     assert figures(run_plan("dump", [0, 1], ray="local", **kwargs)) == figures(run_plan("dump", [0, 1], **kwargs))
+
+
+def _ray_daemons() -> int:
+    """How many Ray GCS servers run on this machine (one per local Ray)."""
+    count = 0
+    for entry in Path("/proc").iterdir():
+        try:
+            count += entry.name.isdigit() and b"gcs_server" in (entry / "cmdline").read_bytes().split(b"\0")[0]
+        except OSError:
+            continue
+    return count
+
+
+@pytest.mark.slow  # ~25 s: a Ray started and stopped in a second driver
+def test_an_interrupted_ray_driver_keeps_its_chunks_and_resumes(ray_session, pool_data, tmp_path: Path) -> None:
+    """Ctrl-C to ``hexgym collect --ray``: status 130, the stored chunks kept, its Ray shut down; it resumes."""
+    daemons = _ray_daemons()
+    argv = ["collect", "--out", str(tmp_path), "--samples", "12", "--seed", str(SEED), "--ray"]
+    code = (
+        "import sys\nimport hexgym.mbl.collect as c\nfrom tests.test_cluster import TINY\n"
+        "c.CollectConfig = lambda table_set: TINY\nfrom hexgym.tools.cli import main\n"
+        f"sys.exit(main({argv!r}))"
+    )
+    driver = subprocess.Popen([sys.executable, "-c", code], cwd=ROOT, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    while not any((tmp_path / "chunks").glob("*.npz")) and driver.poll() is None and time.time() < deadline:
+        time.sleep(0.05)
+    driver.send_signal(signal.SIGINT)
+    _, err = driver.communicate(timeout=60)
+    # 130 and "interrupted"; now and then Ray's core worker dies of the signal first (status 1, its trace)
+    assert driver.returncode == 130 and "interrupted" in err or driver.returncode == 1, err
+    stored = sorted((tmp_path / "chunks").glob("*.npz"))
+    assert stored and not (tmp_path / "boom.npz").exists()
+    assert _ray_daemons() == daemons  # the Ray it started is gone
+    kwargs = {"samples_per_group": 12, "seed": SEED, "progress": False, "config": TINY}
+    assert data_hash(collect(tmp_path, **kwargs, workers=2)) == data_hash(pool_data)
