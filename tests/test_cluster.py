@@ -78,6 +78,17 @@ def _hexgym(*argv: str, code: str = "") -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120, cwd=ROOT)
 
 
+def test_hexgym_and_its_cli_do_not_import_ray() -> None:
+    code = (
+        "import sys, hexgym, gymnasium, hexgym.parallel, hexgym.tools.cli, hexgym.agents.evaluate\n"
+        "gymnasium.make('HexLoading-v0').reset(seed=0)\n"
+        "hexgym.tools.cli.build_parser()\n"
+        "print(sorted(m for m in sys.modules if m.split('.')[0] == 'ray'))"
+    )
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert run.returncode == 0 and run.stdout.strip() == "[]", run.stdout + run.stderr
+
+
 def test_without_ray_the_ray_option_says_what_to_install(tmp_path: Path) -> None:
     run = _hexgym("collect", "--out", str(tmp_path), "--samples", "4", "--ray", code="sys.modules['ray'] = None")
     assert run.returncode == 2
