@@ -35,6 +35,8 @@ MAX_RETRIES = 3  # reruns of a task whose worker process or node died
 CONNECT_TIMEOUT_S = 5.0  # for the address to accept a TCP connection
 PROBE_TIMEOUT_S = 30.0  # for every node to start a worker and import hexgym
 _VERSIONED = ("hexgym", "python", "ray", "mujoco", "numpy")
+# `ray start` enables token authentication by default since Ray 2.59: a driver without the token is refused
+_AUTH_HINT = " (if the cluster uses token authentication, set RAY_AUTH_MODE=token here; its token: ray get-auth-token)"
 
 
 class ClusterError(RuntimeError):
@@ -232,8 +234,10 @@ def connect(address: str = "local", runtime_env: dict[str, Any] | None = None) -
         kwargs["address"] = address
     try:
         ray.init(**kwargs)
-    except Exception as exc:  # Ray's own version check, a refused client connection
-        raise ClusterError(f"cannot join the Ray cluster at {address}: {' '.join(str(exc).split())[:300]}") from None
+    except Exception as exc:  # Ray's own version check, a refused client connection, a missing token
+        auth = "" if os.environ.get("RAY_AUTH_MODE") else _AUTH_HINT
+        text = " ".join(str(exc).split())[:300]
+        raise ClusterError(f"cannot join the Ray cluster at {address}: {text}{auth}") from None
     try:
         check_nodes()
     except BaseException:
