@@ -228,10 +228,9 @@ def connect(address: str = "local", runtime_env: dict[str, Any] | None = None) -
         return False
     _check_reachable(address)
     kwargs: dict[str, Any] = {"include_dashboard": False, "logging_level": "ERROR", "runtime_env": runtime_env}
+    kwargs["address"] = address  # "local": a new Ray here, even when `ray start` runs one on this machine
     if address == "local":
         kwargs["num_cpus"] = os.cpu_count() or 1
-    else:
-        kwargs["address"] = address
     try:
         ray.init(**kwargs)
     except Exception as exc:  # Ray's own version check, a refused client connection, a missing token

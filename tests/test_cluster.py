@@ -41,7 +41,7 @@ def data_hash(paths: dict[str, Path]) -> str:
 def ray_session():
     """One local Ray (2 CPUs) for the module's Ray tests; hexgym's executors join it."""
     ray = pytest.importorskip("ray")
-    ray.init(num_cpus=2, include_dashboard=False, logging_level="ERROR")
+    ray.init(address="local", num_cpus=2, include_dashboard=False, logging_level="ERROR")
     yield ray
     ray.shutdown()
 
