@@ -649,7 +649,7 @@ def _(tmp):
     return _evaluate(tmp / "nope.zip")
 
 
-@case("policy", "a directory", r"policy file .*policy.zip is a directory")
+@case("policy", "a directory, no RLlib checkpoint", r"policy.zip is not an RLlib checkpoint .*\(no learner_group")
 def _(tmp):
     (tmp / "policy.zip").mkdir()
     return _evaluate(tmp / "policy.zip")
