@@ -38,6 +38,23 @@ LEARNED_COLUMNS = (
 LEARNED_DTYPE = np.dtype([(name, np.float64) for name in LEARNED_COLUMNS])
 
 
+def next_swing_rate(
+    rate: float, acceleration: float, dt: float, spool_closed: bool, slowest: float, fastest: float
+) -> tuple[float, float]:
+    """The swing's rate after ``dt`` at ``acceleration``, and the acceleration applied (rad/s, rad/s^2).
+
+    Beyond its table's rate axis (``slowest``..``fastest``, the fastest swings in its data) the swing
+    does not accelerate further: the table would keep giving its edge's value. With its spool closed
+    the crossover reliefs brake it to rest: it stops, it does not turn back.
+    """
+    if not slowest < rate < fastest and acceleration * rate > 0.0:
+        acceleration = 0.0
+    new_rate = rate + acceleration * dt
+    if spool_closed and (new_rate * rate <= 0.0 or abs(new_rate) < SWING_REST_RATE):
+        new_rate = 0.0
+    return new_rate, acceleration
+
+
 class MachineModel(Protocol):
     """What replay, the environment and the planner need of a machine model."""
 

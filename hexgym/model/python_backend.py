@@ -36,7 +36,7 @@ from hexgym.machine.assets import load_model
 from hexgym.machine.physics import ExcavatorPhysics
 from hexgym.mbl.schema import DEFAULT_TABLE_SET, QUANTITIES, TABLE_SETS, table_set_of
 from hexgym.mbl.table import MBLTable, load_tables
-from hexgym.model.base import END_MARGIN, PULL_LIMIT, PUSH_LIMIT, STROKES, SWING_REST_RATE, LearnedModelBase
+from hexgym.model.base import END_MARGIN, PULL_LIMIT, PUSH_LIMIT, STROKES, LearnedModelBase, next_swing_rate
 
 
 class LearnedModel(LearnedModelBase):
@@ -211,13 +211,9 @@ class LearnedModel(LearnedModelBase):
         self._swing_acceleration = table("swing")
         if self._swing_torque:  # a torque table (extended): the acceleration through this inertia
             self._swing_acceleration /= inertia
-        if not self._slowest_swing < rate < self._fastest_swing and self.swing_acceleration * rate > 0.0:
-            # the table clamps the rate to its grid, the fastest swing in its data: beyond it, it
-            # would keep accelerating the swing at that edge's value; it must not go faster
-            self._swing_acceleration = 0.0
-        new_rate = rate + self._swing_acceleration * self.control_period
-        if closed[0] and (new_rate * rate <= 0.0 or abs(new_rate) < SWING_REST_RATE):
-            new_rate = 0.0  # braked by the crossover reliefs: it stops, it does not turn back
+        new_rate, self._swing_acceleration = next_swing_rate(
+            rate, self._swing_acceleration, self.control_period, closed[0], self._slowest_swing, self._fastest_swing
+        )
         targets = np.array([new_rate, v_boom / arms[0], v_stick / arms[1], v_bucket / arms[2]])
         targets[self.blocked_by_contact(targets)] = 0.0
         self._swing_rate_target = targets[0]
