@@ -29,7 +29,8 @@ test: $(STAMP)
 
 # the learned-model and environment tests once more on the Python backend, where the plugin is built too
 test-python: $(STAMP)
-	HEXGYM_BACKEND=python $(BIN)/python -m pytest -q tests/test_learned.py tests/test_env.py tests/test_scripted.py
+	HEXGYM_BACKEND=python $(BIN)/python -m pytest -q tests/test_learned.py tests/test_env.py tests/test_scripted.py \
+		tests/test_vector_env.py tests/test_task.py tests/test_table_sets.py
 
 test-slow: $(STAMP)
 	$(BIN)/python -m pytest -q -m slow
