@@ -259,7 +259,9 @@ def test_an_interrupted_ray_driver_keeps_its_chunks_and_resumes(ray_session, poo
     argv = ["collect", "--out", str(tmp_path), "--samples", "12", "--seed", str(SEED), "--ray"]
     code = (
         "import sys\nimport hexgym.mbl.collect as c\nfrom tests.test_cluster import TINY\n"
-        "c.CollectConfig = lambda table_set: TINY\nfrom hexgym.tools.cli import main\n"
+        "real = c.CollectConfig\n"  # the command's own config becomes TINY; configs read back from chunks stay
+        "c.CollectConfig = lambda table_set=None, **kw: real(table_set=table_set, **kw) if kw else TINY\n"
+        "from hexgym.tools.cli import main\n"
         f"sys.exit(main({argv!r}))"
     )
     driver = subprocess.Popen([sys.executable, "-c", code], cwd=ROOT, stderr=subprocess.PIPE, text=True)
