@@ -166,7 +166,6 @@ struct Instance {
   // set by compute, committed by advance (the same mj_step)
   bool queried = false;
   double next_rate = 0.0, swing_acceleration = 0.0, target[4] = {0, 0, 0, 0};
-  double next_pressure[2] = {0, 0};  // the pump pressure tables' outputs (extended tables)
   double next_inertia = 0.0;          // the swing inertia at this query
   std::vector<mjtNum> limit_force, limit_qfrc;  // scratch: efc forces of joint-limit rows, J^T of them
   std::vector<bool> machine_body;                // per body: carried by the swinging upper structure
@@ -351,7 +350,6 @@ struct Instance {
     q[kQSwingInertiaKgm2] = inertia, q[kQSwingRateRadps] = rate;
     q[kQPump1PressurePa] = q[kQPump2PressurePa] = 0.0;
     for (const auto& [table, quantity] : feeding) q[quantity] = Lookup(table, q);  // first: the others read them
-    next_pressure[0] = q[kQPump1PressurePa], next_pressure[1] = q[kQPump2PressurePa];
     double v_boom = closed[1] ? 0.0 : Lookup(boom_table, q);
     double v_bucket = closed[3] ? 0.0 : Lookup(bucket_table, q);
     double v_stick = closed[2] ? 0.0 : Lookup(stick_table, q);
@@ -421,7 +419,6 @@ struct Instance {
       state[kAcceleration] = swing_acceleration;
       for (int k = 0; k < 4; ++k) state[kTargets + k] = target[k];
       state[kTargets] = next_rate;  // the swing's rate, unclipped (the servo clips it when used)
-      state[kPressures] = next_pressure[0], state[kPressures + 1] = next_pressure[1];
       state[kInertia] = next_inertia;
     }
     // whole periods are subtracted, not the phase zeroed: a period of 12.5 steps alternates 13 and 12

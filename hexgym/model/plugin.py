@@ -53,7 +53,6 @@ STATE_SLOTS: dict[str, int] = {
     "acceleration": 1,  # the swing table's last acceleration, rad/s^2
     "phase": 1,  # steps since the last table query, less whole control periods
     "targets": 4,  # the joint-rate targets held until the next query (the swing's unclipped)
-    "pressures": 2,  # the pump pressure tables' last outputs, Pa (extended tables; else 0)
     "inertia": 1,  # the swing inertia at the last table query, kg m^2 (torque tables keep the momentum)
 }
 _PACKAGE_DIR = Path(__file__).resolve().parents[1]  # the build puts the library into the hexgym package
