@@ -87,6 +87,7 @@ from hexgym.files import atomic_path, check_output_dir
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.mbl.operator_logs import DT as OPERATOR_DT
+from hexgym.mbl.operator_logs import DURATION_S as OPERATOR_DURATION_S
 from hexgym.mbl.operator_logs import operator_log
 from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS
 from hexgym.parallel import Executor, add_ray_option, executor
@@ -470,7 +471,8 @@ def collect_operator_episode(sim: Any, episode: int, seed: int, config: CollectC
             result.error = f"step {k}: {exc}"
             break
         result.sim_seconds += dt
-        momentum[k] = ph.swing_inertia() * ph.joint_velocities()[0]
+        inertia, rate = ph.swing_inertia(), float(ph.joint_velocities()[0])
+        momentum[k] = inertia * rate
         if k % every == 0 and half <= k <= steps - half:
             u = spools_m[k]
             ext = ph.cylinder_extensions()[stick]
@@ -481,8 +483,8 @@ def collect_operator_episode(sim: Any, episode: int, seed: int, config: CollectC
             force = float(_forces(sim)[stick]) if abs(u[2]) >= p.SPOOL_DEAD_BAND else 0.0
             pending[k] = {f"{name}_spool_m": float(u[i]) for name, i in _SPOOL.items()} | {
                 "stick_drive_force_n": force,
-                "swing_rate_radps": float(ph.joint_velocities()[0]),
-                "swing_inertia_kgm2": ph.swing_inertia(),
+                "swing_rate_radps": rate,
+                "swing_inertia_kgm2": inertia,
                 "pump1_pressure_pa": float(sim.state[0]),
                 "pump2_pressure_pa": float(sim.state[1]),
             }
@@ -541,7 +543,16 @@ _SIM: Any = None  # one reference model per process, made on first use
 # Samples per episode as a fraction of segments x windows, measured on the default data set
 # (episodes end at a stroke end; the bucket's runs there most often), a little low so the first
 # round of chunks rather overshoots than needs a second one.
-_YIELD = {"boom_bucket": 0.57, "stick_swing": 0.83, "operator": 200 / 24}  # operator: ~200 rows a log
+_YIELD = {"boom_bucket": 0.57, "stick_swing": 0.83}
+_OPERATOR_YIELD = 0.9  # of a log's rows (0.98 measured: rows with the stick at its stop are dropped), low too
+
+
+def _expected_samples_per_episode(group: str, config: CollectConfig) -> float:
+    """A first estimate of the samples one episode of ``group`` gives (then the measured rate is used)."""
+    if group == "operator":
+        duration = config.operator_duration_s or float(np.mean(OPERATOR_DURATION_S))
+        return _OPERATOR_YIELD * duration / config.operator_interval_s
+    return config.segments_per_episode * config.windows_per_segment * _YIELD[group]
 
 
 def _simulator() -> Any:
@@ -730,7 +741,7 @@ def _group_state(
 
 def _missing_chunks(out_dir: Path, group: str, state: _GroupState, target: int, config: CollectConfig) -> list[int]:
     """Chunk indices to compute next: as many as the samples still missing need at the rate so far."""
-    per_chunk = config.episodes_per_chunk * config.segments_per_episode * config.windows_per_segment * _YIELD[group]
+    per_chunk = config.episodes_per_chunk * _expected_samples_per_episode(group, config)
     if state.prefix > 0 and state.counted > 0:
         per_chunk = state.counted / state.prefix
     need = max(1, math.ceil((target - state.counted) / per_chunk))
