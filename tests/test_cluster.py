@@ -3,7 +3,6 @@ task is redone; a bad cluster is refused in one line within seconds. Ray tests a
 
 from __future__ import annotations
 
-import hashlib
 import json
 import operator
 import os
@@ -15,26 +14,15 @@ import threading
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 
-from hexgym.mbl.collect import CollectConfig, chunk_path, collect, load_dataset
+from hexgym.mbl.collect import CollectConfig, chunk_path, collect, samples_digest
 from hexgym.parallel import LocalPool, executor
 from hexgym.tools.cli import build_parser
 
 ROOT = Path(__file__).resolve().parent.parent
 TINY = CollectConfig(segments_per_episode=3, episodes_per_chunk=1, hold_s=(0.7, 0.8), windows_per_segment=1)
 SEED = 6
-
-
-def data_hash(paths: dict[str, Path]) -> str:
-    """A digest of the data sets' samples (the files also hold wall times and zip timestamps)."""
-    digest = hashlib.sha256()
-    for table in sorted(paths):
-        ds = load_dataset(paths[table])
-        for key in ("X", "y", "episode", "segment"):
-            digest.update(np.ascontiguousarray(ds[key]).tobytes())
-    return digest.hexdigest()
 
 
 @pytest.fixture(scope="module")
@@ -107,7 +95,7 @@ def test_unreachable_address_is_one_line_within_seconds(tmp_path: Path) -> None:
 
 def test_ray_collection_equals_the_local_pool(ray_session, pool_data: dict[str, Path], tmp_path: Path) -> None:
     paths = collect(tmp_path, samples_per_group=12, seed=SEED, progress=False, config=TINY, ray="local")
-    assert data_hash(paths) == data_hash(pool_data)
+    assert samples_digest(paths) == samples_digest(pool_data)
     assert ray_session.is_initialized()  # a Ray this process was connected to stays up
 
 
@@ -138,7 +126,7 @@ def test_a_killed_worker_loses_no_finished_chunk(ray_session, pool_data: dict[st
         time.sleep(0.02)
     run.join(timeout=300)
     assert killed is not None, "no Ray worker was caught running a chunk"
-    assert data_hash(result["paths"]) == data_hash(pool_data)  # the killed task was run again
+    assert samples_digest(result["paths"]) == samples_digest(pool_data)  # the killed task was run again
     assert all(p.stat().st_mtime_ns == t for p, t in before.items())  # finished chunks kept, not redone
 
 
@@ -148,7 +136,7 @@ def test_a_ray_collection_interrupted_resumes_in_the_pool(ray_session, pool_data
     first = chunk_path(tmp_path, "boom_bucket", 0).read_bytes()
     resumed = collect(tmp_path, **kwargs, workers=2)
     assert chunk_path(tmp_path, "boom_bucket", 0).read_bytes() == first
-    assert data_hash(resumed) == data_hash(pool_data)
+    assert samples_digest(resumed) == samples_digest(pool_data)
 
 
 def test_ray_validation_suite_and_figure_equal_the_pool(ray_session, tmp_path: Path) -> None:
@@ -276,4 +264,4 @@ def test_an_interrupted_ray_driver_keeps_its_chunks_and_resumes(ray_session, poo
     assert stored and not (tmp_path / "boom.npz").exists()
     assert _ray_daemons() == daemons  # the Ray it started is gone
     kwargs = {"samples_per_group": 12, "seed": SEED, "progress": False, "config": TINY}
-    assert data_hash(collect(tmp_path, **kwargs, workers=2)) == data_hash(pool_data)
+    assert samples_digest(collect(tmp_path, **kwargs, workers=2)) == samples_digest(pool_data)

@@ -925,6 +925,17 @@ def load_dataset(path: str | os.PathLike[str]) -> dict[str, Any]:
         }
 
 
+def samples_digest(paths: dict[str, Path]) -> str:
+    """SHA-256 (hex) of the data sets' samples: X, y, episode, segment of each table in name order. Equal
+    collections give equal digests; the files themselves differ in wall times and zip timestamps."""
+    digest = hashlib.sha256()
+    for table in sorted(paths):
+        data = load_dataset(paths[table])
+        for key in ("X", "y", "episode", "segment"):
+            digest.update(np.ascontiguousarray(data[key]).tobytes())
+    return digest.hexdigest()
+
+
 def coverage_report(paths: dict[str, Path]) -> str:
     """Per table: sample count, rejection counters and min / percentiles / max of every column."""
     header = " " * 28 + " ".join(f"{h:>10s}" for h in ("min", "p5", "p25", "p50", "p75", "p95", "max"))

@@ -18,7 +18,6 @@ See docs/cluster.md for the measured figures.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import os
 import sys
@@ -31,19 +30,9 @@ from typing import Any
 import numpy as np
 
 from hexgym.files import write_json
-from hexgym.mbl.collect import CollectConfig, collect, load_dataset
+from hexgym.mbl.collect import CollectConfig, collect, load_dataset, samples_digest
 
 WAYS = ("pool1", "pool2", "ray")
-
-
-def data_digest(paths: dict[str, Path]) -> str:
-    """SHA-256 of the data sets' samples (X, y, episode, segment; the files also hold wall times)."""
-    digest = hashlib.sha256()
-    for table in sorted(paths):
-        data = load_dataset(paths[table])
-        for key in ("X", "y", "episode", "segment"):
-            digest.update(np.ascontiguousarray(data[key]).tobytes())
-    return digest.hexdigest()[:16]
 
 
 def _proc_stat(pid: int | str) -> tuple[int, int, float] | None:
@@ -109,7 +98,8 @@ def run_way(way: str, samples: int, seed: int, config: CollectConfig) -> dict[st
         return {
             "way": way, "samples": total, "wall_s": round(wall, 2), "samples_per_min": round(60.0 * total / wall, 1),
             "chunk_compute_s": round(chunk_s, 1), "efficiency": round(chunk_s / (workers * wall), 3),
-            "cpu_s": round(cpu_s, 1), "load_avg_1min": round(os.getloadavg()[0], 2), "digest": data_digest(paths),
+            "cpu_s": round(cpu_s, 1), "load_avg_1min": round(os.getloadavg()[0], 2),
+            "digest": samples_digest(paths)[:16],
         }  # fmt: skip
 
 
