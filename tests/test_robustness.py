@@ -169,38 +169,29 @@ def _(tmp):
     return simulate(tmp, "\ufeff" + LOG)
 
 
-@case("command log", "more rows than the limit", r"more than 3 rows", error=ValueError)
-def _(tmp):
+def _read_log_with_limit(path: Path, limit: str, value: int) -> Callable[[], object]:
+    """Reading ``path`` with ``hexgym.model.commandlog``'s ``limit`` set to ``value`` for the call."""
     from hexgym.model import commandlog
 
-    write(tmp / "log.csv", LOG + "0.6,0,0,0,0\n")
-    original = commandlog.MAX_ROWS
-    commandlog.MAX_ROWS = 3
-
     def call():
+        original = getattr(commandlog, limit)
+        setattr(commandlog, limit, value)
         try:
-            commandlog.read_command_log(tmp / "log.csv")
+            commandlog.read_command_log(path)
         finally:
-            commandlog.MAX_ROWS = original
+            setattr(commandlog, limit, original)
 
     return call
+
+
+@case("command log", "more rows than the limit", r"more than 3 rows", error=ValueError)
+def _(tmp):
+    return _read_log_with_limit(write(tmp / "log.csv", LOG + "0.6,0,0,0,0\n"), "MAX_ROWS", 3)
 
 
 @case("command log", "a file beyond the size limit", r"log.csv: \d+ bytes; .* at most 100", error=ValueError)
 def _(tmp):
-    from hexgym.model import commandlog
-
-    write(tmp / "log.csv", LOG + "0.6,0,0,0,0\n" * 10)
-    original = commandlog.MAX_BYTES
-    commandlog.MAX_BYTES = 100
-
-    def call():
-        try:
-            commandlog.read_command_log(tmp / "log.csv")
-        finally:
-            commandlog.MAX_BYTES = original
-
-    return call
+    return _read_log_with_limit(write(tmp / "log.csv", LOG + "0.6,0,0,0,0\n" * 10), "MAX_BYTES", 100)
 
 
 @case("command log", "non-finite time in code", r"row 2, column 't': nan is not a finite time", error=ValueError)
