@@ -20,6 +20,7 @@ import mujoco
 import numpy as np
 from mujoco import batch as mjbatch
 
+from hexgym.envs.earthwork import jit
 from hexgym.envs.world import TOOL_CONTACT_SENSOR
 from hexgym.machine import kinematics
 from hexgym.machine.physics import payload_inertia
@@ -189,10 +190,10 @@ class BatchSites:
         self.ctrl_ids = np.array([m.actuator(n).id for n in kinematics.JOINTS])
         self.tip_site, self.bucket_body, self.payload_body = m.site("tip").id, m.body("bucket").id, m.body("payload").id
         swing = self.dadr[0]
-        self._swing_diag = m.M_rowadr[swing] + m.M_rownnz[swing] - 1
+        self._swing_diag = int(m.M_rowadr[swing] + m.M_rownnz[swing] - 1)
         state = int(m.plugin_stateadr[0])
         self._load_slots = state + PLUGIN_STATE["load"] + np.arange(4)  # the plugin's last constraint load
-        self._acceleration_slot = state + PLUGIN_STATE["acceleration"]  # its last swing acceleration
+        self._acceleration_slot = int(state + PLUGIN_STATE["acceleration"])  # its last swing acceleration
         self.contact_adr = int(m.sensor(TOOL_CONTACT_SENSOR).adr[0])
         self.refresh(np.arange(count))
         self.seconds = 0.0  # wall time spent in the batch's steps (the rest is the task logic)
@@ -216,9 +217,13 @@ class BatchSites:
         self.refresh(ids)
 
     def refresh(self, ids: np.ndarray) -> None:
-        """Copy the sites' joint positions and velocities from their state rows (after a step or a start)."""
-        self._joints[0][ids] = self._qpos[ids]
-        self._joints[1][ids] = self._qvel[ids]
+        """Copy the joint positions and velocities from the state rows (after a step or a start of the sites ``ids``).
+
+        Every row is copied: the other sites' rows have not changed, and one contiguous copy costs less than
+        gathering the rows ``ids``.
+        """
+        np.copyto(self._joints[0], self._qpos)
+        np.copyto(self._joints[1], self._qvel)
 
     def apply_tip_force(self, ids: np.ndarray, force: np.ndarray) -> None:
         """ExcavatorPhysics.apply_tip_force of the sites ``ids``: ``qfrc_applied = J^T force`` at the teeth.
@@ -248,9 +253,38 @@ class BatchSites:
 
     def joint_loads(self, ids: np.ndarray) -> np.ndarray:
         """NativeLearnedModel.joint_loads of the sites ``ids`` (N m), (k, 4)."""
-        tau = self._qfrc_bias[ids] - self._qfrc_passive[ids] - self._qfrc_applied[ids]
-        return np.ascontiguousarray(tau[:, self.dadr] - self._plugin_state[ids][:, self._load_slots])
+        out = np.empty((len(ids), 4))
+        _joint_loads(ids, self._qfrc_bias, self._qfrc_passive, self._qfrc_applied, self._plugin_state, self.dadr,
+                     self._load_slots, out)  # fmt: skip
+        return out
 
     def swing_torques(self, ids: np.ndarray) -> np.ndarray:
         """The swing's inertia times the plugin's last swing acceleration of the sites ``ids``, N m."""
-        return self._mass_matrix[ids, self._swing_diag] * self._plugin_state[ids, self._acceleration_slot]
+        out = np.empty(len(ids))
+        _swing_torques(ids, self._mass_matrix, self._swing_diag, self._plugin_state, self._acceleration_slot, out)
+        return out
+
+
+# compiled: gathering a few numbers per site with numpy's fancy indexing costs more than the numbers
+@jit
+def _joint_loads(
+    ids: np.ndarray, bias: np.ndarray, passive: np.ndarray, applied: np.ndarray, plugin_state: np.ndarray,
+    dadr: np.ndarray, load_slots: np.ndarray, out: np.ndarray,
+) -> None:  # fmt: skip
+    """NativeLearnedModel.joint_loads per site: ``qfrc_bias - qfrc_passive - qfrc_applied`` at the main joints less
+    the plugin's constraint loads (the same operations in the same order: the same floats)."""
+    for k in range(len(ids)):
+        i = ids[k]
+        for j in range(4):
+            d = dadr[j]
+            out[k, j] = (bias[i, d] - passive[i, d] - applied[i, d]) - plugin_state[i, load_slots[j]]
+
+
+@jit
+def _swing_torques(
+    ids: np.ndarray, mass_matrix: np.ndarray, swing_diag: int, plugin_state: np.ndarray, slot: int, out: np.ndarray
+) -> None:
+    """The swing's inertia (its diagonal entry of the sparse mass matrix) times its last table acceleration."""
+    for k in range(len(ids)):
+        i = ids[k]
+        out[k] = mass_matrix[i, swing_diag] * plugin_state[i, slot]
