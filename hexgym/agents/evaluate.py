@@ -269,7 +269,8 @@ def evaluate(
             runs = pool.map(_run_seed, seeds)
         finally:
             _close_worker()  # the environment of a run in this process
-    result = {"policy": policy_spec, "env_id": ENV_ID, "seed": seed, **aggregate(runs)}
+    model = (env_kwargs or {}).get("model", "learned")
+    result = {"policy": policy_spec, "env_id": ENV_ID, "model": model, "seed": seed, **aggregate(runs)}
     if json_out:
         write_json(json_out, result)
     return result

@@ -150,6 +150,19 @@ def _is_number(value: Any) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
 
 
+MODELS = ("learned", "reference")
+
+
+def _check_model(model: str, backend: str, tables: str) -> None:
+    """Refuse an unknown ``model``, and learned-model options given with ``model="reference"``."""
+    if model not in MODELS:
+        raise ValueError(f"model must be one of {MODELS}, got {model!r}")
+    if model == "reference" and backend != "auto":
+        raise ValueError(f"backend={backend!r} does not apply to model='reference' (it runs no learned model)")
+    if model == "reference" and tables != DEFAULT_TABLE_SET:
+        raise ValueError(f"tables={tables!r} does not apply to model='reference' (it runs no learned model)")
+
+
 def start_machine(machine: LearnedModelBase, world: World, q: np.ndarray, layout: Layout) -> None:
     """Put ``machine`` at rest at angles ``q`` with an empty bucket on its site ``world`` laid out as ``layout``."""
     model, data = machine.physics.model, machine.physics.data
@@ -284,10 +297,14 @@ class HexLoadingEnv(gym.Env):
     | fuel_weight | 0.5 | per litre |
     | spill_weight | 2.0 | per tonne spilled |
     | contact_weight | 0.01 | per kN·s of hard contact |
-    | scene_path | None | MJCF scene to build the site on (default: the lean machine's ``scene_lean.xml``) |
+    | scene_path | None | MJCF scene to build the site on (default ``scene_lean.xml``; reference: ``scene.xml``) |
     | backend | ``"auto"`` | ``"native"`` (MuJoCo plugin), ``"python"`` (LearnedModel), ``"auto"`` (native if built) |
     | earthwork_periods | 4 | control periods (25 ms) per dig (fill, pile cut, spill) near the pile; 1: every period |
     | tables | ``"paper"`` | the learned model's table set: ``"paper"`` or ``"extended"`` (:mod:`hexgym.mbl.schema`) |
+    | model | ``"learned"`` | ``"reference"``: the same task on the analytical circuit (the real machine's stand-in) |
+
+    ``model="reference"`` runs the whole task on the reference model (:mod:`hexgym.envs.reference_machine`):
+    a few times real time, for checking what was learned on the fast model, not for training.
 
     Metadata: ``render_fps`` = 10, the control rate.
     """
@@ -316,7 +333,9 @@ class HexLoadingEnv(gym.Env):
         backend: str = "auto",
         earthwork_periods: int = EARTHWORK_PERIODS,
         tables: str = DEFAULT_TABLE_SET,
+        model: str = "learned",
     ) -> None:
+        _check_model(model, backend, tables)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             why = " ('human' needs a display: DISPLAY is unset)" if render_mode == "human" else ""
             raise ValueError(
@@ -349,6 +368,7 @@ class HexLoadingEnv(gym.Env):
         if tables not in TABLE_SETS:
             raise ValueError(f"tables must be one of {tuple(TABLE_SETS)}, got {tables!r}")
         self._scene_path, self._backend, self.tables = scene_path, backend, tables
+        self.machine_model = model  # "learned" or "reference" (``model`` is MuJoCo's in Gymnasium's envs)
         self.observation_space, self.action_space = task_spaces()
         self._build()
         frame = self.physics.model.vis.global_
@@ -363,7 +383,12 @@ class HexLoadingEnv(gym.Env):
 
     # -- simulation ----------------------------------------------------------------------------
     def _build(self) -> None:
-        self.machine = make_machine(self._backend, self._scene_path, self.tables, tool_contact_slots=CONTACT_SLOTS)
+        if self.machine_model == "reference":
+            from hexgym.envs.reference_machine import ReferenceMachine, reference_world_model
+
+            self.machine = ReferenceMachine(reference_world_model(self._scene_path, tool_contact_slots=CONTACT_SLOTS))
+        else:
+            self.machine = make_machine(self._backend, self._scene_path, self.tables, tool_contact_slots=CONTACT_SLOTS)
         self.physics = self.machine.physics
         model = self.physics.model
         self.world = World(model)

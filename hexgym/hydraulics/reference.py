@@ -158,6 +158,13 @@ class ReferenceModel:
         self.state = predicted + sens @ dv
         self._mech = new
 
+    def joint_torques(self) -> np.ndarray:
+        """The torques (N m) the circuit's present pressures put on the main joints [swing, boom, stick,
+        bucket]: the swing motor's, and each cylinder's force times its moment arm."""
+        mech = self._mech
+        forces, torque = self.circuit.actuator_forces(self.state, mech.ext, mech.vel, mech.swing_rate, end_stops=False)
+        return np.concatenate(([torque], mech.arms * forces))
+
     def observe(self) -> np.ndarray:
         """One trajectory row (a record of ``TRAJECTORY_DTYPE``) of the present state."""
         ph, mech = self.physics, self._mech

@@ -85,17 +85,22 @@ def force_actuated_model(path: str | Path | None = None, scene: bool = False) ->
     path = Path(path) if path is not None else asset_path(SCENE_FILE if scene else MODEL_FILE)
     try:
         spec = mujoco.MjSpec.from_file(str(path))
-        for actuator in spec.actuators:
-            actuator.set_to_motor()
-            actuator.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
-            actuator.forcelimited = mujoco.mjtLimited.mjLIMITED_FALSE
-            actuator.actlimited = mujoco.mjtLimited.mjLIMITED_FALSE
-        # keyframes carry one activation per servo; motors have none
-        for key in spec.keys:
-            key.act = []
+        to_force_inputs(spec)
         return spec.compile()
     except ValueError as exc:
         raise AssetError(f"cannot load model {path}: {exc}") from exc
+
+
+def to_force_inputs(spec: mujoco.MjSpec) -> None:
+    """Turn every actuator of ``spec`` into an unlimited force input (see :func:`force_actuated_model`)."""
+    for actuator in spec.actuators:
+        actuator.set_to_motor()
+        actuator.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
+        actuator.forcelimited = mujoco.mjtLimited.mjLIMITED_FALSE
+        actuator.actlimited = mujoco.mjtLimited.mjLIMITED_FALSE
+    # keyframes carry one activation per servo; motors have none
+    for key in spec.keys:
+        key.act = []
 
 
 class ExcavatorPhysics:

@@ -217,7 +217,7 @@ def _cmd_clone(args: argparse.Namespace) -> int:
 def _cmd_evaluate(args: argparse.Namespace) -> int:
     from hexgym.agents.evaluate import evaluate
 
-    env_kwargs = {"time_limit": args.seconds} if args.seconds is not None else None
+    env_kwargs = {"model": args.model} | ({"time_limit": args.seconds} if args.seconds is not None else {})
     result = evaluate(args.policy, episodes=args.episodes, seed=args.seed, env_kwargs=env_kwargs, json_out=args.json,
                       workers=args.workers, ray=args.ray)  # fmt: skip
     print(json.dumps({k: v for k, v in result.items() if k != "per_episode"}, indent=2))
@@ -506,6 +506,9 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
     evaluate.add_argument("--seconds", type=float, default=None, help="episode time limit, s (default: the env's)")
     evaluate.add_argument("--json", metavar="OUT", default=None, help="also write the figures to this JSON file")
     evaluate.add_argument("--workers", type=int, default=1, help="processes running the episodes (default: 1)")
+    evaluate.add_argument("--model", choices=["learned", "reference"], default="learned",
+                          help="machine model: the learned one (default) or the reference (the real machine's "
+                          "stand-in: the same task on the analytical circuit; a few times real time)")  # fmt: skip
     add_ray_option(evaluate, "the episodes")
     evaluate.set_defaults(func=_cmd_evaluate)
 

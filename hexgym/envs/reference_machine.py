@@ -1,0 +1,71 @@
+"""The reference model (the real machine's stand-in) on the loading site, as the task's machine.
+
+``HexLoading-v0`` with ``model="reference"`` runs the same task — pile, truck, digging force,
+payload, spill, contacts, fuel account — on the analytical open-centre circuit driving the full
+MuJoCo machine (:class:`hexgym.hydraulics.reference.ReferenceModel`) instead of the learned tables.
+It is slow (a few times real time) and meant for checking what an agent or a plan learned on the
+fast model does on the "real" machine, not for training.
+
+:class:`ReferenceMachine` presents the reference model with the learned model's interface
+(:class:`hexgym.model.base.LearnedModelBase`): a 25 ms control period made of ``STEPS_PER_PERIOD``
+reference steps, the joint loads as the torques the hydraulics applied, the swing's acceleration as
+its motor torque over the swing inertia.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from hexgym.envs.world import build_world_model
+from hexgym.hydraulics.reference import ReferenceModel
+from hexgym.machine.physics import to_force_inputs
+from hexgym.model.base import LearnedModelBase
+
+CONTROL_PERIOD = 0.025  # s: the learned model's, so the task's schedule (four periods a step) is the same
+STEPS_PER_PERIOD = 12  # reference steps of 2.08 ms: next to the 2 ms its accuracy was measured at
+
+
+def reference_world_model(scene_path: str | Path | None = None, tool_contact_slots: int = 0) -> mujoco.MjModel:
+    """The loading site around the full machine (default ``scene.xml``) with force inputs for the circuit."""
+    return build_world_model(scene_path, tool_contact_slots=tool_contact_slots, customise=to_force_inputs)
+
+
+class ReferenceMachine(LearnedModelBase):
+    """The reference model on a loading site, stepped in the learned model's 25 ms control periods.
+
+    Args:
+        model: a site model with force inputs (:func:`reference_world_model`).
+    """
+
+    def __init__(self, model: mujoco.MjModel) -> None:
+        self.reference = ReferenceModel(model, timestep=CONTROL_PERIOD / STEPS_PER_PERIOD)
+        self.physics = self.reference.physics
+        self.spools_m = self.reference.spools_m
+
+    @property
+    def control_period(self) -> float:
+        """Seconds one :meth:`step` advances."""
+        return CONTROL_PERIOD
+
+    @property
+    def swing_acceleration(self) -> float:
+        """The swing motor's torque over the swing inertia, rad/s^2 (the torque the task's fuel account reads)."""
+        return float(self.joint_loads()[0]) / self.physics.swing_inertia()
+
+    def reset(self, start: str | np.ndarray = "home", payload_kg: float = 0.0) -> None:
+        """Start at rest at a keyframe or joint angles with a payload, the circuit holding the pose."""
+        self.reference.reset(start, payload_kg)
+        self.spools_m = self.reference.spools_m
+
+    def step(self, spools_m: np.ndarray, n: int = 1) -> None:
+        """Hold the spools (m, order swing, boom, stick, bucket) for ``n`` control periods."""
+        self.reference.step(spools_m, n * STEPS_PER_PERIOD)
+        self.spools_m = self.reference.spools_m
+
+    def joint_loads(self) -> np.ndarray:
+        """The torques the circuit's pressures put on the main joints now (after a reset: the holding
+        torques), N m."""
+        return self.reference.joint_torques()
