@@ -70,8 +70,35 @@ def test_short_ppo_run_saves_reloads_and_resumes(tmp_path, tiny_yaml, capsys):
     # the same command with a larger budget continues from the checkpoint
     train("ppo", timesteps=384, seed=0, log_dir=tmp_path, hyperparams=tiny_yaml, n_envs=2,
           checkpoint_every=128, progress_bar=False)  # fmt: skip
-    assert "resuming from" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "resuming from" in out
     assert load_trained(path).model.num_timesteps >= 384
+    # a line per rollout of 2 envs x 64 steps (two in the first run, one resumed): steps so far, tonnes
+    # delivered, episodes ended and their return, the rate
+    lines = [line for line in out.splitlines() if "| rollout:" in line]
+    assert [line.split()[0] for line in lines] == ["128", "256", "384"]
+    assert all("t delivered" in line and "steps/s" in line for line in lines)
+    assert "2 episodes ended, mean return" in lines[1]  # each env's 8 s episode ends at its step 80
+
+
+def test_a_stopped_run_leaves_a_usable_model(tmp_path, tiny_yaml, monkeypatch):
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from hexgym.agents import training
+
+    class StopAfter(BaseCallback):  # Ctrl-C after 200 steps
+        def _on_step(self) -> bool:
+            if self.num_timesteps >= 200:
+                raise KeyboardInterrupt
+            return True
+
+    monkeypatch.setattr(training, "_rollout_report_callback", lambda: StopAfter())
+    with pytest.raises(KeyboardInterrupt):
+        train("ppo", timesteps=100_000, seed=0, log_dir=tmp_path, hyperparams=tiny_yaml, n_envs=2,
+              checkpoint_every=128, progress_bar=False)  # fmt: skip
+    path = tmp_path / "ppo_HexLoading-v0" / "model.zip"
+    policy = load_trained(path)
+    assert 200 <= policy.model.num_timesteps < 300 and normalizer_path(path).is_file()
 
 
 @pytest.mark.slow  # ~40-75 s on 2 cores: two rounds of spawned recording workers

@@ -22,6 +22,8 @@ import os
 import re
 import shutil
 import tempfile
+import time
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from multiprocessing import get_context
@@ -293,6 +295,41 @@ def _checkpoint_callback(directory: Path, every: int) -> Any:
     return AtomicCheckpoint()
 
 
+def _rollout_report_callback(print_line: Callable[[str], None] = print) -> Any:
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class RolloutReport(BaseCallback):
+        """One line per rollout: steps so far, tonnes delivered into the trucks during the rollout (tasks
+        whose ``info`` has ``truck_kg``), episodes ended and their mean return, and the rate."""
+
+        def _on_training_start(self) -> None:
+            self._truck = np.zeros(self.training_env.num_envs)
+            self._clock = time.perf_counter()
+            self._start_steps = self.num_timesteps
+
+        def _on_rollout_start(self) -> None:
+            self._delivered_kg, self._returns = 0.0, []
+
+        def _on_step(self) -> bool:
+            for i, info in enumerate(self.locals["infos"]):
+                if "truck_kg" in info:  # a new episode's first info has an empty truck: no delivery
+                    self._delivered_kg += max(info["truck_kg"] - self._truck[i], 0.0)
+                    self._truck[i] = 0.0 if self.locals["dones"][i] else info["truck_kg"]
+                if "episode" in info:
+                    self._returns.append(float(info["episode"]["r"]))
+            return True
+
+        def _on_rollout_end(self) -> None:
+            rate = (self.num_timesteps - self._start_steps) / max(time.perf_counter() - self._clock, 1e-9)
+            ended = f"{len(self._returns)} episode{'' if len(self._returns) == 1 else 's'} ended"
+            if self._returns:
+                ended += f", mean return {np.mean(self._returns):.2f}"
+            print_line(f"{self.num_timesteps:>10,} steps | rollout: {self._delivered_kg / 1000:6.1f} t delivered, "
+                       f"{ended} | {rate:,.0f} steps/s")  # fmt: skip
+
+    return RolloutReport()
+
+
 def latest_checkpoint(run_dir: str | Path) -> Path | None:
     """The checkpoint with the most steps in ``run_dir/checkpoints`` (None when there is none)."""
     found = []
@@ -342,8 +379,12 @@ def train(
     init_from: str | Path | None = None,
     checkpoint_every: int = 20_000,
     progress_bar: bool = True,
+    report: bool = True,
 ) -> Path:
     """Train (or resume) ``algo`` on ``env_id`` to ``timesteps`` steps in all; the final model's path.
+
+    ``report``: print a line per rollout (tonnes delivered, episodes ended and their mean return, steps
+    per second). Interrupted (Ctrl-C), the run saves its newest state as ``model.zip`` before stopping.
 
     Resumes from the newest checkpoint of the run directory when there is one; otherwise starts
     from ``init_from`` (a model saved by :func:`clone_scripted` or an earlier run), or from scratch.
@@ -376,17 +417,21 @@ def train(
             venv = VecNormalize(venv, **hp["normalize"])
         model = _new_model(algo_class, hp, venv, seed=seed, tensorboard_log=tensorboard)
     remaining = total - model.num_timesteps if resume else total
-    if remaining > 0:
-        model.learn(
-            remaining,
-            callback=_checkpoint_callback(run_dir / "checkpoints", checkpoint_every),
-            progress_bar=progress_bar and _progress_bar_available(),
-            reset_num_timesteps=resume is None,
-            tb_log_name=algo,
-        )
-    path = save_model(model, run_dir / "model.zip")
-    venv.close()
-    return path
+    callbacks = [_checkpoint_callback(run_dir / "checkpoints", checkpoint_every)]
+    if report:
+        callbacks.append(_rollout_report_callback())
+    try:
+        if remaining > 0:
+            model.learn(remaining, callback=callbacks, progress_bar=progress_bar and _progress_bar_available(),
+                        reset_num_timesteps=resume is None, tb_log_name=algo)  # fmt: skip
+    except KeyboardInterrupt:
+        # a stopped run leaves its newest state as a usable model (with its normaliser), then stops
+        path = save_model(model, run_dir / "model.zip")
+        print(f"stopped at {model.num_timesteps} steps; saved {path}")
+        raise
+    finally:
+        venv.close()
+    return save_model(model, run_dir / "model.zip")
 
 
 def _progress_bar_available() -> bool:

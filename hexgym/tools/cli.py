@@ -198,7 +198,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
 
     path = train(args.algo, args.env, timesteps=args.timesteps, seed=args.seed, log_dir=args.log_dir,
                  hyperparams=args.hyperparams, n_envs=args.n_envs, init_from=args.init_from,
-                 checkpoint_every=args.checkpoint_every, progress_bar=not args.no_progress)  # fmt: skip
+                 checkpoint_every=args.checkpoint_every, progress_bar=not args.no_progress,
+                 report=not args.quiet)  # fmt: skip
     print(f"model: {path}")
     return 0
 
@@ -475,6 +476,7 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
     train.add_argument("--init-from", default=None, help="start from this model .zip, e.g. from `hexgym clone`")
     train.add_argument("--checkpoint-every", type=int, default=20000, help="steps between checkpoints")
     train.add_argument("--no-progress", action="store_true", help="no progress bar")
+    train.add_argument("--quiet", action="store_true", help="no line per rollout (tonnes delivered, returns, rate)")
     train.set_defaults(func=_cmd_train)
 
     clone = sub.add_parser("clone", help="behaviour-clone the scripted loader (with DAgger) into a PPO model")
