@@ -203,11 +203,12 @@ class BatchSites:
         """Advance the sites ``ids`` by ``periods`` control periods (the model's steps); positions and velocities
         then belong to the new state, as after ``mj_step1`` (timed: :attr:`seconds`).
 
-        In the batch's threads when there is enough work to share (``THREADED_SITE_STEPS``), else site by site
-        in this thread: handing a few steps to the pool costs more than they do (~0.1 ms against ~7 us a step).
+        In one call on a batch of one thread (it runs in this thread) or with enough work to share among the
+        batch's threads (``THREADED_SITE_STEPS``), else site by site in this thread: waking the pool for a few
+        steps can cost more than they do (~0.1 ms on a busy machine against ~7 us a step).
         """
         start = time.perf_counter()
-        if len(ids) * periods >= THREADED_SITE_STEPS:
+        if self.batch.nthread == 1 or len(ids) * periods >= THREADED_SITE_STEPS:
             self.batch.step(ids, nstep=periods, stage=_VEL)
         else:
             for k in range(len(ids)):

@@ -35,6 +35,7 @@ from hexgym.model.plugin import CTRL_PER_SPOOL_M
 _VEL = int(mujoco.mjtStage.mjSTAGE_VEL)  # after a step: positions and velocities current, as mj_step1 leaves them
 _ACC = int(mujoco.mjtStage.mjSTAGE_ACC)
 _STATE = mujoco.mjtState.mjSTATE_INTEGRATION
+_INFO_KEYS = (*(f"reward_{term}" for term in REWARD_TERMS), *INFO_STORES)
 
 
 class HexLoadingVectorEnv(VectorEnv):
@@ -127,6 +128,7 @@ class HexLoadingVectorEnv(VectorEnv):
         self._rngs: list[np.random.Generator | None] = [None] * self.num_envs
         self._autoreset = np.zeros(self.num_envs, bool)
         self._obs = np.zeros((self.num_envs, *self.single_observation_space.shape), np.float32)
+        self._every = np.arange(self.num_envs)
         self._started = False
 
     @property
@@ -183,15 +185,13 @@ class HexLoadingVectorEnv(VectorEnv):
             raise RuntimeError("call reset() before step()")
         a = self._check_actions(actions)
         n = self.num_envs
-        restarting = np.flatnonzero(self._autoreset)
-        stepping = np.flatnonzero(~self._autoreset)
-        for i in restarting:
-            self._start_site(int(i), None)
-        if len(restarting):
+        stepping = self._every
+        if self._autoreset.any():
+            stepping, restarting = np.flatnonzero(~self._autoreset), np.flatnonzero(self._autoreset)
+            for i in restarting:
+                self._start_site(int(i), None)
             self._finish_starts(restarting)
-        rewards = np.zeros(n)
-        terminated, truncated = np.zeros(n, bool), np.zeros(n, bool)
-        terms = np.zeros((n, len(REWARD_TERMS)))
+        terms, rewards, ended = np.zeros((n, len(REWARD_TERMS))), np.zeros(n), np.zeros((n, 2), bool)
         stepped = np.zeros(n, bool)
         if len(stepping):
             spools = np.minimum(np.maximum(a[stepping], -1.0), 1.0) * p.SPOOL_STROKE
@@ -199,11 +199,11 @@ class HexLoadingVectorEnv(VectorEnv):
                 self.sites.ctrl[stepping[:, None], self.sites.ctrl_ids] = spools * CTRL_PER_SPOOL_M
             else:
                 self.sites.spools_m[stepping] = spools
-            terms[stepping], rewards[stepping], ended = self.task.step(stepping)
-            terminated[stepping], truncated[stepping] = ended[:, 0], ended[:, 1]
+            terms[stepping], rewards[stepping], ended[stepping] = self.task.step(stepping)
             stepped[stepping] = True
-        self._obs[:] = self.task.observe(np.arange(n))
+        self._obs = self.task.observe(self._every)
         infos = self._infos(np.ones(n, bool), terms, (stepped, self.task.step_fuel_l, self.task.step_impulse))
+        terminated, truncated = ended[:, 0].copy(), ended[:, 1].copy()
         self._autoreset = terminated | truncated
         return self._obs.copy(), rewards, terminated, truncated, infos
 
@@ -233,8 +233,8 @@ class HexLoadingVectorEnv(VectorEnv):
                 f"actions must have shape ({self.num_envs}, 4) (one row of swing, boom, stick, bucket "
                 f"spools per environment), got shape {a.shape}"
             )
-        bad = ~np.isfinite(a)
-        if bad.any():
+        if not np.isfinite(a).all():
+            bad = ~np.isfinite(a)
             rows = np.flatnonzero(bad.any(axis=1))
             i = int(rows[0])
             raise ValueError(
@@ -277,17 +277,23 @@ class HexLoadingVectorEnv(VectorEnv):
         """The info dicts of the sites where ``reported`` as SyncVectorEnv gathers them: an array (0 elsewhere) and
         a ``_key`` mask per key; ``terms`` (num_envs, 6); ``step_extras``: (mask of the sites that stepped, their
         fuel, their impulse)."""
-        info: dict[str, Any] = {}
-        stores = self.task.stores_of(np.arange(self.num_envs))
-        columns = {f"reward_{term}": terms[:, k] for k, term in enumerate(REWARD_TERMS)}
-        columns |= {key: stores[:, k] for k, key in enumerate(INFO_STORES)}
-        for key, values in columns.items():
-            info[key], info[f"_{key}"] = np.where(reported, values, 0.0), reported.copy()
+        info = _columns(_INFO_KEYS, np.concatenate([terms, self.task.stores_of(self._every)], axis=1), reported)
         if step_extras is not None and step_extras[0].any():
-            stepped = step_extras[0]
-            for key, values in zip(("fuel_l_step", "contact_impulse_ns"), step_extras[1:], strict=True):
-                info[key], info[f"_{key}"] = np.where(stepped, values, 0.0), stepped.copy()
+            stepped, fuel_l, impulse = step_extras
+            info |= _columns(("fuel_l_step", "contact_impulse_ns"), np.stack([fuel_l, impulse], axis=1), stepped)
         return info
+
+
+def _columns(keys: tuple[str, ...], columns: np.ndarray, reported: np.ndarray) -> dict[str, np.ndarray]:
+    """``{key: its column of columns where reported, else 0; _key: reported}``, one array each (a key's array is
+    a row of one transposed copy: contiguous, and one copy instead of one per key)."""
+    if not reported.all():
+        columns = np.where(reported[:, None], columns, 0.0)
+    values = np.ascontiguousarray(columns.T)
+    info = {}
+    for k, key in enumerate(keys):
+        info[key], info[f"_{key}"] = values[k], reported.copy()
+    return info
 
 
 def make_vector_env(num_envs: int, **kwargs: Any) -> HexLoadingVectorEnv:
