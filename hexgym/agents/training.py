@@ -300,23 +300,28 @@ def _rollout_report_callback(print_line: Callable[[str], None] = print) -> Any:
 
     class RolloutReport(BaseCallback):
         """One line per rollout: steps so far, tonnes delivered into the trucks during the rollout (tasks
-        whose ``info`` has ``truck_kg``), episodes ended and their mean return, and the rate."""
+        whose ``info`` has ``truck_kg``), episodes ended, their mean return and (tasks whose ``info`` has
+        ``is_success``) their success rate, and the rate."""
 
         def _on_training_start(self) -> None:
             self._truck = np.zeros(self.training_env.num_envs)
             self._clock = time.perf_counter()
             self._start_steps = self.num_timesteps
+            self._trucks = False  # whether the task has trucks to deliver to
 
         def _on_rollout_start(self) -> None:
-            self._delivered_kg, self._returns = 0.0, []
+            self._delivered_kg, self._returns, self._successes = 0.0, [], []
 
         def _on_step(self) -> bool:
             for i, info in enumerate(self.locals["infos"]):
+                self._trucks = self._trucks or "truck_kg" in info
                 if "truck_kg" in info:  # a new episode's first info has an empty truck: no delivery
                     self._delivered_kg += max(info["truck_kg"] - self._truck[i], 0.0)
                     self._truck[i] = 0.0 if self.locals["dones"][i] else info["truck_kg"]
                 if "episode" in info:
                     self._returns.append(float(info["episode"]["r"]))
+                    if "is_success" in info:
+                        self._successes.append(bool(info["is_success"]))
             return True
 
         def _on_rollout_end(self) -> None:
@@ -324,8 +329,10 @@ def _rollout_report_callback(print_line: Callable[[str], None] = print) -> Any:
             ended = f"{len(self._returns)} episode{'' if len(self._returns) == 1 else 's'} ended"
             if self._returns:
                 ended += f", mean return {np.mean(self._returns):.2f}"
-            print_line(f"{self.num_timesteps:>10,} steps | rollout: {self._delivered_kg / 1000:6.1f} t delivered, "
-                       f"{ended} | {rate:,.0f} steps/s")  # fmt: skip
+            if self._successes:
+                ended += f", success {np.mean(self._successes):.0%}"
+            delivered = f"{self._delivered_kg / 1000:6.1f} t delivered, " if self._trucks else ""
+            print_line(f"{self.num_timesteps:>10,} steps | rollout: {delivered}{ended} | {rate:,.0f} steps/s")
 
     return RolloutReport()
 

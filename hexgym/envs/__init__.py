@@ -1,5 +1,6 @@
-"""The loading task as Gymnasium environments: ``HexLoading-v0`` (:class:`hexgym.envs.loading.HexLoadingEnv`;
-batched, :class:`hexgym.envs.vector.HexLoadingVectorEnv`), both running the task written once over N sites
+"""hexgym's tasks as Gymnasium environments: ``HexReach-v0`` (:class:`hexgym.envs.reach.HexReachEnv`: the teeth
+to a target through the hydraulics) and the loading task ``HexLoading-v0`` (:class:`hexgym.envs.loading.HexLoadingEnv`;
+batched, :class:`hexgym.envs.vector.HexLoadingVectorEnv`), the latter two running the task written once over N sites
 (:mod:`.task`, compiled) on their machines (:mod:`.sites`), the site's world (:mod:`.world`: pile, truck,
 layout) and its earthwork (:mod:`.earthwork`: the pile, digging, resistance, spill).
 
@@ -14,8 +15,13 @@ import gymnasium
 ENV_ID = "HexLoading-v0"
 
 
+REACH_ENV_ID = "HexReach-v0"
+
+
 def register_envs() -> None:
     """Register the environments with Gymnasium (idempotent)."""
+    if REACH_ENV_ID not in gymnasium.registry:
+        gymnasium.register(id=REACH_ENV_ID, entry_point="hexgym.envs.reach:HexReachEnv")
     if ENV_ID not in gymnasium.registry:
         gymnasium.register(
             id=ENV_ID,

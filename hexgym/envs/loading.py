@@ -150,6 +150,19 @@ def _is_number(value: Any) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
 
 
+def check_spool_action(action: np.ndarray) -> np.ndarray:
+    """A single environment's action as 4 finite float64 numbers (swing, boom, stick, bucket spools in
+    [-1, 1] of the stroke); ValueError naming the shape or the non-finite entries."""
+    a = np.asarray(action, dtype=np.float64)
+    if a.shape != (4,):
+        raise ValueError(f"action must have shape (4,) (swing, boom, stick, bucket spools), got shape {a.shape}")
+    if not math.isfinite(sum(a.tolist())) and not np.isfinite(a).all():  # a NaN or inf makes the sum one
+        raise ValueError(
+            f"action must be finite, got {a} (a NaN or inf in entries {np.flatnonzero(~np.isfinite(a)).tolist()})"
+        )
+    return a
+
+
 MODELS = ("learned", "reference")
 
 
@@ -472,14 +485,7 @@ class HexLoadingEnv(gym.Env):
         return float(self.task.hard_contact_forces(_SITE)[0])
 
     def _check_action(self, action: np.ndarray) -> np.ndarray:
-        a = np.asarray(action, dtype=np.float64)
-        if a.shape != (4,):
-            raise ValueError(f"action must have shape (4,) (swing, boom, stick, bucket spools), got shape {a.shape}")
-        if not math.isfinite(sum(a.tolist())) and not np.isfinite(a).all():  # a NaN or inf makes the sum one
-            raise ValueError(
-                f"action must be finite, got {a} (a NaN or inf in entries {np.flatnonzero(~np.isfinite(a)).tolist()})"
-            )
-        return a
+        return check_spool_action(action)
 
     def _info(self, terms: list[float] | None, fuel_step: float, impulse: float) -> dict[str, Any]:
         """The step's ``info``: the reward terms (0 after a reset), the stores, and the step's fuel and impulse."""

@@ -1,0 +1,196 @@
+"""``HexReach-v0``: bring the bucket teeth to a target point through the machine's hydraulics.
+
+The first rung of hexgym's tasks for learning: no pile, no truck, only the learned machine model
+(the same as ``HexLoading-v0``'s) with a random payload, so an agent learns how the four spools move
+the teeth — flow sharing on each pump, the engine's power limit, the swing's inertia and braking —
+before it learns to dig and load.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from hexgym.envs.loading import _is_number, check_spool_action
+from hexgym.machine import kinematics
+from hexgym.machine import parameters as p
+from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS
+from hexgym.model.backend import make_learned_model
+
+STEP_PERIOD = 0.1  # s: 10 Hz control, as HexLoading-v0
+TARGET_FLOOR_M = 0.5  # targets and starts keep the teeth this high above the ground
+MIN_TARGET_DISTANCE_M = 2.0  # a target at least this far from the start
+MAX_PAYLOAD_KG = 2000.0
+SETTLED_SPEED_MPS = 0.3  # the teeth count as arrived when slower than this within the tolerance
+_START_NOISE = 0.3  # rad, on boom, stick and bucket around the machine's `home` keyframe
+_OBS_BOUND = np.array(
+    [np.pi] * 3 + [1.0] * 2 + [10.0] * 4 + [10.0] * 3 + [30.0] * 3 + [30.0] * 2 + [1.0, 5.0], dtype=np.float32
+)
+
+
+class HexReachEnv(gym.Env):
+    """Bring the bucket teeth within ``tolerance_m`` of a target point and hold them there.
+
+    ## Description
+    The machine (the learned model of a CAT 325-class excavator) starts at rest near its home pose
+    with a random payload in the bucket (0-2 t) and its swing anywhere; a target point is drawn in
+    its reach, at least 2 m from the teeth, 0.5 m or more above the ground, within ±90° of swing.
+    Reaching it fast needs the hydraulics' interactions: two functions on one pump share its flow,
+    the pumps share the engine's power, the upper structure's inertia must be braked in time.
+
+    ## Action Space
+    ``Box(-1, 1, (4,), float32)``: the swing, boom, stick and bucket spools as fractions of their
+    stroke (±11 mm; positive extends the cylinder, turns the swing counter-clockwise), held 0.1 s.
+
+    ## Observation Space
+    ``Box(low, high, (19,), float32)``:
+
+    | Num | Observation | Unit |
+    |-----|-------------|------|
+    | 0-2 | boom, stick, bucket joint angles | rad |
+    | 3-4 | sine and cosine of the swing angle minus the target's azimuth | 1 |
+    | 5-8 | swing, boom, stick, bucket joint rates | rad/s |
+    | 9-11 | boom, stick, bucket cylinder force loads (+ = the cylinder pushes) | MN |
+    | 12-14 | teeth minus target, world frame | m |
+    | 15-16 | target's horizontal distance from the swing axis and its height | m |
+    | 17 | time left: fraction of the time budget | 1 |
+    | 18 | payload | t |
+
+    ## Rewards
+    Per step: ``progress_weight`` × metres the teeth came closer to the target, − ``time_weight``,
+    and ``success_reward`` on arrival (teeth within ``tolerance_m`` and slower than 0.3 m/s). The
+    progress term is potential-based shaping: over an episode it sums to the distance covered, so it
+    cannot be farmed by moving back and forth. ``info`` has each term (``reward_progress``,
+    ``reward_time``, ``reward_success``), ``distance_m`` and ``is_success`` (SB3's success counter).
+
+    ## Episode End
+    Terminates on arrival; truncates after ``time_limit`` s.
+
+    ## Arguments
+    | argument | default | meaning |
+    |----------|---------|---------|
+    | time_limit | 15.0 | episode length, s |
+    | tolerance_m | 0.3 | arrival radius, m |
+    | progress_weight | 1.0 | per metre closer |
+    | time_weight | 0.01 | per step |
+    | success_reward | 5.0 | on arrival |
+    | backend | ``"auto"`` | the learned model's backend: ``"native"``, ``"python"``, ``"auto"`` |
+    | tables | ``"paper"`` | the learned model's table set (:mod:`hexgym.mbl.schema`) |
+
+    No rendering (``render_mode`` None only): render ``HexLoading-v0`` to watch the machine.
+    """
+
+    metadata = {"render_modes": [], "render_fps": round(1.0 / STEP_PERIOD)}
+
+    def __init__(
+        self,
+        time_limit: float = 15.0,
+        tolerance_m: float = 0.3,
+        progress_weight: float = 1.0,
+        time_weight: float = 0.01,
+        success_reward: float = 5.0,
+        backend: str = "auto",
+        tables: str = DEFAULT_TABLE_SET,
+        render_mode: str | None = None,
+    ) -> None:
+        if render_mode is not None:
+            raise ValueError(f"HexReach-v0 does not render (render_mode {render_mode!r}): render HexLoading-v0")
+        for name, value in (("time_limit", time_limit), ("tolerance_m", tolerance_m)):
+            if not _is_number(value) or not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+        self.weights = {"progress": progress_weight, "time": time_weight, "success": success_reward}
+        for name, weight in self.weights.items():
+            if not _is_number(weight) or not (math.isfinite(weight) and weight >= 0):
+                raise ValueError(f"{name} weight must be a finite number >= 0, got {weight!r}")
+        if tables not in TABLE_SETS:
+            raise ValueError(f"tables must be one of {tuple(TABLE_SETS)}, got {tables!r}")
+        self.time_limit, self.tolerance_m = float(time_limit), float(tolerance_m)
+        self.render_mode = None
+        self.machine = make_learned_model(backend, table_set=tables)
+        self.physics = self.machine.physics
+        self.machine.reset("home")
+        self._home = self.physics.joint_positions()
+        self._periods = max(1, round(STEP_PERIOD / self.machine.control_period))
+        self.observation_space = spaces.Box(-_OBS_BOUND, _OBS_BOUND, dtype=np.float32)
+        self.action_space = spaces.Box(-1.0, 1.0, (4,), np.float32)
+        self.target = np.zeros(3)
+        self._distance, self._elapsed = 0.0, 0.0
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
+        """A new start pose, payload and target (see the class docstring)."""
+        super().reset(seed=seed)
+        rng = self.np_random
+        start = self._draw_pose(rng, self._home, _START_NOISE, math.pi)
+        payload = float(rng.uniform(0.0, MAX_PAYLOAD_KG))
+        self.machine.reset(start, payload_kg=payload)
+        tip = self.physics.tip_position()
+        while True:  # a reachable target: the teeth of a random pose, far enough from the start
+            pose = self._draw_pose(rng, None, 0.0, math.pi / 2, start[0])
+            self.target = kinematics.tip_position(pose)
+            if np.linalg.norm(self.target - tip) >= MIN_TARGET_DISTANCE_M:
+                break
+        self._distance, self._elapsed = float(np.linalg.norm(tip - self.target)), 0.0
+        return self._observe(), self._info(0.0, 0.0, 0.0, False)
+
+    @staticmethod
+    def _draw_pose(
+        rng: np.random.Generator, centre: np.ndarray | None, noise: float, swing_span: float, swing_centre: float = 0.0
+    ) -> np.ndarray:
+        """Joint angles with the teeth ``TARGET_FLOOR_M`` or more above the ground: around ``centre``
+        (± ``noise``) or, without one, anywhere in the inner 80 % of each joint's range."""
+        while True:
+            q = np.empty(4)
+            q[0] = swing_centre + rng.uniform(-swing_span, swing_span)
+            for i, name in enumerate(kinematics.JOINTS[1:], start=1):
+                lo, hi = kinematics.joint_range(name)
+                if centre is None:
+                    q[i] = rng.uniform(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo))
+                else:
+                    q[i] = np.clip(centre[i] + rng.uniform(-noise, noise), lo, hi)
+            if kinematics.tip_position(q)[2] >= TARGET_FLOOR_M:
+                return q
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
+        """Hold the spools for 0.1 s."""
+        spools = np.minimum(np.maximum(check_spool_action(action), -1.0), 1.0) * p.SPOOL_STROKE
+        before = self.physics.tip_position()
+        self.machine.step(spools, n=self._periods)
+        self._elapsed += self._periods * self.machine.control_period
+        tip = self.physics.tip_position()
+        distance = float(np.linalg.norm(tip - self.target))
+        speed = float(np.linalg.norm(tip - before)) / (self._periods * self.machine.control_period)
+        arrived = distance <= self.tolerance_m and speed < SETTLED_SPEED_MPS
+        progress = self.weights["progress"] * (self._distance - distance)
+        success = self.weights["success"] if arrived else 0.0
+        time_term = -self.weights["time"]
+        self._distance = distance
+        truncated = not arrived and self._elapsed >= self.time_limit - 1e-9
+        return (
+            self._observe(),
+            progress + time_term + success,
+            arrived,
+            truncated,
+            self._info(progress, time_term, success, arrived),
+        )
+
+    def _observe(self) -> np.ndarray:
+        ph = self.physics
+        q, qd = ph.joint_positions(), ph.joint_velocities()
+        azimuth = math.atan2(self.target[1], self.target[0])
+        obs = np.concatenate((
+            q[1:], [math.sin(q[0] - azimuth), math.cos(q[0] - azimuth)], qd,
+            self.machine.cylinder_loads() / 1e6, ph.tip_position() - self.target,
+            [math.hypot(self.target[0], self.target[1]), self.target[2]],
+            [max(0.0, 1.0 - self._elapsed / self.time_limit), ph.payload_kg / 1000.0],
+        ))  # fmt: skip
+        return np.clip(obs, -_OBS_BOUND, _OBS_BOUND).astype(np.float32)
+
+    def _info(self, progress: float, time_term: float, success: float, arrived: bool) -> dict[str, Any]:
+        return {
+            "reward_progress": progress, "reward_time": time_term, "reward_success": success,
+            "distance_m": self._distance, "is_success": bool(arrived), "time_s": self._elapsed,
+        }  # fmt: skip
