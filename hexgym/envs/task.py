@@ -643,7 +643,7 @@ class LoadingTask:
     def _step_grouped(self, ids: np.ndarray) -> None:
         """Advance each site by its interval's periods: one physics call per distinct count."""
         periods = self._interval[ids]
-        for count in np.unique(periods).tolist():
+        for count in sorted(set(periods.tolist())):
             self.physics.step(ids[periods == count], count)
 
     def _end_clear(self, ids: np.ndarray) -> None:

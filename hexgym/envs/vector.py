@@ -191,21 +191,29 @@ class HexLoadingVectorEnv(VectorEnv):
             for i in restarting:
                 self._start_site(int(i), None)
             self._finish_starts(restarting)
-        terms, rewards, ended = np.zeros((n, len(REWARD_TERMS))), np.zeros(n), np.zeros((n, 2), bool)
         stepped = np.zeros(n, bool)
-        if len(stepping):
-            spools = np.minimum(np.maximum(a[stepping], -1.0), 1.0) * p.SPOOL_STROKE
-            if isinstance(self.sites, BatchSites):
-                self.sites.ctrl[stepping[:, None], self.sites.ctrl_ids] = spools * CTRL_PER_SPOOL_M
-            else:
-                self.sites.spools_m[stepping] = spools
-            terms[stepping], rewards[stepping], ended[stepping] = self.task.step(stepping)
-            stepped[stepping] = True
+        stepped[stepping] = True
+        if len(stepping) == n:  # the usual step: every site steps, its results are the task's arrays
+            self._hold_spools(stepping, a)
+            terms, rewards, ended = self.task.step(stepping)
+        else:  # sites restarting (or all): reward 0, not ended
+            terms, rewards, ended = np.zeros((n, len(REWARD_TERMS))), np.zeros(n), np.zeros((n, 2), bool)
+            if len(stepping):
+                self._hold_spools(stepping, a[stepping])
+                terms[stepping], rewards[stepping], ended[stepping] = self.task.step(stepping)
         self._obs = self.task.observe(self._every)
         infos = self._infos(np.ones(n, bool), terms, (stepped, self.task.step_fuel_l, self.task.step_impulse))
         terminated, truncated = ended[:, 0].copy(), ended[:, 1].copy()
         self._autoreset = terminated | truncated
         return self._obs.copy(), rewards, terminated, truncated, infos
+
+    def _hold_spools(self, ids: np.ndarray, actions: np.ndarray) -> None:
+        """Set the spools of sites ``ids`` from their ``actions`` (k, 4; clipped to [-1, 1], scaled to the stroke)."""
+        spools = np.minimum(np.maximum(actions, -1.0), 1.0) * p.SPOOL_STROKE
+        if isinstance(self.sites, BatchSites):
+            self.sites.ctrl[ids[:, None], self.sites.ctrl_ids] = spools * CTRL_PER_SPOOL_M
+        else:
+            self.sites.spools_m[ids] = spools
 
     def step_physics_only(self, spools_mm: np.ndarray) -> float:
         """Step every site's physics one environment step with ``spools_mm`` ((num_envs, 4), the plugin's ctrl)
