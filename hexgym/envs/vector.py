@@ -293,14 +293,15 @@ class HexLoadingVectorEnv(VectorEnv):
 
 
 def _columns(keys: tuple[str, ...], columns: np.ndarray, reported: np.ndarray) -> dict[str, np.ndarray]:
-    """``{key: its column of columns where reported, else 0; _key: reported}``, one array each (a key's array is
-    a row of one transposed copy: contiguous, and one copy instead of one per key)."""
+    """``{key: its column of columns where reported, else 0; _key: reported}``, one array each (each a row of one
+    transposed copy: contiguous, and one copy for all keys instead of one per key)."""
     if not reported.all():
         columns = np.where(reported[:, None], columns, 0.0)
     values = np.ascontiguousarray(columns.T)
+    masks = np.repeat(reported[None], len(keys), axis=0)
     info = {}
     for k, key in enumerate(keys):
-        info[key], info[f"_{key}"] = values[k], reported.copy()
+        info[key], info[f"_{key}"] = values[k], masks[k]
     return info
 
 
