@@ -207,7 +207,8 @@ class BatchSites:
         2 sites one step 8 us against 11-14 us in turn, 8 sites 22-25 against 43 us).
         """
         start = time.perf_counter()
-        self.batch.step(None if len(ids) == self.count else ids, nstep=periods, stage=_VEL)  # None: all, unchecked
+        every = len(ids) == self.count  # None for every site: no ids for the batch to check
+        self.batch.step(None if every else ids, nstep=periods, stage=_VEL)
         self.seconds += time.perf_counter() - start
         self.steps += len(ids) * periods
         self.refresh(ids)

@@ -196,7 +196,7 @@ class HexLoadingVectorEnv(VectorEnv):
         if len(stepping) == n:  # the usual step: every site steps, its results are the task's arrays
             self._hold_spools(stepping, a)
             terms, rewards, ended = self.task.step(stepping)
-        else:  # sites restarting (or all): reward 0, not ended
+        else:  # some sites restart instead: reward 0, not ended
             terms, rewards, ended = np.zeros((n, len(REWARD_TERMS))), np.zeros(n), np.zeros((n, 2), bool)
             if len(stepping):
                 self._hold_spools(stepping, a[stepping])
