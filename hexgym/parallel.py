@@ -6,15 +6,17 @@ function over them with an :class:`Executor` from :func:`executor`:
 
 - ``ray=None``: :class:`LocalPool`, a spawn-context process pool of ``workers`` processes (or this
   process alone for one worker), as hexgym always ran;
-- ``ray="local"``: :class:`RayExecutor` on a Ray started here with this machine's cores;
+- ``ray="local"``: :class:`RayExecutor` on a Ray started here with the cores this process may use,
+  its workers at this process's niceness, as the pool's (:data:`LOCAL_SYSTEM_CONFIG`);
   ``ray="HOST:PORT"`` (or ``"auto"``, ``"ray://HOST:PORT"``) joins a running cluster
   (``ray start --head`` on one machine, ``ray start --address HOST:PORT`` on the others).
 
 A Ray task whose worker dies (a killed process, a lost node) is run again (``MAX_RETRIES``);
-an exception raised by the task itself is not retried and reaches the caller. Before any task runs,
-:func:`connect` checks every node: the address must answer within ``CONNECT_TIMEOUT_S``, and each
-node must import hexgym with the driver's versions of hexgym, Python, Ray, MuJoCo and NumPy within
-``PROBE_TIMEOUT_S``; otherwise one :class:`ClusterError` line names the node and what is missing.
+an exception raised by the task itself is not retried and reaches the caller. Before any task runs
+on a cluster it joins, :func:`connect` checks every node: the address must answer within
+``CONNECT_TIMEOUT_S``, and each node must import hexgym with the driver's versions of hexgym,
+Python, Ray, MuJoCo and NumPy within ``PROBE_TIMEOUT_S``; otherwise one :class:`ClusterError` line
+names the node and what is missing.
 
 Ray is the optional extra ``hexgym[cluster]``; this module imports it only when asked to use it.
 """
@@ -35,6 +37,10 @@ MAX_RETRIES = 3  # reruns of a task whose worker process or node died
 CONNECT_TIMEOUT_S = 5.0  # for the address to accept a TCP connection
 PROBE_TIMEOUT_S = 30.0  # for every node to start a worker and import hexgym
 _VERSIONED = ("hexgym", "python", "ray", "mujoco", "numpy")
+# A Ray started here (``--ray`` alone): Ray runs its workers at niceness 15 by default, below every
+# other process; the local pool's workers run at this process's niceness, and so do these. On a
+# machine shared with other work, niceness 15 leaves the workers the cores' leftovers.
+LOCAL_SYSTEM_CONFIG = {"worker_niceness": 0}
 # `ray start` enables token authentication by default since Ray 2.59: a driver without the token is refused
 _AUTH_HINT = " (if the cluster uses token authentication, set RAY_AUTH_MODE=token here; its token: ray get-auth-token)"
 
@@ -219,6 +225,9 @@ def _check_reachable(address: str) -> None:
 def connect(address: str = "local", runtime_env: dict[str, Any] | None = None) -> bool:
     """Connect this process to Ray at ``address`` and check its nodes (:func:`check_nodes`).
 
+    "local" starts a Ray here, which is not probed: its workers run this interpreter in this
+    process's environment and working directory.
+
     Returns whether a Ray was started or joined here (the caller then shuts it down); False when
     this process was already connected. ``runtime_env``: Ray's runtime environment for this job's
     workers (e.g. ``{"env_vars": ...}``).
@@ -230,19 +239,29 @@ def connect(address: str = "local", runtime_env: dict[str, Any] | None = None) -
     kwargs: dict[str, Any] = {"include_dashboard": False, "logging_level": "ERROR", "runtime_env": runtime_env}
     kwargs["address"] = address  # "local": a new Ray here, even when `ray start` runs one on this machine
     if address == "local":
-        kwargs["num_cpus"] = os.cpu_count() or 1
+        kwargs["num_cpus"] = available_cores()
+        kwargs["_system_config"] = LOCAL_SYSTEM_CONFIG
     try:
         ray.init(**kwargs)
     except Exception as exc:  # Ray's own version check, a refused client connection, a missing token
         auth = "" if os.environ.get("RAY_AUTH_MODE") else _AUTH_HINT
         text = " ".join(str(exc).split())[:300]
         raise ClusterError(f"cannot join the Ray cluster at {address}: {text}{auth}") from None
+    if address == "local":  # its workers run this interpreter in this environment: nothing to probe
+        return True
     try:
         check_nodes()
     except BaseException:
         ray.shutdown()
         raise
     return True
+
+
+def available_cores() -> int:
+    """The cores this process may run on (its CPU affinity where the system tells it, else all)."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0)) or 1
+    return os.cpu_count() or 1
 
 
 def versions() -> dict[str, str]:

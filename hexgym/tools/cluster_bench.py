@@ -2,16 +2,17 @@
 
 The same collection (``--samples`` per group, ``--seed``, the production configuration with
 ``--episodes-per-chunk`` episodes a chunk) runs once per way, each in a new folder and timed from the
-call to the data sets written, start-up included (spawning the pool; starting Ray, probing its
-nodes and shutting it down): ``pool1`` (one process), ``pool2`` (a pool of two), ``ray`` (a local Ray
-with this machine's cores). Per way it prints the samples collected (both groups' counted tables),
-the wall time, samples per minute, a digest of the data sets' samples (the same for every way), and
+call to the data sets written, start-up and shut-down included (spawning the pool; starting Ray and
+stopping it): ``pool1`` (one process), ``pool2`` (a pool of two), ``ray`` (a local Ray with this
+machine's cores). Per way it prints the samples collected (both groups' counted tables), the wall
+time, samples per minute, a digest of the data sets' samples (the same for every way), and
 ``efficiency``: the chunks' summed compute time over workers x wall time, the share of the workers'
 time spent on chunks, and ``cpu_s``: the CPU seconds of this process and all its descendants (pool
-workers; Ray's daemons and workers), sampled every 0.2 s. On a machine shared with other work the
-wall times swing with its load, and the chunks' compute times with them; the efficiency and the CPU
-seconds compare the ways more fairly than the wall times; ``--repeat`` alternates the ways to even
-the load out. ``--json`` also writes the figures.
+workers; Ray's daemons and workers), sampled every 0.2 s, also by kind of process
+(``cpu_s_by_process``: the driver, the pool's or Ray's workers, each of Ray's daemons), and the load
+average (1 min) at the start and the end. On a machine shared with other work the wall times swing
+with its load, and the chunks' compute times with them; ``--repeat`` alternates the ways to even the
+load out. ``--json`` also writes the figures.
 See docs/cluster.md for the measured figures.
 """
 
@@ -52,6 +53,7 @@ class _TreeCPU:
     def __init__(self, period_s: float = 0.2) -> None:
         self._period = period_s
         self._seen: dict[tuple[int, int], float] = {}
+        self._names: dict[tuple[int, int], str] = {}
         self._base = (_proc_stat(os.getpid()) or (0, 0, 0.0))[2]
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
@@ -66,7 +68,10 @@ class _TreeCPU:
             grown = bool(new)
         for pid in tree:
             if pid in stats:
-                self._seen[(pid, stats[pid][1])] = stats[pid][2]
+                key = (pid, stats[pid][1])
+                self._seen[key] = stats[pid][2]
+                if self._names.get(key, "?") == "?" or "::" not in self._names[key]:  # Ray's retitle themselves
+                    self._names[key] = _process_name(pid)
 
     def _run(self) -> None:
         while not self._stop.wait(self._period):
@@ -79,18 +84,48 @@ class _TreeCPU:
         self._sample()
         return sum(self._seen.values()) - self._base
 
+    def by_name(self) -> dict[str, float]:
+        """CPU seconds by kind of process (after :meth:`stop`), this process's since the start."""
+        found: dict[str, float] = {}
+        for key, seconds in self._seen.items():
+            name = "driver" if key[0] == os.getpid() else self._names.get(key, "?")
+            found[name] = found.get(name, 0.0) + seconds - (self._base if key[0] == os.getpid() else 0.0)
+        return {k: round(v, 2) for k, v in sorted(found.items(), key=lambda kv: -kv[1])}
+
+
+def _process_name(pid: int) -> str:
+    """A short name for a process: Ray's workers and daemons by role, pool workers, others by program."""
+    try:
+        argv = [a for a in Path(f"/proc/{pid}/cmdline").read_text().split("\0") if a]
+    except OSError:
+        return "?"
+    if not argv:
+        return "?"
+    if argv[0].startswith("ray::"):  # a Ray worker titles itself ray::IDLE or by its task; Ray's agents by role
+        role = argv[0].split()[0]
+        return role if role.endswith("Agent") else "ray::worker"
+    for arg in argv[:3]:
+        if "/ray/" in arg:
+            inside = arg.rsplit("/ray/", 1)[1].removesuffix(".py")
+            return "ray::worker" if inside.endswith("default_worker") else "ray:" + inside
+    if "multiprocessing" in " ".join(argv):
+        return "pool worker"
+    return Path(argv[0]).name
+
 
 def run_way(way: str, samples: int, seed: int, config: CollectConfig) -> dict[str, Any]:
     """One timed collection ``way`` (see the module docstring) in a temporary folder: its figures."""
     workers = {"pool1": 1, "pool2": 2}.get(way, 2)
     ray = "local" if way == "ray" else None
     with tempfile.TemporaryDirectory(prefix=f"hexgym-bench-{way}-") as out:
+        load_start = os.getloadavg()[0]
         cpu = _TreeCPU()
         t0 = time.perf_counter()
         paths = collect(out, samples_per_group=samples, seed=seed, workers=workers, progress=False,
                         config=config, ray=ray)  # fmt: skip
         wall = time.perf_counter() - t0
         cpu_s = cpu.stop()
+        by_process = cpu.by_name()
         counted = {table: len(load_dataset(path)["y"]) for table, path in paths.items()}
         stats = [load_dataset(path)["meta"]["stats"] for table, path in paths.items() if table in ("boom", "stick")]
         chunk_s = sum(s["chunk_wall_seconds"] for s in stats)
@@ -98,20 +133,20 @@ def run_way(way: str, samples: int, seed: int, config: CollectConfig) -> dict[st
         return {
             "way": way, "samples": total, "wall_s": round(wall, 2), "samples_per_min": round(60.0 * total / wall, 1),
             "chunk_compute_s": round(chunk_s, 1), "efficiency": round(chunk_s / (workers * wall), 3),
-            "cpu_s": round(cpu_s, 1), "load_avg_1min": round(os.getloadavg()[0], 2),
-            "digest": samples_digest(paths)[:16],
+            "cpu_s": round(cpu_s, 1), "load_avg_1min": [round(load_start, 2), round(os.getloadavg()[0], 2)],
+            "digest": samples_digest(paths)[:16], "cpu_s_by_process": by_process,
         }  # fmt: skip
 
 
 def ray_fixed_cost() -> dict[str, float]:
-    """Seconds to start a local Ray and probe its node (:func:`hexgym.parallel.connect`), and to shut it down."""
+    """Seconds to start a local Ray (:func:`hexgym.parallel.connect`), and to shut it down."""
     from hexgym.parallel import executor
 
     t0 = time.perf_counter()
     pool = executor(ray="local")
     t1 = time.perf_counter()
     pool.close()
-    return {"start_and_probe_s": round(t1 - t0, 2), "shutdown_s": round(time.perf_counter() - t1, 2)}
+    return {"start_s": round(t1 - t0, 2), "shutdown_s": round(time.perf_counter() - t1, 2)}
 
 
 def main(argv: list[str] | None = None) -> int:
