@@ -72,3 +72,8 @@ def test_evaluate_reports_the_same_keys_on_the_reference(tmp_path):
 def test_bad_model_options_are_refused(kwargs, match):
     with pytest.raises(ValueError, match=match):
         HexLoadingEnv(**kwargs)
+
+
+def test_the_batched_environment_refuses_the_reference():
+    with pytest.raises(ValueError, match="runs the learned model only"):
+        gym.make_vec("HexLoading-v0", num_envs=2, model="reference")

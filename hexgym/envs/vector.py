@@ -83,6 +83,11 @@ class HexLoadingVectorEnv(VectorEnv):
                 f"the batched HexLoading-v0 does not render (render_mode {render_mode!r}): render a "
                 "single environment, or use gymnasium.make_vec(..., vectorization_mode='sync')"
             )
+        if env_kwargs.get("model", "learned") != "learned":
+            raise ValueError(
+                f"the batched HexLoading-v0 runs the learned model only (model={env_kwargs['model']!r}): use "
+                "gymnasium.make_vec(..., vectorization_mode='sync') or single environments"
+            )
         backend = resolve_backend(backend)
         if backend == "native":
             from hexgym.model.plugin import NativePluginError, load_plugin
