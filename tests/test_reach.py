@@ -18,7 +18,7 @@ def env():
 
 
 def test_gymnasium_contract():
-    check_env(HexReachEnv(backend="python"))
+    check_env(gym.make("HexReach-v0", backend="python").unwrapped)
 
 
 def test_targets_are_reachable_high_enough_and_far_enough(env):
