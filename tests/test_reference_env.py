@@ -61,6 +61,13 @@ def test_evaluate_reports_the_same_keys_on_the_reference(tmp_path):
                      "--model", "reference"]) == 0  # fmt: skip
 
 
+def test_video_on_the_reference(tmp_path):
+    out = tmp_path / "ref.mp4"
+    assert cli.main(["video", "--policy", "scripted", "--out", str(out), "--seconds", "0.5", "--width", "160",
+                     "--height", "96", "--model", "reference"]) == 0  # fmt: skip
+    assert out.stat().st_size > 1000
+
+
 @pytest.mark.parametrize(
     "kwargs, match",
     [

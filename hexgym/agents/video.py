@@ -69,11 +69,13 @@ def record_video(
     width: int = 640,
     height: int = 384,
     snapshot: str | Path | None = None,
+    model: str = "learned",
 ) -> dict[str, Any]:
     """Render ``episodes`` rollouts of a policy (``"scripted"``, ``"shipped"`` or a model path) to ``out``.
 
     ``seconds`` shortens each episode (the env's time limit); ``snapshot`` also writes a PNG of a
-    frame from the middle of the first episode. Returns the paths and each episode's figures.
+    frame from the middle of the first episode; ``model``: the machine model, ``"learned"`` or
+    ``"reference"`` (the real machine's stand-in). Returns the paths and each episode's figures.
     """
     if camera not in CAMERAS:
         raise ValueError(f"camera must be one of {CAMERAS}, got {camera!r}")
@@ -90,7 +92,8 @@ def record_video(
     if snapshot is not None:
         check_output_file(snapshot, "snapshot", inputs=(policy_file, out))
     policy = load_policy(policy_spec)
-    kwargs: dict[str, Any] = {"render_mode": "rgb_array", "camera": camera, "width": width, "height": height}
+    kwargs: dict[str, Any] = {"render_mode": "rgb_array", "camera": camera, "width": width, "height": height,
+                              "model": model}  # fmt: skip
     if seconds is not None:
         kwargs["time_limit"] = seconds
     env = gym.make(ENV_ID, **kwargs)

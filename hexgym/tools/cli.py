@@ -259,7 +259,7 @@ def _cmd_video(args: argparse.Namespace) -> int:
 
     result = record_video(
         args.policy, args.out, camera=args.camera, episodes=args.episodes, seed=args.seed, seconds=args.seconds,
-        width=args.width, height=args.height, snapshot=args.snapshot,
+        width=args.width, height=args.height, snapshot=args.snapshot, model=args.model,
     )  # fmt: skip
     print(f"video: {result['video']} ({result['frames']} frames)")
     if "snapshot" in result:
@@ -304,6 +304,12 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {' '.join(message.split())} (see {self.prog} --help)\n")
 
 
+_MACHINE_MODEL_OPTION = {  # --model of the commands that run a policy on HexLoading-v0
+    "choices": ["learned", "reference"],
+    "default": "learned",
+    "help": "machine model: the learned one (default) or the reference (the real machine's stand-in: the same "
+    "task on the analytical circuit; a few times real time)",
+}
 _TABLES_OPTION = {  # --tables of the commands that use the learned model's tables
     "choices": tuple(TABLE_SETS),
     "default": DEFAULT_TABLE_SET,
@@ -508,9 +514,7 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
     evaluate.add_argument("--seconds", type=float, default=None, help="episode time limit, s (default: the env's)")
     evaluate.add_argument("--json", metavar="OUT", default=None, help="also write the figures to this JSON file")
     evaluate.add_argument("--workers", type=int, default=1, help="processes running the episodes (default: 1)")
-    evaluate.add_argument("--model", choices=["learned", "reference"], default="learned",
-                          help="machine model: the learned one (default) or the reference (the real machine's "
-                          "stand-in: the same task on the analytical circuit; a few times real time)")  # fmt: skip
+    evaluate.add_argument("--model", **_MACHINE_MODEL_OPTION)
     add_ray_option(evaluate, "the episodes")
     evaluate.set_defaults(func=_cmd_evaluate)
 
@@ -524,6 +528,7 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
     video.add_argument("--width", type=int, default=640, help="frame width (default: 640)")
     video.add_argument("--height", type=int, default=384, help="frame height (default: 384)")
     video.add_argument("--snapshot", default=None, help="also write a PNG of a mid-episode frame")
+    video.add_argument("--model", **_MACHINE_MODEL_OPTION)
     video.set_defaults(func=_cmd_video)
 
     convert = sub.add_parser("convert-normalizer", help="convert a pickled VecNormalize (*_vecnormalize.pkl) to "
