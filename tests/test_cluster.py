@@ -99,13 +99,21 @@ def test_ray_collection_equals_the_local_pool(ray_session, pool_data: dict[str, 
     assert ray_session.is_initialized()  # a Ray this process was connected to stays up
 
 
+def _parent(pid: int | str) -> int:
+    """The parent pid of a process (from /proc)."""
+    text = Path(f"/proc/{pid}/stat").read_text()
+    return int(text[text.rindex(")") + 2 :].split()[1])
+
+
 def _worker_running_a_task() -> int | None:
-    """The pid of a Ray worker process that is running one of hexgym's tasks (its title ``ray::_call``), if any."""
+    """The pid of a worker of this process's Ray (a child of its raylet, which is this process's child)
+    that is running one of hexgym's tasks (its title ``ray::_call``), if any: never another Ray's."""
     for entry in Path("/proc").iterdir():
         try:
             if entry.name.isdigit() and (entry / "cmdline").read_bytes().startswith(b"ray::_call"):
-                return int(entry.name)
-        except OSError:  # ended while listed
+                if _parent(_parent(entry.name)) == os.getpid():
+                    return int(entry.name)
+        except (OSError, ValueError, IndexError):  # ended while listed
             continue
     return None
 
@@ -209,6 +217,18 @@ def test_nodes_report_versions_and_a_bad_install_is_named(ray_session, tmp_path:
         r'Ray node \S+ cannot import hexgym: install it there \(pip install "hexgym\[cluster\]"\)', line
     )
     assert time.perf_counter() - t0 < 60  # seconds each, not a hang
+
+
+def test_a_ray_started_here_runs_its_workers_as_the_pool_would() -> None:
+    """``--ray`` alone: as many workers as this process's cores, at this process's niceness (not Ray's 15)."""
+    pytest.importorskip("ray")
+    code = (
+        "import os\nfrom hexgym.parallel import available_cores, executor\n"
+        "with executor(ray='local') as pool:\n"
+        "    print(pool.workers == available_cores(), sorted(set(pool.map(os.nice, [0] * 4))))"
+    )
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert run.stdout.strip() == f"True [{os.nice(0)}]", run.stdout + run.stderr[-2000:]
 
 
 def test_executor_refuses_tasks_larger_than_any_node(ray_session) -> None:

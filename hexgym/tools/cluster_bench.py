@@ -71,7 +71,7 @@ class _TreeCPU:
                 key = (pid, stats[pid][1])
                 self._seen[key] = stats[pid][2]
                 if self._names.get(key, "?") == "?" or "::" not in self._names[key]:  # Ray's retitle themselves
-                    self._names[key] = _process_name(pid)
+                    self._names[key] = _process_name(pid, self._names.get(key, "?"))
 
     def _run(self) -> None:
         while not self._stop.wait(self._period):
@@ -93,14 +93,15 @@ class _TreeCPU:
         return {k: round(v, 2) for k, v in sorted(found.items(), key=lambda kv: -kv[1])}
 
 
-def _process_name(pid: int) -> str:
-    """A short name for a process: Ray's workers and daemons by role, pool workers, others by program."""
+def _process_name(pid: int, known: str = "?") -> str:
+    """A short name for a process: Ray's workers and daemons by role, pool workers, others by program
+    (``known`` if it has ended)."""
     try:
         argv = [a for a in Path(f"/proc/{pid}/cmdline").read_text().split("\0") if a]
     except OSError:
-        return "?"
+        return known
     if not argv:
-        return "?"
+        return known
     if argv[0].startswith("ray::"):  # a Ray worker titles itself ray::IDLE or by its task; Ray's agents by role
         role = argv[0].split()[0]
         return role if role.endswith("Agent") else "ray::worker"
