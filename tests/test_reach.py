@@ -96,3 +96,27 @@ def test_shipped_hyperparameters_for_ppo_and_sac():
         hp = load_hyperparams(algo, "HexReach-v0")
         check_hyperparams(algo, hp, "HexReach-v0")
         assert hp["normalize"]["norm_obs"] is True
+
+
+def test_a_trained_model_is_evaluated_by_its_success(tmp_path):
+    import yaml
+
+    from hexgym.agents.evaluate import evaluate_success
+    from hexgym.agents.training import train
+    from hexgym.tools import cli
+
+    tiny = {
+        "HexReach-v0": {"n_timesteps": 128, "policy": "MlpPolicy", "normalize": "dict(norm_obs=True)", "n_steps": 64,
+                        "batch_size": 64, "n_epochs": 1, "env_kwargs": {"time_limit": 2.0}}
+    }  # fmt: skip
+    hyperparams = tmp_path / "tiny.yml"
+    hyperparams.write_text(yaml.safe_dump(tiny))
+    path = train("ppo", "HexReach-v0", timesteps=128, log_dir=tmp_path, hyperparams=hyperparams, n_envs=1,
+                 checkpoint_every=128, progress_bar=False, report=False)  # fmt: skip
+    result = evaluate_success(path, "HexReach-v0", episodes=2, seed=1000, env_kwargs={"time_limit": 1.0})
+    assert result["episodes"] == 2 and 0.0 <= result["success_rate"] <= 1.0 and np.isfinite(result["mean_return"])
+    out = tmp_path / "reach.json"
+    assert cli.main(["evaluate", "--env", "HexReach-v0", "--policy", str(path), "--episodes", "1", "--seconds", "1",
+                     "--json", str(out)]) == 0  # fmt: skip
+    assert out.is_file()
+    assert cli.main(["evaluate", "--env", "HexReach-v0", "--policy", "shipped"]) == 2  # HexLoading-v0's policy

@@ -112,7 +112,7 @@ def _spaces_for(model_path: Path) -> tuple[Any, Any]:
     return observation, action
 
 
-def load_trained(model_path: str | Path) -> TrainedPolicy:
+def load_trained(model_path: str | Path, env_id: str = ENV_ID) -> TrainedPolicy:
     """Load a model saved by ``hexgym train`` with its observation normaliser, unpickling nothing.
 
     Refused with :class:`~hexgym.agents.policy_files.PolicyFileError` (a ValueError naming the file):
@@ -122,7 +122,12 @@ def load_trained(model_path: str | Path) -> TrainedPolicy:
     model_path = Path(model_path)
     if not model_path.exists():
         raise FileNotFoundError(f"no policy file {model_path} (give 'shipped', 'scripted' or a model .zip)")
-    observation_space, action_space = _spaces_for(model_path)  # reads the zip: is it a model at all?
+    if env_id == ENV_ID:
+        observation_space, action_space = _spaces_for(model_path)  # reads the zip: is it a model at all?
+    else:
+        env = gym.make(env_id)
+        observation_space, action_space = env.observation_space, env.action_space
+        env.close()
     normalizer = load_normalizer(model_path)
     model = load_sb3_model(model_path, observation_space, action_space)
     if normalizer.size is not None and normalizer.size != model.observation_space.shape[0]:
@@ -274,6 +279,39 @@ def evaluate(
     if json_out:
         write_json(json_out, result)
     return result
+
+
+def evaluate_success(
+    model_path: str | Path, env_id: str, episodes: int = 50, seed: int = 0, env_kwargs: dict | None = None
+) -> dict[str, Any]:
+    """A trained model on a task with a success criterion (``info["is_success"]`` at the episode's end, e.g.
+    ``HexReach-v0``), acting deterministically on seeds ``seed``..``seed+episodes-1``: the share of
+    episodes that succeeded, the mean return and the mean episode length (of the successful ones: the
+    time to succeed)."""
+    check_count("episodes", episodes)
+    check_seed("seed", seed)
+    policy = load_trained(model_path, env_id)
+    env = gym.make(env_id, **(env_kwargs or {}))
+    successes, returns, seconds = [], [], []
+    try:
+        for s in range(seed, seed + int(episodes)):
+            obs, info = env.reset(seed=s)
+            policy.reset()
+            done, total, steps = False, 0.0, 0
+            while not done:
+                obs, reward, terminated, truncated, info = env.step(policy.act(obs, env.unwrapped))
+                total, steps, done = total + float(reward), steps + 1, terminated or truncated
+            successes.append(bool(info.get("is_success", False)))
+            returns.append(total)
+            seconds.append(steps / env.metadata["render_fps"])
+    finally:
+        env.close()
+    won = [t for t, ok in zip(seconds, successes, strict=True) if ok]
+    return {
+        "policy": str(model_path), "env_id": env_id, "seed": seed, "episodes": int(episodes),
+        "success_rate": float(np.mean(successes)), "mean_return": float(np.mean(returns)),
+        "mean_time_to_success_s": float(np.mean(won)) if won else None,
+    }  # fmt: skip
 
 
 _worker: dict[str, Any] = {}  # per process: the policy and its environment

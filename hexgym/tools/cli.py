@@ -216,8 +216,20 @@ def _cmd_clone(args: argparse.Namespace) -> int:
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
-    from hexgym.agents.evaluate import evaluate
+    from hexgym.agents.evaluate import evaluate, evaluate_success
+    from hexgym.files import write_json
 
+    if args.env != "HexLoading-v0":
+        if args.policy in ("scripted", "shipped") or args.model != "learned" or args.ray or args.workers != 1:
+            raise ValueError(f"--env {args.env}: give a model .zip trained on it (--policy PATH); --model, --ray "
+                             "and --workers are for HexLoading-v0")  # fmt: skip
+        env_kwargs = {"time_limit": args.seconds} if args.seconds is not None else None
+        result = evaluate_success(args.policy, args.env, args.episodes, args.seed, env_kwargs)
+        print(json.dumps(result, indent=2))
+        if args.json:
+            write_json(args.json, result)
+            print(f"wrote {args.json}")
+        return 0
     env_kwargs = {"model": args.model} | ({"time_limit": args.seconds} if args.seconds is not None else {})
     result = evaluate(args.policy, episodes=args.episodes, seed=args.seed, env_kwargs=env_kwargs, json_out=args.json,
                       workers=args.workers, ray=args.ray)  # fmt: skip
@@ -515,6 +527,8 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
     evaluate.add_argument("--json", metavar="OUT", default=None, help="also write the figures to this JSON file")
     evaluate.add_argument("--workers", type=int, default=1, help="processes running the episodes (default: 1)")
     evaluate.add_argument("--model", **_MACHINE_MODEL_OPTION)
+    evaluate.add_argument("--env", default="HexLoading-v0", help="environment id (default: HexLoading-v0; others, "
+                          "e.g. HexReach-v0: success rate, mean return, time to success of a model .zip)")  # fmt: skip
     add_ray_option(evaluate, "the episodes")
     evaluate.set_defaults(func=_cmd_evaluate)
 
