@@ -150,9 +150,9 @@ def _is_number(value: Any) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
 
 
-def check_spool_action(action: np.ndarray) -> np.ndarray:
-    """A single environment's action as 4 finite float64 numbers (swing, boom, stick, bucket spools in
-    [-1, 1] of the stroke); ValueError naming the shape or the non-finite entries."""
+def spools_from_action(action: np.ndarray) -> np.ndarray:
+    """A single environment's action (swing, boom, stick, bucket spools as fractions of the stroke) as spool
+    positions, m: clipped to [-1, 1] and scaled; ValueError naming the shape or the non-finite entries."""
     a = np.asarray(action, dtype=np.float64)
     if a.shape != (4,):
         raise ValueError(f"action must have shape (4,) (swing, boom, stick, bucket spools), got shape {a.shape}")
@@ -160,7 +160,7 @@ def check_spool_action(action: np.ndarray) -> np.ndarray:
         raise ValueError(
             f"action must be finite, got {a} (a NaN or inf in entries {np.flatnonzero(~np.isfinite(a)).tolist()})"
         )
-    return a
+    return np.minimum(np.maximum(a, -1.0), 1.0) * p.SPOOL_STROKE  # (np.clip: slower)
 
 
 MODELS = ("learned", "reference")
@@ -464,8 +464,7 @@ class HexLoadingEnv(gym.Env):
         """Hold the spools for 0.1 s (several control periods of the machine model)."""
         if self.earth is None:
             raise RuntimeError("call reset() before step()")
-        spools = np.minimum(np.maximum(self._check_action(action), -1.0), 1.0) * p.SPOOL_STROKE  # (np.clip: slower)
-        self._site.spools_m[0] = spools
+        self._site.spools_m[0] = spools_from_action(action)
         task = self.task
         terms, rewards, ended = task.step(_SITE)
         obs = task.observe(_SITE)[0]
@@ -483,9 +482,6 @@ class HexLoadingEnv(gym.Env):
         """Bucket and stick contact force on the ground and the truck beyond HARD_CONTACT_FORCE (capped), N
         (:func:`hexgym.envs.task.hard_contact_force`)."""
         return float(self.task.hard_contact_forces(_SITE)[0])
-
-    def _check_action(self, action: np.ndarray) -> np.ndarray:
-        return check_spool_action(action)
 
     def _info(self, terms: list[float] | None, fuel_step: float, impulse: float) -> dict[str, Any]:
         """The step's ``info``: the reward terms (0 after a reset), the stores, and the step's fuel and impulse."""

@@ -15,9 +15,8 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from hexgym.envs.loading import _is_number, check_spool_action
+from hexgym.envs.loading import _is_number, spools_from_action
 from hexgym.machine import kinematics
-from hexgym.machine import parameters as p
 from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS
 from hexgym.model.backend import make_learned_model
 
@@ -115,6 +114,7 @@ class HexReachEnv(gym.Env):
         self.machine.reset("home")
         self._home = self.physics.joint_positions()
         self._periods = max(1, round(STEP_PERIOD / self.machine.control_period))
+        self._step_s = self._periods * self.machine.control_period  # what a step advances, s
         self.observation_space = spaces.Box(-_OBS_BOUND, _OBS_BOUND, dtype=np.float32)
         self.action_space = spaces.Box(-1.0, 1.0, (4,), np.float32)
         self.target = np.zeros(3)
@@ -156,13 +156,13 @@ class HexReachEnv(gym.Env):
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
         """Hold the spools for 0.1 s."""
-        spools = np.minimum(np.maximum(check_spool_action(action), -1.0), 1.0) * p.SPOOL_STROKE
+        spools = spools_from_action(action)
         before = self.physics.tip_position()
         self.machine.step(spools, n=self._periods)
-        self._elapsed += self._periods * self.machine.control_period
+        self._elapsed += self._step_s
         tip = self.physics.tip_position()
         distance = float(np.linalg.norm(tip - self.target))
-        speed = float(np.linalg.norm(tip - before)) / (self._periods * self.machine.control_period)
+        speed = float(np.linalg.norm(tip - before)) / self._step_s
         arrived = distance <= self.tolerance_m and speed < SETTLED_SPEED_MPS
         progress = self.weights["progress"] * (self._distance - distance)
         success = self.weights["success"] if arrived else 0.0

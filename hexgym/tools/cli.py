@@ -217,9 +217,10 @@ def _cmd_clone(args: argparse.Namespace) -> int:
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
     from hexgym.agents.evaluate import evaluate, evaluate_success
+    from hexgym.envs import ENV_ID
     from hexgym.files import write_json
 
-    if args.env != "HexLoading-v0":
+    if args.env != ENV_ID:
         if args.policy in ("scripted", "shipped") or args.model != "learned" or args.ray or args.workers != 1:
             raise ValueError(f"--env {args.env}: give a model .zip trained on it (--policy PATH); --model, --ray "
                              "and --workers are for HexLoading-v0")  # fmt: skip
