@@ -105,6 +105,11 @@ def _parent(pid: int | str) -> int:
     return int(text[text.rindex(")") + 2 :].split()[1])
 
 
+def _stored_chunks(out: Path) -> list[Path]:
+    """The collection's stored chunks, not the hidden temporary files a chunk is written to before its rename."""
+    return sorted((out / "chunks").glob("[!.]*.npz"))
+
+
 def _worker_running_a_task() -> int | None:
     """The pid of a worker of this process's Ray (a child of its raylet, which is this process's child)
     that is running one of hexgym's tasks (its title ``ray::_call``), if any: never another Ray's."""
@@ -127,8 +132,8 @@ def test_a_killed_worker_loses_no_finished_chunk(ray_session, pool_data: dict[st
     deadline, killed, before = time.time() + 120, None, {}
     while killed is None and run.is_alive() and time.time() < deadline:
         pid = _worker_running_a_task()
-        if pid is not None and any((tmp_path / "chunks").glob("*.npz")):  # mid-run: a chunk is already stored
-            before = {p: p.stat().st_mtime_ns for p in (tmp_path / "chunks").glob("*.npz")}
+        if pid is not None and _stored_chunks(tmp_path):  # mid-run: a chunk is already stored
+            before = {p: p.stat().st_mtime_ns for p in _stored_chunks(tmp_path)}
             os.kill(pid, signal.SIGKILL)
             killed = pid
         time.sleep(0.02)
@@ -274,13 +279,13 @@ def test_an_interrupted_ray_driver_keeps_its_chunks_and_resumes(ray_session, poo
     )
     driver = subprocess.Popen([sys.executable, "-c", code], cwd=ROOT, stderr=subprocess.PIPE, text=True)
     deadline = time.time() + 120
-    while not any((tmp_path / "chunks").glob("*.npz")) and driver.poll() is None and time.time() < deadline:
+    while not _stored_chunks(tmp_path) and driver.poll() is None and time.time() < deadline:
         time.sleep(0.05)
     driver.send_signal(signal.SIGINT)
     _, err = driver.communicate(timeout=60)
     # 130 and "interrupted"; now and then Ray's core worker dies of the signal first (status 1, its trace)
     assert driver.returncode == 130 and "interrupted" in err or driver.returncode == 1, err
-    stored = sorted((tmp_path / "chunks").glob("*.npz"))
+    stored = _stored_chunks(tmp_path)
     assert stored and not (tmp_path / "boom.npz").exists()
     assert _ray_daemons() == daemons  # the Ray it started is gone
     kwargs = {"samples_per_group": 12, "seed": SEED, "progress": False, "config": TINY}
