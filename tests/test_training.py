@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 import yaml
 
+from hexgym.agents.curves import read_curve
 from hexgym.agents.evaluate import load_trained, normalizer_path
 from hexgym.agents.training import (
     HYPERPARAMS_DIR,
@@ -79,6 +80,11 @@ def test_short_ppo_run_saves_reloads_and_resumes(tmp_path, tiny_yaml, capsys):
     assert [line.split()[0] for line in lines] == ["128", "256", "384"]
     assert all("t delivered" in line and "steps/s" in line for line in lines)
     assert "2 episodes ended, mean return" in lines[1]  # each env's 8 s episode ends at its step 80
+    # the same rollouts as the run's learning curve, the resumed one appended
+    curve = read_curve(path.parent)
+    assert curve["steps"].tolist() == [128, 256, 384] and curve["episodes"].tolist() == [0, 2, 0]
+    assert np.isnan(curve["mean_return"][0]) and np.isfinite(curve["mean_return"][1])
+    assert np.all(curve["delivered_t"] >= 0) and np.isnan(curve["success_rate"]).all()  # no success criterion
 
 
 def test_a_stopped_run_leaves_a_usable_model(tmp_path, tiny_yaml, monkeypatch):
@@ -92,7 +98,7 @@ def test_a_stopped_run_leaves_a_usable_model(tmp_path, tiny_yaml, monkeypatch):
                 raise KeyboardInterrupt
             return True
 
-    monkeypatch.setattr(training, "_rollout_report_callback", lambda: StopAfter())
+    monkeypatch.setattr(training, "_rollout_report_callback", lambda *_: StopAfter())
     with pytest.raises(KeyboardInterrupt):
         train("ppo", timesteps=100_000, seed=0, log_dir=tmp_path, hyperparams=tiny_yaml, n_envs=2,
               checkpoint_every=128, progress_bar=False)  # fmt: skip

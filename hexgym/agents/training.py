@@ -295,13 +295,17 @@ def _checkpoint_callback(directory: Path, every: int) -> Any:
     return AtomicCheckpoint()
 
 
-def _rollout_report_callback(print_line: Callable[[str], None] = print) -> Any:
+CURVE_COLUMNS = ("steps", "wall_s", "episodes", "mean_return", "success_rate", "delivered_t")
+
+
+def _rollout_report_callback(print_line: Callable[[str], None] | None = print, curve: Path | None = None) -> Any:
     from stable_baselines3.common.callbacks import BaseCallback
 
     class RolloutReport(BaseCallback):
         """One line per rollout: steps so far, tonnes delivered into the trucks during the rollout (tasks
         whose ``info`` has ``truck_kg``), episodes ended, their mean return and (tasks whose ``info`` has
-        ``is_success``) their success rate, and the rate."""
+        ``is_success``) their success rate, and the rate; printed (``print_line``) and appended as a row of
+        ``CURVE_COLUMNS`` to ``curve`` (a CSV file, the learning curve; empty fields where nothing ended)."""
 
         def _on_training_start(self) -> None:
             self._truck = np.zeros(self.training_env.num_envs)
@@ -332,7 +336,23 @@ def _rollout_report_callback(print_line: Callable[[str], None] = print) -> Any:
             if self._successes:
                 ended += f", success {np.mean(self._successes):.0%}"
             delivered = f"{self._delivered_kg / 1000:6.1f} t delivered, " if self._trucks else ""
-            print_line(f"{self.num_timesteps:>10,} steps | rollout: {delivered}{ended} | {rate:,.0f} steps/s")
+            if print_line is not None:
+                print_line(f"{self.num_timesteps:>10,} steps | rollout: {delivered}{ended} | {rate:,.0f} steps/s")
+            if curve is not None:
+                self._append_row(curve)
+
+        def _append_row(self, path: Path) -> None:
+            row = (
+                self.num_timesteps, f"{time.perf_counter() - self._clock:.1f}", len(self._returns),
+                f"{np.mean(self._returns):.4f}" if self._returns else "",
+                f"{np.mean(self._successes):.4f}" if self._successes else "",
+                f"{self._delivered_kg / 1000:.3f}" if self._trucks else "",
+            )  # fmt: skip
+            new = not path.exists()
+            with path.open("a") as f:  # appended row by row: a resumed run continues its curve
+                if new:
+                    f.write(",".join(CURVE_COLUMNS) + "\n")
+                f.write(",".join(str(v) for v in row) + "\n")
 
     return RolloutReport()
 
@@ -391,7 +411,8 @@ def train(
     """Train (or resume) ``algo`` on ``env_id`` to ``timesteps`` steps in all; the final model's path.
 
     ``report``: print a line per rollout (tonnes delivered, episodes ended and their mean return, steps
-    per second). Interrupted (Ctrl-C), the run saves its newest state as ``model.zip`` before stopping.
+    per second); every rollout's figures are appended to the run directory's ``curve.csv`` either way.
+    Interrupted (Ctrl-C), the run saves its newest state as ``model.zip`` before stopping.
 
     Resumes from the newest checkpoint of the run directory when there is one; otherwise starts
     from ``init_from`` (a model saved by :func:`clone_scripted` or an earlier run), or from scratch.
@@ -424,9 +445,10 @@ def train(
             venv = VecNormalize(venv, **hp["normalize"])
         model = _new_model(algo_class, hp, venv, seed=seed, tensorboard_log=tensorboard)
     remaining = total - model.num_timesteps if resume else total
-    callbacks = [_checkpoint_callback(run_dir / "checkpoints", checkpoint_every)]
-    if report:
-        callbacks.append(_rollout_report_callback())
+    callbacks = [
+        _checkpoint_callback(run_dir / "checkpoints", checkpoint_every),
+        _rollout_report_callback(print if report else None, run_dir / "curve.csv"),
+    ]
     try:
         if remaining > 0:
             model.learn(remaining, callback=callbacks, progress_bar=progress_bar and _progress_bar_available(),

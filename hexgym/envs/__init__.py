@@ -1,5 +1,6 @@
 """hexgym's tasks as Gymnasium environments: ``HexReach-v0`` (:class:`hexgym.envs.reach.HexReachEnv`: the teeth
-to a target through the hydraulics) and the loading task ``HexLoading-v0`` (:class:`hexgym.envs.loading.HexLoadingEnv`;
+to a target through the hydraulics), ``HexDig-v0`` (:class:`hexgym.envs.dig.HexDigEnv`: fill the bucket from the
+pile and lift it) and the loading task ``HexLoading-v0`` (:class:`hexgym.envs.loading.HexLoadingEnv`;
 batched, :class:`hexgym.envs.vector.HexLoadingVectorEnv`), the latter two running the task written once over N sites
 (:mod:`.task`, compiled) on their machines (:mod:`.sites`), the site's world (:mod:`.world`: pile, truck,
 layout) and its earthwork (:mod:`.earthwork`: the pile, digging, resistance, spill).
@@ -16,12 +17,15 @@ ENV_ID = "HexLoading-v0"
 
 
 REACH_ENV_ID = "HexReach-v0"
+DIG_ENV_ID = "HexDig-v0"
 
 
 def register_envs() -> None:
     """Register the environments with Gymnasium (idempotent)."""
     if REACH_ENV_ID not in gymnasium.registry:
         gymnasium.register(id=REACH_ENV_ID, entry_point="hexgym.envs.reach:HexReachEnv")
+    if DIG_ENV_ID not in gymnasium.registry:
+        gymnasium.register(id=DIG_ENV_ID, entry_point="hexgym.envs.dig:HexDigEnv")
     if ENV_ID not in gymnasium.registry:
         gymnasium.register(
             id=ENV_ID,

@@ -16,7 +16,7 @@ import functools
 from functools import cache
 
 import numpy as np
-from scipy.optimize import brentq
+from scipy.optimize import brentq, least_squares
 
 from hexgym.interpolation import UniformTable
 from hexgym.machine import parameters as p
@@ -206,6 +206,22 @@ def tip_position(q: np.ndarray) -> np.ndarray:
     """Bucket teeth position (m) in the world frame."""
     q = np.asarray(q, dtype=float)
     return _to_world(planar_pins(q)["tip"], q[0])
+
+
+def front_angles_for(radius: float, height: float, bucket_angle: float, guess: np.ndarray) -> tuple[np.ndarray, float]:
+    """Boom, stick and bucket angles (rad) that put the teeth ``radius`` m from the swing axis, ``height`` m above
+    the ground, with the bucket frame at absolute angle ``bucket_angle`` (:func:`link_angles`' third), within the
+    joints' ranges; searched from ``guess`` (the three angles). Returns them and the teeth's miss (m)."""
+    ranges = np.array([joint_range(name) for name in FRONT_CYLINDERS])
+
+    def miss(front: np.ndarray) -> np.ndarray:
+        q = np.array([0.0, *front])
+        tip = tip_position(q)
+        return np.array([tip[0] - radius, tip[2] - height, link_angles(q)[2] - bucket_angle])
+
+    start = np.clip(np.asarray(guess, dtype=float), ranges[:, 0] + 1e-6, ranges[:, 1] - 1e-6)
+    found = least_squares(miss, start, bounds=(ranges[:, 0], ranges[:, 1]), xtol=1e-10)
+    return found.x, float(np.hypot(*miss(found.x)[:2]))
 
 
 def tip_jacobian(q: np.ndarray) -> np.ndarray:

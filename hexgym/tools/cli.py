@@ -240,6 +240,19 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_curves(args: argparse.Namespace) -> int:
+    from hexgym.agents.curves import plot_curves, read_curve, summarise
+    from hexgym.files import write_json
+
+    curves = {str(run): read_curve(run) for run in args.runs}
+    summary = summarise(curves, args.success_level)
+    print(json.dumps(summary, indent=2))
+    print(f"wrote {plot_curves(curves, args.out, args.title)}")
+    if args.json:
+        print(f"wrote {write_json(args.json, summary)}")
+    return 0
+
+
 def _cmd_shield(args: argparse.Namespace) -> int:
     from hexgym.tools.shield import compare, print_comparison
 
@@ -519,6 +532,15 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
     )
     clone.set_defaults(func=_cmd_clone)
 
+    curves = sub.add_parser("curves", help="learning curves of hexgym train runs (seeds): figure and summary")
+    curves.add_argument("runs", nargs="+", help="run directories (<log-dir>/<algo>_<env>) or their curve.csv")
+    curves.add_argument("--out", required=True, help="figure (.png): mean and min-max band over the runs")
+    curves.add_argument("--json", default=None, help="also write the summary here")
+    curves.add_argument("--title", default="", help="the figure's title")
+    curves.add_argument("--success-level", type=float, default=0.9, help="report the steps to reach this "
+                        "smoothed success rate (default: 0.9)")  # fmt: skip
+    curves.set_defaults(func=_cmd_curves)
+
     evaluate = sub.add_parser("evaluate", help="measure a policy on HexLoading-v0: success, t/h, cycle, fuel")
     evaluate.add_argument("--policy", default="shipped", help=policy_help + " or an RLlib checkpoint directory "
                           "(default: shipped)")  # fmt: skip
@@ -564,7 +586,7 @@ _POSITIVE = {"seconds": "s", "fps": "frames/s", "dt_out": "s"}
 _OUTPUT_FILES = {("simulate", "out"), ("video", "out"), ("video", "snapshot"), ("evaluate", "json"),
                  ("bench", "json"), ("scripted", "json"), ("clone", "out"), ("view", "screenshot"),
                  ("convert-normalizer", "out"), ("shield", "json"),
-                 ("plan", "json"), ("plan", "plot")}  # fmt: skip
+                 ("plan", "json"), ("plan", "plot"), ("curves", "out"), ("curves", "json")}  # fmt: skip
 _OUTPUT_DIRS = {("demo", "out"), ("reference-report", "out"), ("validate", "out"), ("collect", "out"),
                 ("fit", "out"), ("build-assets", "dir"), ("clone", "rounds_dir"), ("train", "log_dir")}  # fmt: skip
 _INPUT_FILES = {("simulate", "commands"), ("train", "hyperparams"), ("train", "init_from"), ("clone", "hyperparams"),
@@ -590,8 +612,8 @@ def check_arguments(args: argparse.Namespace) -> None:
             check_positive(option, value, _POSITIVE[name])
         elif name == "payload_kg":
             check_range(option, value, 0.0, MAX_PAYLOAD_KG, "kg (a heaped bucket)")
-        elif name == "noise":
-            check_range(option, value, 0.0, 1.0, "(spool fraction)")
+        elif name in ("noise", "success_level"):
+            check_range(option, value, 0.0, 1.0, "(spool fraction)" if name == "noise" else "(a share of episodes)")
     command = args.command
     policy = values.get("policy")  # checked where it is loaded, which says what a policy may be
     inputs = [policy] if policy is not None and policy not in _POLICY_NAMES else []

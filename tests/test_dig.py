@@ -1,0 +1,82 @@
+"""HexDig-v0: Gymnasium's contract, the start over the pile, the reward's terms, success, clear errors."""
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import hexgym  # noqa: F401  (registers the environments)
+from hexgym.agents.scripted import ScriptedLoader
+from hexgym.envs.dig import DIG_REWARD_TERMS, START_HEIGHT, START_RADIUS_NOISE, HexDigEnv
+from hexgym.envs.loading import OBSERVATION_NAMES
+from hexgym.envs.world import entry_radius
+
+ABOVE_PILE = OBSERVATION_NAMES.index("tip_above_pile")
+
+
+@pytest.fixture(scope="module")
+def env():
+    env = gym.make("HexDig-v0")
+    yield env
+    env.close()
+
+
+def test_gymnasium_contract():
+    check_env(HexDigEnv(), skip_render_check=True)
+
+
+def test_starts_with_the_teeth_over_the_cut_entry_and_is_seeded(env):
+    for seed in range(10):
+        obs, info = env.reset(seed=seed)
+        u = env.unwrapped
+        tip, lay = u.physics.tip_position(), u.layout
+        assert abs(math.hypot(tip[0], tip[1]) - entry_radius(lay)) <= START_RADIUS_NOISE + 0.05
+        assert START_HEIGHT[0] - 0.05 <= tip[2] - lay.pile_height <= START_HEIGHT[1] + 0.05
+        assert obs[ABOVE_PILE] > 0.2 and info["bucket_kg"] == 0.0 and not info["is_success"]
+        assert env.observation_space.contains(obs)
+    np.testing.assert_array_equal(env.reset(seed=4)[0], env.reset(seed=4)[0])
+
+
+def test_the_scripted_dig_succeeds_and_the_shaping_sums_to_what_the_bucket_holds(env):
+    """The scripted loader's dig (push in, drag, curl, lift) ends the episode with success; the load and
+    lift terms, potential-based, sum to the bucket's tonnes and their lift at the end."""
+    obs, info = env.reset(seed=11)
+    loader, sums = ScriptedLoader(), dict.fromkeys(DIG_REWARD_TERMS, 0.0)
+    for _ in range(200):
+        obs, reward, terminated, truncated, info = env.step(loader.act(env.unwrapped))
+        assert reward == pytest.approx(sum(info[f"reward_{t}"] for t in DIG_REWARD_TERMS))
+        for t in DIG_REWARD_TERMS:
+            sums[t] += info[f"reward_{t}"]
+        if terminated or truncated:
+            break
+    assert terminated and not truncated and info["is_success"] and info["time_s"] < 10.0
+    assert info["bucket_kg"] >= env.unwrapped.fill_kg and obs[ABOVE_PILE] >= env.unwrapped.lift_m
+    assert sums["load"] == pytest.approx(obs[OBSERVATION_NAMES.index("payload")], abs=1e-6)
+    assert sums["lift"] == pytest.approx(obs[OBSERVATION_NAMES.index("payload")], abs=1e-6)  # lifted lift_m or more
+    assert sums["success"] == 5.0 and "truck_kg" not in info
+
+
+def test_doing_nothing_fails_by_truncation():
+    short = gym.make("HexDig-v0", time_limit=1.0)
+    short.reset(seed=0)
+    for _ in range(10):
+        _, reward, terminated, truncated, info = short.step(np.zeros(4, np.float32))
+    assert truncated and not terminated and not info["is_success"] and info["bucket_kg"] == 0.0
+    assert reward == pytest.approx(-0.01)  # the time term alone
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"fill_kg": 0.0}, "fill_kg must be > 0"),
+        ({"fill_kg": 5000.0}, "at most the heaped bucket"),
+        ({"lift_m": float("nan")}, "lift_m must be a finite number"),
+        ({"success_reward": -1.0}, "success weight must be a finite number >= 0"),
+        ({"delivery_weight": 1.0}, "no argument 'delivery_weight'"),
+    ],
+)
+def test_bad_arguments_are_named(kwargs, message):
+    with pytest.raises((ValueError, TypeError), match=message):
+        HexDigEnv(**kwargs)
