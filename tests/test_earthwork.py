@@ -9,7 +9,9 @@ from hexgym.envs.earthwork import (
     digging_resistance,
     earthmoving_factors,
     mouth_normal,
+    resistance,
     retained_volume,
+    side_plate_force,
 )
 from hexgym.machine import parameters as p
 
@@ -53,6 +55,22 @@ def test_resistance_grows_with_depth_and_surcharge():
     assert deep == pytest.approx(4 * shallow)  # gamma d^2 term
     assert digging_resistance(0.4, rake, 10e3) > deep
     assert digging_resistance(0.0, rake, 10e3) == 0.0
+
+
+def test_pushed_sideways_the_side_plate_resists():
+    """Across the arm's plane the side plate meets the pile's passive pressure (Rankine, d^2 growth); in the
+    plane the edge cuts as before, with no sideways part."""
+    assert side_plate_force(0.6) == pytest.approx(4 * side_plate_force(0.3)) and side_plate_force(0.0) == 0.0
+    kp = np.tan(np.pi / 4 + p.MATERIAL_FRICTION_ANGLE / 2) ** 2
+    length = np.hypot(*np.subtract(p.BUCKET_EDGE, p.BUCKET_LIP))
+    assert side_plate_force(0.5) == pytest.approx(0.5 * kp * p.MATERIAL_DENSITY * p.GRAVITY * 0.25 * length)
+    edge, teeth = (0.0, 1.0, 0.0), (-0.7071, 0.0, -0.7071)  # the edge along y, the teeth down towards the machine
+    sideways = np.array(resistance(0.5, 0.0, *edge, *teeth, 0.0, 0.4, 0.0))  # moving along the edge at 0.4 m/s
+    np.testing.assert_allclose(sideways, [0.0, -side_plate_force(0.5), 0.0], atol=1e-6)
+    slow = np.array(resistance(0.5, 0.0, *edge, *teeth, 0.0, -0.01, 0.0))  # in proportion below 5 cm/s
+    np.testing.assert_allclose(slow, [0.0, 0.2 * side_plate_force(0.5), 0.0], atol=1e-6)
+    cutting = np.array(resistance(0.5, 0.0, *edge, *teeth, -0.4, 0.0, 0.0))  # in the arm's plane: no side part
+    assert cutting[1] == 0.0 and cutting[0] > 0.0
 
 
 def test_heap_volume_and_surface():
@@ -182,3 +200,25 @@ def test_clearance_and_cached_volume_follow_the_digging():
     taken = pile.take(np.array([7.0, 0.5]), np.array([0.0, 1.0]), 1.5, 1.0, 0.05)
     assert pile.volume() == pytest.approx(before - taken, abs=1e-12)
     assert pile.volume() == pytest.approx(float(pile.heights.sum()) * pile.cell_area, abs=1e-12)
+
+
+def test_cached_compiled_functions_are_dropped_when_a_source_changes(tmp_path):
+    """numba checks a cached function against its own file only; any change to the package's sources drops them."""
+    import os
+
+    from hexgym.envs.earthwork import drop_stale_compiled_functions
+
+    (tmp_path / "envs" / "__pycache__").mkdir(parents=True)
+    (tmp_path / "envs" / "task.py").write_text("x = 1\n")
+    parameters = tmp_path / "parameters.py"
+    parameters.write_text("DENSITY = 1650.0\n")
+    cached = [tmp_path / "envs" / "__pycache__" / name for name in ("task.f-1.py311.nbi", "task.f-1.py311.1.nbc")]
+    for path in cached:
+        path.write_bytes(b"old")
+    assert drop_stale_compiled_functions(tmp_path) and not any(p.exists() for p in cached)  # never stamped
+    for path in cached:
+        path.write_bytes(b"new")
+    assert not drop_stale_compiled_functions(tmp_path) and all(p.exists() for p in cached)  # nothing changed
+    parameters.write_text("DENSITY = 1800.0\n")  # a constant the compiled code froze
+    os.utime(parameters, ns=(1, 1))
+    assert drop_stale_compiled_functions(tmp_path) and not any(p.exists() for p in cached)

@@ -14,7 +14,8 @@ bucket, the truck and the ground (spilled), and only moves between them, so thei
   equation (Reece 1964, with McKyes' factors for a flat blade; no cohesion):
   ``F = w (gamma d^2 N_gamma + q d N_q)``, the surcharge ``q`` being the weight of the material
   already in the bucket over its mouth; the failure plane minimises the force. It acts against
-  the edge's motion.
+  the edge's motion in the arm's plane; across it, a bucket pushed sideways meets the passive
+  earth pressure on its leading side plate (Rankine), so it cannot be swung through the pile.
 - **Contents**: buried in the pile, the bucket fills to its heaped capacity whatever its tilt.
   Out of it, the bucket holds its heaped capacity with the mouth facing up, its struck
   capacity once tilted to the angle of repose, nothing once the mouth faces down past it. What it
@@ -29,8 +30,10 @@ The arithmetic is written once, as numba-compiled functions of one site of a sta
 
 from __future__ import annotations
 
+import hashlib
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numba
 import numpy as np
@@ -51,7 +54,43 @@ _STRUCK = float(p.BUCKET_STRUCK_CAPACITY)
 _REPOSE = float(p.MATERIAL_REPOSE_ANGLE)
 _SPILL_TIME = float(p.BUCKET_SPILL_TIME_CONSTANT)
 _REFERENCE_SPEED = float(p.DIG_REFERENCE_SPEED)
+# Rankine's passive earth pressure coefficient: a side plate pushed sideways through the pile, K_p = tan^2(45 + phi/2)
+_PASSIVE = float(np.tan(np.pi / 4.0 + p.MATERIAL_FRICTION_ANGLE / 2.0) ** 2)
 
+
+_PACKAGE = Path(__file__).resolve().parents[1]  # hexgym/
+
+
+def drop_stale_compiled_functions(package: Path = _PACKAGE) -> bool:
+    """Delete numba's cached functions under ``package`` when any of its sources changed since they were cached;
+    returns whether it did.
+
+    numba checks a cached function against its own file only (time stamp and bytecode), not against the
+    functions it calls or the module constants it froze at compile time: after an edit of this file, or of
+    :mod:`hexgym.machine.parameters`, the loading task's cached functions would run the old arithmetic. The
+    package's sources (names, sizes, modification times) are stamped beside the caches; recompiling all takes
+    ~6 s. A package whose caches cannot be written here (a read-only install) is left alone: numba caches its
+    functions elsewhere then, and a new install changes every file's time stamp.
+    """
+    sources = sorted(path for path in package.rglob("*.py") if "__pycache__" not in path.parts)
+    text = "\n".join(f"{path.relative_to(package)} {path.stat().st_size} {path.stat().st_mtime_ns}" for path in sources)
+    stamp = package / "envs" / "__pycache__" / "numba-sources.sha256"
+    digest = hashlib.sha256(text.encode()).hexdigest()
+    try:
+        if stamp.is_file() and stamp.read_text() == digest:
+            return False
+        for cached in (*package.rglob("*.nbi"), *package.rglob("*.nbc")):
+            cached.unlink(missing_ok=True)
+        stamp.parent.mkdir(exist_ok=True)
+        partial = stamp.with_name(f"{stamp.name}.{digest[:8]}.tmp")
+        partial.write_text(digest)
+        partial.replace(stamp)
+    except OSError:
+        return False
+    return True
+
+
+drop_stale_compiled_functions()
 jit = numba.njit(cache=True, nogil=True)  # every compiled function of the task: cached on disk, no fastmath
 
 
@@ -154,10 +193,10 @@ def resistance(
     depth: float, bucket_kg: float, lx: float, ly: float, lz: float, tx: float, ty: float, tz: float,
     vx: float, vy: float, vz: float,
 ) -> tuple[float, float, float]:  # fmt: skip
-    """The earthmoving force (N, world) on the edge cutting ``depth`` m deep with ``bucket_kg`` already in the
-    bucket, against the edge's velocity ``v`` (full above ``DIG_REFERENCE_SPEED``, in proportion below it);
-    ``l`` the unit vector along the edge, ``t`` the teeth's direction. It acts in the arm's plane: the edge
-    cuts, the side plates do not."""
+    """The earthmoving force (N, world) on the bucket ``depth`` m deep in the pile with ``bucket_kg`` already in
+    it, against its edge's velocity ``v`` (each part full above ``DIG_REFERENCE_SPEED``, in proportion below);
+    ``l`` the unit vector along the edge, ``t`` the teeth's direction. In the arm's plane the edge cuts (the
+    earthmoving equation); across it the leading side plate pushes the pile (:func:`side_plate_force`)."""
     speed = math.sqrt(vx * vx + vy * vy + vz * vz)
     ux, uy = (vx / speed, vy / speed) if speed > 1e-9 else (tx, ty)  # direction of travel
     horizontal = math.hypot(ux, uy)
@@ -167,7 +206,18 @@ def resistance(
     scale = -magnitude / max(speed, _REFERENCE_SPEED)
     fx, fy, fz = scale * vx, scale * vy, scale * vz
     sideways = fx * lx + fy * ly + fz * lz
-    return fx - sideways * lx, fy - sideways * ly, fz - sideways * lz
+    across = vx * lx + vy * ly + vz * lz  # the edge's speed along itself: the side plate's push
+    side = -side_plate_force(depth) * across / max(abs(across), _REFERENCE_SPEED)
+    return fx + (side - sideways) * lx, fy + (side - sideways) * ly, fz + (side - sideways) * lz
+
+
+@jit
+def side_plate_force(depth: float) -> float:
+    """Passive earth force (N) on a side plate pushed sideways ``depth`` m deep into the pile (Rankine, no wall
+    friction or cohesion): ``K_p gamma d^2 / 2`` over the plate's length, the mouth's strike line."""
+    if depth <= 0.0:
+        return 0.0
+    return 0.5 * _PASSIVE * _GAMMA * depth * depth * _MOUTH_LENGTH
 
 
 # -- the pile: site i of a stack of heightmaps ----------------------------------------------------
