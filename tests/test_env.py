@@ -59,6 +59,40 @@ def test_reward_terms_sum_exactly_and_are_named(env):
         assert info["reward_fuel"] < 0  # the engine idles at least
 
 
+def test_shaping_terms_are_potential_differences_and_off_by_default():
+    """Each shaping term is its weight times the change of :func:`potentials`: over the scripted loader's dig
+    and lift they sum to the end potentials less the start ones; with the default weights they are 0."""
+    from hexgym.agents.scripted import ScriptedLoader
+    from hexgym.envs import task
+
+    weights = {"reach": 0.05, "load": 0.3, "lift": 0.2, "carry": 0.3}
+    env = HexLoadingEnv(**{f"{term}_weight": w for term, w in weights.items()})
+    env.reset(seed=2)
+
+    def now():
+        out = np.zeros((1, 4))
+        u = env.task
+        task.potentials(np.zeros(1, np.intp), env.physics.data.site_xpos[None], env._tip_site, u.heights, u.origin,
+                        u.spacing, u.layout, u.stores, out)  # fmt: skip
+        return dict(zip(task.SHAPING_TERMS, out[0], strict=True))
+
+    start, sums, loader = now(), dict.fromkeys(weights, 0.0), ScriptedLoader()
+    assert start["reach"] < -2.0 and start["load"] == start["lift"] == start["carry"] == 0.0  # empty, far
+    for _ in range(120):
+        _, reward, _, _, info = env.step(loader.act(env))
+        assert reward == sum(info[f"reward_{k}"] for k in REWARD_TERMS)
+        for term in weights:
+            sums[term] += info[f"reward_{term}"]
+    end = now()
+    assert info["bucket_kg"] > 1000 and end["lift"] > 0.5 and end["carry"] > 0.0  # loaded, lifted, on its way
+    for term, w in weights.items():
+        assert sums[term] == pytest.approx(w * (end[term] - start[term]), abs=1e-9)
+    plain = HexLoadingEnv()
+    plain.reset(seed=2)
+    info = plain.step(np.zeros(4, np.float32))[4]
+    assert all(info[f"reward_{term}"] == 0.0 for term in task.SHAPING_TERMS)
+
+
 def test_reward_weights_are_constructor_arguments():
     env = HexLoadingEnv(time_weight=1.0, fuel_weight=0.0)
     env.reset(seed=0)

@@ -37,12 +37,14 @@ def _assert_same(tag, batched, single):
     assert not len(differ), f"{tag}: environments {differ.tolist()} differ"
 
 
-def _compare_with_single_envs(num_envs, steps, time_limit, seed=7, backend="auto"):
+def _compare_with_single_envs(num_envs, steps, time_limit, seed=7, backend="auto", **weights):
     """Step make_vec(num_envs) and a SyncVectorEnv of HexLoadingEnv with the same seeds and actions: the scripted
     loader's on even sites (it digs and, given time, dumps), random ones on odd sites, one site driven into the
     ground (hard contacts). Returns the largest bucket, truck, spilled and contact figures seen, and the resets."""
-    vec = gym.make_vec("HexLoading-v0", num_envs=num_envs, time_limit=time_limit, backend=backend)
-    sync = gym.vector.SyncVectorEnv([lambda: HexLoadingEnv(backend=backend, time_limit=time_limit)] * num_envs)
+    vec = gym.make_vec("HexLoading-v0", num_envs=num_envs, time_limit=time_limit, backend=backend, **weights)
+    sync = gym.vector.SyncVectorEnv(
+        [lambda: HexLoadingEnv(backend=backend, time_limit=time_limit, **weights)] * num_envs
+    )
     assert isinstance(vec.unwrapped, HexLoadingVectorEnv)
     _assert_same("reset", vec.reset(seed=seed), sync.reset(seed=seed))
     loaders = [ScriptedLoader() if i % 2 == 0 else None for i in range(num_envs)]
@@ -79,6 +81,12 @@ def test_results_equal_single_envs_through_digging_contacts_and_autoreset(backen
     assert seen["bucket_kg"] > 50  # the scripted sites dug (only digging fills the bucket)
     assert seen["contact_impulse_ns"] > 0  # the site driven down hit the ground
     assert seen["resets"] >= 4  # every site's episode ended (t = 7 s) and restarted on the next step
+
+
+def test_shaping_terms_equal_single_envs():
+    shaping = {"reach_weight": 0.05, "load_weight": 0.3, "lift_weight": 0.2, "carry_weight": 0.3}
+    seen = _compare_with_single_envs(num_envs=3, steps=130, time_limit=12.0, **shaping)
+    assert seen["bucket_kg"] > 50 and seen["resets"] >= 3
 
 
 @pytest.mark.slow

@@ -88,7 +88,14 @@ class HexDigEnv(HexLoadingEnv):
         time_limit: float = 20.0,
         **loading_kwargs: Any,
     ) -> None:
-        for name in ("delivery_weight", "fill_weight", "fuel_weight", "truck_capacity_kg"):
+        for name in (
+            "delivery_weight",
+            "fill_weight",
+            "fuel_weight",
+            "truck_capacity_kg",
+            "reach_weight",
+            "carry_weight",
+        ):
             if name in loading_kwargs:
                 raise TypeError(f"HexDig-v0 has no argument {name!r} (it delivers nothing to the truck)")
         if not _is_number(fill_kg) or not 0.0 < fill_kg <= HEAPED_BUCKET_KG:
@@ -104,7 +111,7 @@ class HexDigEnv(HexLoadingEnv):
         for name, weight in self.dig_weights.items():
             if not _is_number(weight) or not (math.isfinite(weight) and weight >= 0):
                 raise ValueError(f"{name} weight must be a finite number >= 0, got {weight!r}")
-        # the loading task's own reward counts only contacts (in kN s, read back from its contact term)
+        # of the loading task's reward terms only the contacts count (in kN s, read back from its contact term)
         super().__init__(time_limit=time_limit, delivery_weight=0.0, fuel_weight=0.0, spill_weight=0.0,
                          time_weight=0.0, contact_weight=1.0, **loading_kwargs)  # fmt: skip
         self.fill_kg, self.lift_m = float(fill_kg), float(lift_m)
@@ -142,7 +149,7 @@ class HexDigEnv(HexLoadingEnv):
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
         """Hold the spools for 0.1 s."""
-        obs, contact, _, truncated, info = super().step(action)
+        obs, _, _, truncated, info = super().step(action)
         load, lift = self._potential(obs)
         success = (info["bucket_kg"] >= self.fill_kg and obs[_ABOVE_PILE] >= self.lift_m
                    and obs[_TILT] <= CARRIED_TILT)  # fmt: skip
@@ -153,7 +160,7 @@ class HexDigEnv(HexLoadingEnv):
             "success": w["success"] if success else 0.0,
             "time": -w["time"],
             "spill": -w["spill"] * (info["spilled_kg"] - self._spilled_kg) / 1000.0,
-            "contact": w["contact"] * contact,  # the loading task's contact term: -kN s
+            "contact": w["contact"] * info["reward_contact"],  # the loading task's contact term: -kN s
         }
         self._potentials, self._spilled_kg = (load, lift), info["spilled_kg"]
         return obs, float(sum(terms.values())), bool(success), bool(truncated and not success), \

@@ -285,6 +285,18 @@ class HexLoadingEnv(gym.Env):
     | fuel | −``fuel_weight`` × litres of diesel (actuator power → valves → pumps → engine BSFC) |
     | spill | −``spill_weight`` × tonnes spilled outside the bed |
     | contact | −``contact_weight`` × kN·s of bucket/stick contact force on ground or truck above 50 kN (to 265 kN) |
+    | reach | ``reach_weight`` × the change of −(an empty bucket's teeth beyond 1 m from the pile's centre), m |
+    | load | ``load_weight`` × the change of the tonnes in the bucket |
+    | lift | ``lift_weight`` × the change of tonnes × the teeth's height above the pile (up to 1 m) |
+    | carry | ``carry_weight`` × the change of tonnes × the share of the way from the pile to the bed |
+
+    The default weights make delivered tonnes the point: a full truck (13 t) is worth +13, an episode's
+    time −3.6, its fuel about −0.4. The four shaping terms (0 by default) are potential-based (Ng et al.
+    1999): each is the change of a function of the state (:func:`hexgym.envs.task.potentials`), so over an
+    episode it sums to that function's end value less its start value and cannot be farmed by going back
+    and forth; they lead an exploring policy from the pile to a loaded lift and on to the truck long before
+    its first delivery pays. Keep ``load_weight + lift_weight + carry_weight`` below ``delivery_weight``:
+    emptying the bucket over the bed drops those potentials, and the delivery must pay more than they lose.
 
     ## Starting State
     A random site (seeded ``np_random``): the pile 7.0-7.8 m ahead within ±10°, 1.3-1.6 m high;
@@ -310,6 +322,7 @@ class HexLoadingEnv(gym.Env):
     | fuel_weight | 0.5 | per litre |
     | spill_weight | 2.0 | per tonne spilled |
     | contact_weight | 0.01 | per kN·s of hard contact |
+    | reach_weight, load_weight, lift_weight, carry_weight | 0.0 | the shaping terms (e.g. 0.05, 0.3, 0.2, 0.3) |
     | scene_path | None | MJCF scene to build the site on (default ``scene_lean.xml``; reference: ``scene.xml``) |
     | backend | ``"auto"`` | ``"native"`` (MuJoCo plugin), ``"python"`` (LearnedModel), ``"auto"`` (native if built) |
     | earthwork_periods | 4 | control periods (25 ms) per dig (fill, pile cut, spill) near the pile; 1: every period |
@@ -342,6 +355,10 @@ class HexLoadingEnv(gym.Env):
         fuel_weight: float = 0.5,
         spill_weight: float = 2.0,
         contact_weight: float = 0.01,
+        reach_weight: float = 0.0,
+        load_weight: float = 0.0,
+        lift_weight: float = 0.0,
+        carry_weight: float = 0.0,
         scene_path: str | Path | None = None,
         backend: str = "auto",
         earthwork_periods: int = EARTHWORK_PERIODS,
@@ -373,7 +390,8 @@ class HexLoadingEnv(gym.Env):
         self.time_limit, self.truck_capacity_kg = float(time_limit), float(truck_capacity_kg)
         self.weights = {
             "delivery": delivery_weight, "fill": fill_weight, "time": time_weight,
-            "fuel": fuel_weight, "spill": spill_weight, "contact": contact_weight,
+            "fuel": fuel_weight, "spill": spill_weight, "contact": contact_weight, "reach": reach_weight,
+            "load": load_weight, "lift": lift_weight, "carry": carry_weight,
         }  # fmt: skip
         for name, weight in self.weights.items():
             if not _is_number(weight) or not math.isfinite(weight):

@@ -56,7 +56,11 @@ EARTHWORK_PERIODS = 4
 PAYLOAD_UPDATE_KG = 20.0  # re-mass the bucket only on changes this large (1 % of a heaped bucket): mj_setConst is slow
 PILE_MARGIN = 0.6  # m: the teeth travel at most this far in one step (6 m/s), so cannot reach a pile lower by more
 CONTACT_SLOTS = 16  # bucket/stick contacts the contact sensor reports (random actions reach 7 of all kinds)
-REWARD_TERMS = ("delivery", "fill", "time", "fuel", "spill", "contact")
+REWARD_TERMS = ("delivery", "fill", "time", "fuel", "spill", "contact", "reach", "load", "lift", "carry")
+SHAPING_TERMS = REWARD_TERMS[6:]  # potential-based, 0 by default: each the change of a potential (see potentials)
+SHAPING_EMPTY_KG = 100.0  # kg: a bucket with less counts as empty (it reaches for the pile)
+SHAPING_PILE_REACHED_M = 1.0  # m from the pile's centre: reached (within its flat top, 1.0-1.4 m)
+SHAPING_LIFT_M = 1.0  # m above the pile's surface: lifted clear
 INFO_STORES = ("pile_kg", "bucket_kg", "truck_kg", "spilled_kg", "fuel_l", "time_s")
 OBSERVATION_SIZE = 23
 # bucket-frame (x, z) of the teeth's direction and the mouth's normal (both have y = 0), and the mouth's centre
@@ -396,13 +400,43 @@ def account(
 
 
 @jit
+def potentials(
+    ids: np.ndarray, site_xpos: np.ndarray, tip_site: int, heights: np.ndarray, origin: np.ndarray, spacing: float,
+    layout: np.ndarray, stores: np.ndarray, out: np.ndarray,
+) -> None:  # fmt: skip
+    """The shaping potentials of each site into ``out[i]`` (n, 4), in ``SHAPING_TERMS`` order, from where its
+    teeth are and what its bucket holds (t):
+
+    - reach: an empty bucket's teeth, minus their horizontal distance (m) beyond ``SHAPING_PILE_REACHED_M``
+      from the pile's centre (0 while loaded);
+    - load: the tonnes in the bucket;
+    - lift: the tonnes times the teeth's height above the pile's surface, up to ``SHAPING_LIFT_M``, over it;
+    - carry: the tonnes times how much of the way from the pile's centre to the bed's the teeth have come
+      horizontally (1 over the bed's centre, 0 at the pile's distance from it or farther).
+    """
+    for k in range(len(ids)):
+        i = ids[k]
+        x, y, z = site_xpos[i, tip_site, 0], site_xpos[i, tip_site, 1], site_xpos[i, tip_site, 2]
+        tonnes = stores[i, 0] / 1000.0
+        to_pile = math.hypot(x - layout[i, 0], y - layout[i, 1])
+        out[i, 0] = -max(to_pile - SHAPING_PILE_REACHED_M, 0.0) if stores[i, 0] < SHAPING_EMPTY_KG else 0.0
+        out[i, 1] = tonnes
+        above = z - ew.height_at(heights, origin, spacing, i, x, y)
+        out[i, 2] = tonnes * min(max(above, 0.0), SHAPING_LIFT_M) / SHAPING_LIFT_M
+        span = math.hypot(layout[i, 5] - layout[i, 0], layout[i, 6] - layout[i, 1])
+        out[i, 3] = tonnes * (1.0 - min(math.hypot(x - layout[i, 5], y - layout[i, 6]) / span, 1.0))
+
+
+@jit
 def finish(
     ids: np.ndarray, weights: np.ndarray, flows: np.ndarray, fuel_step: np.ndarray, impulse: np.ndarray,
     fuel_l: np.ndarray, steps: np.ndarray, elapsed: np.ndarray, stores: np.ndarray, capacity: float,
-    time_limit: float, terms: np.ndarray, rewards: np.ndarray, ended: np.ndarray,
+    time_limit: float, before: np.ndarray, after: np.ndarray, terms: np.ndarray, rewards: np.ndarray,
+    ended: np.ndarray,
 ) -> None:  # fmt: skip
-    """End the step of each site: fuel and time, the reward terms (k, 6: ``REWARD_TERMS``, weighted; their sum
-    in order is the reward) and whether it terminated (the truck holds its capacity) or truncated (time)."""
+    """End the step of each site: fuel and time, the reward terms (k, 10: ``REWARD_TERMS``, weighted; their sum
+    in order is the reward; the shaping terms the change of :func:`potentials` from ``before`` to ``after``,
+    which then becomes ``before``) and whether it terminated (the truck holds its capacity) or truncated (time)."""
     for k in range(len(ids)):
         i = ids[k]
         fuel_l[i] += fuel_step[i]
@@ -414,8 +448,11 @@ def finish(
         terms[k, 3] = -weights[3] * fuel_step[i]
         terms[k, 4] = -weights[4] * flows[i, 2] / 1000.0
         terms[k, 5] = -weights[5] * impulse[i] / 1000.0
+        for j in range(4):
+            terms[k, 6 + j] = weights[6 + j] * (after[i, j] - before[i, j])
+            before[i, j] = after[i, j]
         total = terms[k, 0]
-        for j in range(1, 6):
+        for j in range(1, 10):
             total += terms[k, j]
         rewards[k] = total
         ended[k, 0] = stores[i, 1] >= capacity
@@ -547,6 +584,9 @@ class LoadingTask:
         self._left, self._interval = np.zeros(n, np.int64), np.zeros(n, np.int64)
         self._seconds, self._tip_start = np.zeros(n), np.zeros((n, 3))
         self._flows, self._fuel, self._impulse = np.zeros((n, 3)), np.zeros(n), np.zeros(n)
+        # shaping potentials after the last step and now (zeros, never computed, while every shaping weight is 0)
+        self._shaping = any(float(weights[term]) != 0.0 for term in SHAPING_TERMS)
+        self._potential, self._potential_now = np.zeros((n, 4)), np.zeros((n, 4))
         tables = kinematics.moment_arm_tables()
         self._arms = np.array([t.values for t in tables])
         self._arm_start = np.array([t.start for t in tables])
@@ -583,6 +623,13 @@ class LoadingTask:
         ph = self.physics
         self.tip_before[ids] = ph.site_xpos[ids, ph.tip_site]
         self.joint_loads[ids] = ph.joint_loads(ids)
+        if self._shaping:
+            self._potentials(ids, self._potential)
+
+    def _potentials(self, ids: np.ndarray, out: np.ndarray) -> None:
+        ph = self.physics
+        potentials(ids, ph.site_xpos, ph.tip_site, self.heights, self.origin, self.spacing, self.layout, self.stores,
+                   out)  # fmt: skip
 
     def pile(self, i: int) -> ew.Pile:
         """A handle on site ``i``'s pile (its heights are the task's; a cut through it flags the pile changed)."""
@@ -595,15 +642,18 @@ class LoadingTask:
     def step(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Advance sites ``ids`` (their spools set) by a step.
 
-        Returns their reward terms (k, 6), rewards (k,) and terminated, truncated (k, 2); the step's fuel
+        Returns their reward terms (k, 10), rewards (k,) and terminated, truncated (k, 2); the step's fuel
         (L) and hard-contact impulse (N s) stay in ``step_fuel_l`` and ``step_impulse``.
         """
         k = len(ids)
         begin_step(ids, self.periods, self._left, self._flows, self._fuel, self._impulse)
         self._advance(ids)
+        if self._shaping:
+            self._potentials(ids, self._potential_now)
         terms, rewards, ended = np.empty((k, len(REWARD_TERMS))), np.empty(k), np.empty((k, 2), np.bool_)
         finish(ids, self._weights, self._flows, self._fuel, self._impulse, self.fuel_l, self.steps, self.elapsed,
-               self.stores, self.truck_capacity_kg, self.time_limit, terms, rewards, ended)  # fmt: skip
+               self.stores, self.truck_capacity_kg, self.time_limit, self._potential, self._potential_now, terms,
+               rewards, ended)  # fmt: skip
         return terms, rewards, ended
 
     @property
