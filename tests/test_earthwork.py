@@ -58,10 +58,12 @@ def test_resistance_grows_with_depth_and_surcharge():
 
 
 def test_pushed_sideways_the_side_plate_resists():
-    """Across the arm's plane the side plate meets the pile's passive pressure (Rankine, d^2 growth); in the
+    """Across the arm's plane the side plate meets the pile's passive pressure (Coulomb, d^2 growth); in the
     plane the edge cuts as before, with no sideways part."""
     assert side_plate_force(0.6) == pytest.approx(4 * side_plate_force(0.3)) and side_plate_force(0.0) == 0.0
-    kp = np.tan(np.pi / 4 + p.MATERIAL_FRICTION_ANGLE / 2) ** 2
+    phi, delta = p.MATERIAL_FRICTION_ANGLE, p.MATERIAL_TOOL_FRICTION_ANGLE
+    kp = np.cos(phi) ** 2 / (np.cos(delta) * (1 - np.sqrt(np.sin(phi + delta) * np.sin(phi) / np.cos(delta))) ** 2)
+    assert 9.0 < kp < 10.5  # Coulomb's passive coefficient for 35 and 23 degrees (Rankine's 3.7 without wall friction)
     length = np.hypot(*np.subtract(p.BUCKET_EDGE, p.BUCKET_LIP))
     assert side_plate_force(0.5) == pytest.approx(0.5 * kp * p.MATERIAL_DENSITY * p.GRAVITY * 0.25 * length)
     edge, teeth = (0.0, 1.0, 0.0), (-0.7071, 0.0, -0.7071)  # the edge along y, the teeth down towards the machine

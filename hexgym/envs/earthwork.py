@@ -15,7 +15,7 @@ bucket, the truck and the ground (spilled), and only moves between them, so thei
   ``F = w (gamma d^2 N_gamma + q d N_q)``, the surcharge ``q`` being the weight of the material
   already in the bucket over its mouth; the failure plane minimises the force. It acts against
   the edge's motion in the arm's plane; across it, a bucket pushed sideways meets the passive
-  earth pressure on its leading side plate (Rankine), so it cannot be swung through the pile.
+  earth pressure on its leading side plate (Coulomb), so it cannot be swung through the pile.
 - **Contents**: buried in the pile, the bucket fills to its heaped capacity whatever its tilt.
   Out of it, the bucket holds its heaped capacity with the mouth facing up, its struck
   capacity once tilted to the angle of repose, nothing once the mouth faces down past it. What it
@@ -54,8 +54,13 @@ _STRUCK = float(p.BUCKET_STRUCK_CAPACITY)
 _REPOSE = float(p.MATERIAL_REPOSE_ANGLE)
 _SPILL_TIME = float(p.BUCKET_SPILL_TIME_CONSTANT)
 _REFERENCE_SPEED = float(p.DIG_REFERENCE_SPEED)
-# Rankine's passive earth pressure coefficient: a side plate pushed sideways through the pile, K_p = tan^2(45 + phi/2)
-_PASSIVE = float(np.tan(np.pi / 4.0 + p.MATERIAL_FRICTION_ANGLE / 2.0) ** 2)
+# Coulomb's passive earth pressure coefficient of a vertical steel wall (friction delta) against level material:
+# a side plate pushed sideways through the pile, K_p = cos^2 phi / (cos delta (1 - sqrt(sin(phi + delta) sin phi /
+# cos delta))^2) (Rankine's tan^2(45 + phi/2) at delta = 0)
+_PHI, _DELTA = float(p.MATERIAL_FRICTION_ANGLE), float(p.MATERIAL_TOOL_FRICTION_ANGLE)
+_PASSIVE = math.cos(_PHI) ** 2 / (
+    math.cos(_DELTA) * (1.0 - math.sqrt(math.sin(_PHI + _DELTA) * math.sin(_PHI) / math.cos(_DELTA))) ** 2
+)
 
 
 _PACKAGE = Path(__file__).resolve().parents[1]  # hexgym/
@@ -213,8 +218,8 @@ def resistance(
 
 @jit
 def side_plate_force(depth: float) -> float:
-    """Passive earth force (N) on a side plate pushed sideways ``depth`` m deep into the pile (Rankine, no wall
-    friction or cohesion): ``K_p gamma d^2 / 2`` over the plate's length, the mouth's strike line."""
+    """Passive earth force (N) on a side plate pushed sideways ``depth`` m deep into the pile (Coulomb, with the
+    steel's wall friction, no cohesion): ``K_p gamma d^2 / 2`` over the plate's length, the mouth's strike line."""
     if depth <= 0.0:
         return 0.0
     return 0.5 * _PASSIVE * _GAMMA * depth * depth * _MOUTH_LENGTH
