@@ -239,6 +239,8 @@ def test_plan_command_names_bad_input(capsys):
     assert "--budget must be >= 1" in capsys.readouterr().err
     assert main(["plan", "--task", "dump", "--seeds", "5-2"]) == 2
     assert "--seeds must be A-B" in capsys.readouterr().err
+    assert main(["plan", "--task", "dump", "--video", "plan.avi"]) == 2
+    assert "--video must be an .mp4 file" in capsys.readouterr().err
 
 
 @pytest.mark.slow
@@ -268,3 +270,16 @@ def test_plot_plan_writes_a_png(tmp_path):
     }  # fmt: skip
     out = plot_plan(result, tmp_path / "plan.png")
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_plan_video_films_the_plan_then_the_scripted_move(tmp_path):
+    """Each step of the plan (a row per 25 ms control period, a frame per 0.1 s step) and of the scripted move."""
+    import imageio.v3 as iio
+
+    from hexgym.tools.plan import plan_video
+
+    result = {"task": "dump", "seed": 0, "planned_spools_mm": np.full((12, 4), 3.0).tolist(),
+              "scripted_spools_mm": np.full((5, 4), -3.0).tolist()}  # fmt: skip
+    out = plan_video(result, tmp_path / "plan.mp4", width=160, height=96)
+    frames = iio.imread(out)
+    assert frames.shape == (3 + 5, 96, 160, 3) and frames.std() > 5

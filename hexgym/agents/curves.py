@@ -107,7 +107,7 @@ def plot_curves(curves: dict[str, dict[str, np.ndarray]], out: str | Path, title
         values = np.array([on_steps(c, column, steps) for c in curves.values()])
         seen = np.isfinite(values).any(axis=0)
         ax.fill_between(steps[seen], np.nanmin(values[:, seen], axis=0), np.nanmax(values[:, seen], axis=0),
-                        alpha=0.25, label=f"min-max of {len(curves)} seeds")  # fmt: skip
+                        alpha=0.25, label=f"min-max of {len(curves)} run{'s' if len(curves) > 1 else ''}")  # fmt: skip
         ax.plot(steps[seen], np.nanmean(values[:, seen], axis=0), label="mean")
         ax.set_xlabel("environment steps")
         ax.set_ylabel(column.replace("_", " "))

@@ -266,6 +266,8 @@ def _cmd_shield(args: argparse.Namespace) -> int:
 def _cmd_plan(args: argparse.Namespace) -> int:
     from hexgym.tools.plan import parse_seeds, run_plan
 
+    if args.video is not None and not args.video.endswith(".mp4"):
+        raise ValueError(f"--video must be an .mp4 file, got {args.video}")
     seeds = parse_seeds(args.seeds) if args.seeds is not None else [args.seed]
     result = run_plan(args.task, seeds, w_fuel=args.w_fuel, budget=args.budget, nthread=args.threads,
                       json_out=args.json, margin_m=args.margin, ray=args.ray)  # fmt: skip
@@ -275,6 +277,10 @@ def _cmd_plan(args: argparse.Namespace) -> int:
         from hexgym.tools.plan import plot_plan
 
         print(f"wrote {plot_plan(result.get('per_seed', [result])[0], args.plot)}")
+    if args.video:
+        from hexgym.tools.plan import plan_video
+
+        print(f"wrote {plan_video(result.get('per_seed', [result])[0], args.video)}")
     if args.json:
         print(f"wrote {args.json}")
     return 0
@@ -482,6 +488,8 @@ def _add_planning_parsers(sub: argparse._SubParsersAction) -> None:
     plan.add_argument("--budget", type=int, default=2000, help="rollouts the planner may simulate (default: 2000)")
     plan.add_argument("--threads", type=int, default=2, help="rollout threads (default: 2)")
     plan.add_argument("--plot", metavar="PNG", default=None, help="also plot the (first) seed's plan to this PNG")
+    plan.add_argument("--video", metavar="MP4", default=None, help="also film the (first) seed's planned move and "
+                      "the scripted loader's (the learned model, chase camera) to this MP4")  # fmt: skip
     plan.add_argument("--margin", type=float, default=0.5, help="clearance (m) the plan keeps from truck and ground "
                       "(default: 0.5)")  # fmt: skip
     plan.add_argument("--json", metavar="OUT", default=None, help="also write the figures to this JSON file")
@@ -586,7 +594,8 @@ _POSITIVE = {"seconds": "s", "fps": "frames/s", "dt_out": "s"}
 _OUTPUT_FILES = {("simulate", "out"), ("video", "out"), ("video", "snapshot"), ("evaluate", "json"),
                  ("bench", "json"), ("scripted", "json"), ("clone", "out"), ("view", "screenshot"),
                  ("convert-normalizer", "out"), ("shield", "json"),
-                 ("plan", "json"), ("plan", "plot"), ("curves", "out"), ("curves", "json")}  # fmt: skip
+                 ("plan", "json"), ("plan", "plot"), ("plan", "video"), ("curves", "out"),
+                 ("curves", "json")}  # fmt: skip
 _OUTPUT_DIRS = {("demo", "out"), ("reference-report", "out"), ("validate", "out"), ("collect", "out"),
                 ("fit", "out"), ("build-assets", "dir"), ("clone", "rounds_dir"), ("train", "log_dir")}  # fmt: skip
 _INPUT_FILES = {("simulate", "commands"), ("train", "hyperparams"), ("train", "init_from"), ("clone", "hyperparams"),

@@ -17,11 +17,12 @@ starts from rest at those angles. Then:
 - the scripted loader does the same move from the same rest state on the learned model (the
   environment): ``scripted_time_s``, ``scripted_fuel_l`` (to its first step at the goal; 0.1 s steps; for
   ``return`` its teeth within the tolerance or its ``penetrate`` phase begun, moving or not: in its favour).
+
+:func:`plan_video` films one seed's planned move and then the scripted loader's in the environment.
 """
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from pathlib import Path
@@ -31,6 +32,7 @@ import numpy as np
 
 from hexgym.agents.scripted import ScriptedLoader
 from hexgym.envs.loading import STEP_PERIOD, HexLoadingEnv
+from hexgym.files import write_json
 from hexgym.machine import parameters as p
 from hexgym.parallel import executor
 from hexgym.planning.planner import MARGIN_M, Goal, Plan, dump_goal, plan_motion, return_goal
@@ -293,7 +295,7 @@ def run_plan(
     }  # fmt: skip
     out["wall_s"] = time.perf_counter() - start
     if json_out is not None:
-        Path(json_out).write_text(json.dumps(out, indent=2) + "\n")
+        write_json(json_out, out)
     return out
 
 
@@ -345,3 +347,33 @@ def plot_plan(result: dict[str, Any], out: str | Path) -> Path:
     fig.savefig(out, dpi=90)
     plt.close(fig)
     return out
+
+
+def plan_video(result: dict[str, Any], out: str | Path, width: int = 640, height: int = 384) -> Path:
+    """One seed's planned move (its whole horizon) and then the scripted loader's same move, each from the start
+    state at rest, in the environment (the learned model) from the chase camera: an MP4 at 10 frames/s, each frame
+    captioned with the mover, the time and the fuel so far."""
+    from hexgym.agents.video import overlay_text
+    from hexgym.machine.render import check_frame_memory, write_mp4
+
+    state, _ = start_states(result["seed"])[result["task"]]
+    planned = np.asarray(result["planned_spools_mm"]) / 1e3 / p.SPOOL_STROKE  # one row per control period
+    scripted = np.asarray(result["scripted_spools_mm"]) / 1e3 / p.SPOOL_STROKE  # one row per 0.1 s step
+    frames: list[np.ndarray] = []
+    for label, actions in (("plan", planned), ("scripted loader", scripted)):
+        env = HexLoadingEnv(backend="native", render_mode="rgb_array", width=width, height=height)
+        env.reset(seed=result["seed"])
+        env.start_machine(state.q, state.layout)
+        env.earth.bucket_kg = state.payload_kg
+        env.physics.set_payload(state.payload_kg)
+        if label == "plan":  # the plan's spools per control period: a step holds those of its start
+            actions = actions[:: round(STEP_PERIOD / env.machine.control_period)]
+        check_frame_memory(len(frames) + len(actions), width, height)
+        try:
+            for action in actions:
+                env.step(action.astype(np.float32))
+                caption = f"{result['task']}: {label:16s} t {env.elapsed:4.1f} s  fuel {env.fuel_l * 1000:5.1f} mL"
+                frames.append(overlay_text(env.render(), caption))
+        finally:
+            env.close()
+    return write_mp4(frames, out, fps=1.0 / STEP_PERIOD)
