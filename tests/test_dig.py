@@ -80,3 +80,12 @@ def test_doing_nothing_fails_by_truncation():
 def test_bad_arguments_are_named(kwargs, message):
     with pytest.raises((ValueError, TypeError), match=message):
         HexDigEnv(**kwargs)
+
+
+def test_evaluate_scores_the_scripted_dig_and_refuses_it_elsewhere():
+    from hexgym.agents.evaluate import evaluate_success
+
+    result = evaluate_success("scripted", "HexDig-v0", episodes=2, seed=1000)
+    assert result["success_rate"] == 1.0 and 4.0 < result["mean_time_to_success_s"] < 10.0
+    with pytest.raises(ValueError, match="the scripted loader acts on the loading site"):
+        evaluate_success("scripted", "HexReach-v0", episodes=1)

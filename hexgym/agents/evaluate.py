@@ -27,7 +27,7 @@ from hexgym.agents.policy_files import (
     read_model_data,
 )
 from hexgym.checks import check_count, check_seed
-from hexgym.envs import ENV_ID  # importing hexgym registers it
+from hexgym.envs import DIG_ENV_ID, ENV_ID  # importing hexgym registers them
 from hexgym.files import check_output_file, write_json
 from hexgym.machine import parameters as p
 from hexgym.parallel import executor
@@ -287,10 +287,12 @@ def evaluate_success(
     """A trained model on a task with a success criterion (``info["is_success"]`` at the episode's end, e.g.
     ``HexReach-v0``), acting deterministically on seeds ``seed``..``seed+episodes-1``: the share of
     episodes that succeeded, the mean return and the mean episode length (of the successful ones: the
-    time to succeed)."""
+    time to succeed). ``"scripted"``: the scripted loader, on a task with the loading site (``HexDig-v0``)."""
     check_count("episodes", episodes)
     check_seed("seed", seed)
-    policy = load_trained(model_path, env_id)
+    if model_path == "scripted" and env_id != DIG_ENV_ID:
+        raise ValueError(f"the scripted loader acts on the loading site: HexLoading-v0 or {DIG_ENV_ID}, not {env_id}")
+    policy = ScriptedPolicy() if model_path == "scripted" else load_trained(model_path, env_id)
     env = gym.make(env_id, **(env_kwargs or {}))
     successes, returns, seconds = [], [], []
     try:

@@ -221,9 +221,9 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     from hexgym.files import write_json
 
     if args.env != ENV_ID:
-        if args.policy in ("scripted", "shipped") or args.model != "learned" or args.ray or args.workers != 1:
-            raise ValueError(f"--env {args.env}: give a model .zip trained on it (--policy PATH); --model, --ray "
-                             "and --workers are for HexLoading-v0")  # fmt: skip
+        if args.policy == "shipped" or args.model != "learned" or args.ray or args.workers != 1:
+            raise ValueError(f"--env {args.env}: give a model .zip trained on it (--policy PATH; 'scripted' on "
+                             "HexDig-v0); --model, --ray and --workers are for HexLoading-v0")  # fmt: skip
         env_kwargs = {"time_limit": args.seconds} if args.seconds is not None else None
         result = evaluate_success(args.policy, args.env, args.episodes, args.seed, env_kwargs)
         print(json.dumps(result, indent=2))
