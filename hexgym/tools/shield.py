@@ -13,7 +13,6 @@ Figures (pooled over the episodes; an hour is one of simulated time):
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from typing import Any
@@ -22,6 +21,7 @@ import gymnasium as gym
 import numpy as np
 
 from hexgym.agents.evaluate import Policy, load_policy
+from hexgym.files import write_json
 from hexgym.wrappers import CollisionShield
 
 
@@ -109,7 +109,7 @@ def compare(
     out["tonnes_per_hour_change"] = out["tonnes_per_hour_with"] / t_without - 1.0 if t_without > 0 else None
     out["per_episode"] = runs
     if json_out is not None:
-        Path(json_out).write_text(json.dumps(out, indent=2) + "\n")
+        write_json(json_out, out)
     return out
 
 
