@@ -11,11 +11,10 @@ from __future__ import annotations
 import math
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 
-from hexgym.envs.loading import _SITE, OBSERVATION_NAMES, HexLoadingEnv, SiteEarth, _is_number, heap_for
-from hexgym.envs.world import entry_radius, sample_layout
+from hexgym.envs.loading import OBSERVATION_NAMES, HexLoadingEnv, _is_number
+from hexgym.envs.world import Layout, entry_radius, sample_layout
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 
@@ -120,24 +119,13 @@ class HexDigEnv(HexLoadingEnv):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
         """A new site and a start with the open bucket over the pile's cut entry (see the class docstring)."""
-        gym.Env.reset(self, seed=seed)  # seeds np_random; the rest is HexLoadingEnv.reset with the dig's start
-        rng = self.np_random
-        self.layout = sample_layout(rng)
-        q = self._start_pose(rng)
-        pile = heap_for(self.layout)
-        self.start_machine(q, self.layout)
-        self.task.start(0, self.layout, pile, self.physics.payload_kg)
-        self.task.finish_starts(_SITE)
-        self.earth = SiteEarth(self.task)
-        self.world.show_pile(pile.heights)
-        self._pile_shown = -1
-        obs = self.task.observe(_SITE)[0]
+        obs, info = super().reset(seed=seed, options=options)
         self._potentials, self._spilled_kg = self._potential(obs), 0.0
-        return obs, self._dig_info(dict.fromkeys(DIG_REWARD_TERMS, 0.0), super()._info(None, 0.0, 0.0), False)
+        return obs, self._dig_info(dict.fromkeys(DIG_REWARD_TERMS, 0.0), info, False)
 
-    def _start_pose(self, rng: np.random.Generator) -> np.ndarray:
-        """Joint angles with the teeth over the cut's entry, above the pile's top, pointing down."""
-        lay = self.layout
+    def _draw_start(self, rng: np.random.Generator) -> tuple[Layout, np.ndarray]:
+        """A site, and joint angles with the teeth over its cut's entry, above the pile's top, pointing down."""
+        lay = sample_layout(rng)
         while True:
             radius = entry_radius(lay) + rng.uniform(-START_RADIUS_NOISE, START_RADIUS_NOISE)
             height = lay.pile_height + rng.uniform(*START_HEIGHT)
@@ -145,7 +133,7 @@ class HexDigEnv(HexLoadingEnv):
             front, miss = kinematics.front_angles_for(radius, height, bucket, _FRONT_GUESS)
             if miss < 0.05:  # within reach (always, for the layouts drawn; a miss draws again)
                 swing = lay.pile_direction + rng.uniform(-START_SWING_NOISE, START_SWING_NOISE)
-                return np.array([swing, *front])
+                return lay, np.array([swing, *front])
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
         """Hold the spools for 0.1 s."""

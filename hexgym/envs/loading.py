@@ -437,7 +437,7 @@ class HexLoadingEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
         """Start an episode on a new random site (see the class docstring)."""
         super().reset(seed=seed)
-        self.layout, q = sample_start(self.np_random)
+        self.layout, q = self._draw_start(self.np_random)
         pile = heap_for(self.layout)
         self.start_machine(q, self.layout)
         self.task.start(0, self.layout, pile, self.physics.payload_kg)
@@ -446,6 +446,11 @@ class HexLoadingEnv(gym.Env):
         self.world.show_pile(pile.heights)
         self._pile_shown = -1
         return self.task.observe(_SITE)[0], self._info(None, 0.0, 0.0)
+
+    def _draw_start(self, rng: np.random.Generator) -> tuple[Layout, np.ndarray]:
+        """An episode's site and the machine's start angles (:func:`sample_start`; a task with another start
+        overrides this)."""
+        return sample_start(rng)
 
     def start_machine(self, q: np.ndarray, layout: Layout) -> None:
         """Put the machine at rest at angles ``q`` with an empty bucket on a site laid out as ``layout``
