@@ -232,6 +232,16 @@ def test_renders_offscreen(mode, camera):
         HexLoadingEnv(render_mode="bogus")
 
 
+def test_the_pile_is_drawn_where_the_episode_put_it():
+    env = HexLoadingEnv(render_mode="rgb_array", width=64, height=48)
+    for seed in (0, 1):
+        env.reset(seed=seed)
+        env.render()
+        model = env._view[0]
+        np.testing.assert_allclose(model.geom_pos[model.geom("pile").id, :2], env.layout.pile_centre)
+    env.close()
+
+
 def test_pickle_after_rendering_drops_the_renderer():
     env = HexLoadingEnv(render_mode="rgb_array", width=64, height=48)
     env.reset(seed=0)

@@ -14,9 +14,9 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from hexgym.agents.evaluate import load_policy, run_episode
+from hexgym.agents.evaluate import Policy, ScriptedPolicy, load_policy, load_trained, run_episode
 from hexgym.checks import check_count, check_positive, check_seed
-from hexgym.envs import ENV_ID
+from hexgym.envs import DIG_ENV_ID, ENV_ID
 from hexgym.envs.loading import STEP_PERIOD
 from hexgym.files import check_output_file
 from hexgym.machine.render import CAMERAS, check_frame_memory, write_mp4, write_png
@@ -59,6 +59,19 @@ def _frame_recorder(frames: list[np.ndarray], episode: int) -> Any:
     return on_step
 
 
+def _dig_episode(env: gym.Env, policy: Policy, seed: int, frames: list[np.ndarray], episode: int) -> dict[str, Any]:
+    """One ``HexDig-v0`` episode, its captioned frames appended: whether and when it succeeded, its return."""
+    obs, info = env.reset(seed=seed)
+    policy.reset()
+    done, total = False, 0.0
+    while not done:
+        obs, reward, terminated, truncated, info = env.step(policy.act(obs, env.unwrapped))
+        total, done = total + float(reward), terminated or truncated
+        caption = f"ep {episode}  t {info['time_s']:4.1f} s  bucket {info['bucket_kg'] / 1000:4.2f} t"
+        frames.append(overlay_text(env.render(), caption + ("  lifted" if info["is_success"] else "")))
+    return {"seed": seed, "success": bool(info["is_success"]), "time_s": info["time_s"], "return": total}
+
+
 def record_video(
     policy_spec: str,
     out: str | Path,
@@ -70,13 +83,19 @@ def record_video(
     height: int = 384,
     snapshot: str | Path | None = None,
     model: str = "learned",
+    env_id: str = ENV_ID,
 ) -> dict[str, Any]:
     """Render ``episodes`` rollouts of a policy (``"scripted"``, ``"shipped"`` or a model path) to ``out``.
 
     ``seconds`` shortens each episode (the env's time limit); ``snapshot`` also writes a PNG of a
     frame from the middle of the first episode; ``model``: the machine model, ``"learned"`` or
-    ``"reference"`` (the real machine's stand-in). Returns the paths and each episode's figures.
+    ``"reference"`` (the real machine's stand-in); ``env_id``: ``HexLoading-v0`` or ``HexDig-v0`` (a model
+    trained on it, or ``"scripted"``). Returns the paths and each episode's figures.
     """
+    if env_id not in (ENV_ID, DIG_ENV_ID):
+        raise ValueError(f"--env must be {ENV_ID} or {DIG_ENV_ID} (the tasks that render), got {env_id!r}")
+    if env_id == DIG_ENV_ID and policy_spec == "shipped":
+        raise ValueError(f"the shipped agent loads trucks: film {DIG_ENV_ID} with a model trained on it or 'scripted'")
     if camera not in CAMERAS:
         raise ValueError(f"camera must be one of {CAMERAS}, got {camera!r}")
     check_count("episodes", episodes)
@@ -91,19 +110,25 @@ def record_video(
     check_output_file(out, "video", inputs=(policy_file,))
     if snapshot is not None:
         check_output_file(snapshot, "snapshot", inputs=(policy_file, out))
-    policy = load_policy(policy_spec)
+    if env_id == ENV_ID:
+        policy = load_policy(policy_spec)
+    else:
+        policy = ScriptedPolicy() if policy_spec == "scripted" else load_trained(policy_spec, env_id)
     kwargs: dict[str, Any] = {"render_mode": "rgb_array", "camera": camera, "width": width, "height": height,
                               "model": model}  # fmt: skip
     if seconds is not None:
         kwargs["time_limit"] = seconds
-    env = gym.make(ENV_ID, **kwargs)
+    env = gym.make(env_id, **kwargs)
     steps = math.ceil(env.unwrapped.time_limit / STEP_PERIOD - 1e-9) + 1
     check_frame_memory(int(episodes) * steps, width, height)
     frames: list[np.ndarray] = []
     summaries = []
     try:
         for i in range(int(episodes)):
-            summaries.append(run_episode(env, policy, seed + i, _frame_recorder(frames, i + 1)).summary())
+            if env_id == ENV_ID:
+                summaries.append(run_episode(env, policy, seed + i, _frame_recorder(frames, i + 1)).summary())
+            else:
+                summaries.append(_dig_episode(env, policy, seed + i, frames, i + 1))
             if i == 0 and snapshot is not None:
                 write_png(frames[len(frames) // 2], snapshot)
     finally:

@@ -23,8 +23,9 @@ class ModelMirror:
     The lean model (``assets/cat325_lean.xml``) has no cylinder or four-bar bodies; for pictures,
     :meth:`sync` poses the full model (``target``, the same world around the full machine) at the
     lean simulation's main joint angles with the closed chains assembled (:func:`assembled_state`),
-    and copies what the world shows: mocap bodies, heightfields and the sizes and colours of the
-    geoms both models name alike (e.g. a load drawn in the bucket or the truck). Returns from
+    and copies what the world shows: mocap bodies, heightfields, the sizes and colours of the geoms
+    both models name alike (e.g. a load drawn in the bucket or the truck) and the places of those
+    fixed to the world (the pile, moved to each episode's site). Returns from
     :meth:`sync` which heightfields changed, so a renderer can re-upload them.
     """
 
@@ -40,6 +41,7 @@ class ModelMirror:
             for i in range(source.ngeom)
             if source.geom(i).name and mujoco.mj_name2id(target, mujoco.mjtObj.mjOBJ_GEOM, source.geom(i).name) >= 0
         ]
+        self._placed = [(i, j) for i, j in self._geoms if source.geom_bodyid[i] == 0]  # world geoms: the site's
         self._hfields = [
             (source.hfield(i).name, i, target.hfield(source.hfield(i).name).id) for i in range(source.nhfield)
         ]
@@ -56,6 +58,8 @@ class ModelMirror:
         target_data.time = source_data.time
         for i, j in self._geoms:
             tgt.geom_size[j], tgt.geom_rgba[j] = src.geom_size[i], src.geom_rgba[i]
+        for i, j in self._placed:
+            tgt.geom_pos[j], tgt.geom_quat[j] = src.geom_pos[i], src.geom_quat[i]
         changed = []
         for _, i, j in self._hfields:
             a, n = src.hfield_adr[i], src.hfield_nrow[i] * src.hfield_ncol[i]

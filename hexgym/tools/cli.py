@@ -291,7 +291,7 @@ def _cmd_video(args: argparse.Namespace) -> int:
 
     result = record_video(
         args.policy, args.out, camera=args.camera, episodes=args.episodes, seed=args.seed, seconds=args.seconds,
-        width=args.width, height=args.height, snapshot=args.snapshot, model=args.model,
+        width=args.width, height=args.height, snapshot=args.snapshot, model=args.model, env_id=args.env,
     )  # fmt: skip
     print(f"video: {result['video']} ({result['frames']} frames)")
     if "snapshot" in result:
@@ -574,6 +574,8 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
     video.add_argument("--height", type=int, default=384, help="frame height (default: 384)")
     video.add_argument("--snapshot", default=None, help="also write a PNG of a mid-episode frame")
     video.add_argument("--model", **_MACHINE_MODEL_OPTION)
+    video.add_argument("--env", default="HexLoading-v0", help="HexLoading-v0 (default) or HexDig-v0 (--policy: a "
+                       "model trained on it, or scripted)")  # fmt: skip
     video.set_defaults(func=_cmd_video)
 
     convert = sub.add_parser("convert-normalizer", help="convert a pickled VecNormalize (*_vecnormalize.pkl) to "
