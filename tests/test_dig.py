@@ -89,3 +89,12 @@ def test_evaluate_scores_the_scripted_dig_and_refuses_it_elsewhere():
     assert result["success_rate"] == 1.0 and 4.0 < result["mean_time_to_success_s"] < 10.0
     with pytest.raises(ValueError, match="the scripted loader acts on the loading site"):
         evaluate_success("scripted", "HexReach-v0", episodes=1)
+
+
+def test_video_films_the_dig(tmp_path):
+    from hexgym.agents.video import record_video
+
+    result = record_video("scripted", tmp_path / "dig.mp4", seconds=1.0, width=96, height=64, env_id="HexDig-v0")
+    assert result["frames"] == 10 and result["episodes"][0]["success"] is False and result["video"].stat().st_size
+    with pytest.raises(ValueError, match="the shipped agent loads trucks"):
+        record_video("shipped", tmp_path / "x.mp4", env_id="HexDig-v0")
