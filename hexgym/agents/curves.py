@@ -89,6 +89,11 @@ def _finite(value: float) -> float | None:
     return float(value) if math.isfinite(value) else None
 
 
+def _steps_label(steps: float, _position: int) -> str:
+    """An axis label for a step count: 250k, 1.5M."""
+    return f"{steps / 1e6:g}M" if steps >= 1e6 else f"{steps / 1e3:g}k" if steps else "0"
+
+
 def plot_curves(curves: dict[str, dict[str, np.ndarray]], out: str | Path, title: str = "") -> Path:
     """The runs' mean and min-max band of each panel that has values (success rate, mean return, tonnes
     delivered per rollout) against steps, saved atomically to ``out``."""
@@ -96,6 +101,7 @@ def plot_curves(curves: dict[str, dict[str, np.ndarray]], out: str | Path, title
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import FuncFormatter
 
     from hexgym.files import save_figure
 
@@ -110,6 +116,7 @@ def plot_curves(curves: dict[str, dict[str, np.ndarray]], out: str | Path, title
                         alpha=0.25, label=f"min-max of {len(curves)} run{'s' if len(curves) > 1 else ''}")  # fmt: skip
         ax.plot(steps[seen], np.nanmean(values[:, seen], axis=0), label="mean")
         ax.set_xlabel("environment steps")
+        ax.xaxis.set_major_formatter(FuncFormatter(_steps_label))
         ax.set_ylabel(column.replace("_", " "))
         ax.grid(alpha=0.3)
     axes[0][0].legend(loc="lower right", fontsize=8)
