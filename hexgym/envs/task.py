@@ -22,7 +22,8 @@ A step advances four 25 ms control periods per site on the single environment's 
 3. After each interval, :func:`account`: fuel (the actuators' power through the engine's BSFC,
    :mod:`hexgym.hydraulics.fuel`'s own functions), hard contacts (:func:`hard_contact_force`) and
    the joint loads; the bucket is re-massed on changes over 20 kg (:func:`payload_change`).
-4. :func:`finish`: reward terms and the episode's end; :func:`observe`: the observation;
+4. :func:`finish`: reward terms (the shaping terms from :func:`potentials`, computed only when one is
+   weighted) and the episode's end; :func:`observe`: the observation;
    :func:`info_stores`: the material stores for ``info``.
 """
 
