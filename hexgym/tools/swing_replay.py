@@ -14,7 +14,10 @@ Models:
 - ``extended``: pump 2's pressure from its table, the swing torque from it, the angular momentum
   integrated (``d(I w)/dt = torque``);
 - ``extended_true_pressure``: the same torque table at the reference's own pump-2 pressure: what
-  a perfect pressure model would give.
+  a perfect pressure model would give;
+- ``..._exact_braking`` / ``..._exact_driving``: that, with the swing's own momentum change (the
+  reference's ``d(I w)/dt``) wherever its spool is closed (braking, coasting) / open (driving): which of
+  the two parts of the swing model the remaining error comes from.
 """
 
 from __future__ import annotations
@@ -39,7 +42,10 @@ from hexgym.parallel import executor
 
 ROW_S = 0.01  # s between the reference's rows
 EVERY = 2  # rows per swing step: 20 ms
-MODELS = ("paper", "extended", "extended_true_pressure")
+MODELS = (
+    "paper", "extended", "extended_true_pressure", "extended_true_pressure_exact_braking",
+    "extended_true_pressure_exact_driving",
+)  # fmt: skip
 
 
 def reference_rows(suite_seed: int, index: int) -> np.ndarray:
@@ -77,8 +83,12 @@ def swing_errors(rows: np.ndarray, model: str, tables: dict[str, dict[str, MBLTa
     closed = np.abs(spools) < p.SPOOL_DEAD_BAND
     swing_set = "paper" if model == "paper" else "extended"
     rate_axis = tables[swing_set]["swing"].axes[tables[swing_set]["swing"].inputs.index("swing_rate_radps")]
-    acceleration = _swing_step(model, tables)
+    acceleration = _swing_step(model.replace("_exact_braking", "").replace("_exact_driving", ""), tables)
     momentum = model != "paper"  # a torque: the angular momentum is what it changes
+    # the reference's own momentum change over each step, where the model takes it as given (N m)
+    momentum_change = np.diff(r["swing_inertia_kgm2"] * r["qd_swing"]) / dt
+    exact = closed[:, 0] if model.endswith("_exact_braking") else ~closed[:, 0]
+    exact &= model.endswith(("_exact_braking", "_exact_driving"))
     angle, rate = float(r["q_swing"][0]), 0.0
     angles = np.empty(len(r))
     for k in range(len(r)):
@@ -86,6 +96,11 @@ def swing_errors(rows: np.ndarray, model: str, tables: dict[str, dict[str, MBLTa
         if k == len(r) - 1:
             break
         inertia = float(r["swing_inertia_kgm2"][k])
+        if exact[k]:
+            new_rate = (inertia * rate + momentum_change[k] * dt) / float(r["swing_inertia_kgm2"][k + 1])
+            angle += 0.5 * (rate + new_rate) * dt
+            rate = new_rate
+            continue
         q = {
             "swing_spool_m": spools[k, 0],
             "stick_spool_m": spools[k, 1],
