@@ -285,7 +285,7 @@ class HexLoadingEnv(gym.Env):
     | fuel | −``fuel_weight`` × litres of diesel (actuator power → valves → pumps → engine BSFC) |
     | spill | −``spill_weight`` × tonnes spilled outside the bed |
     | contact | −``contact_weight`` × kN·s of bucket/stick contact force on ground or truck above 50 kN (to 265 kN) |
-    | reach | ``reach_weight`` × the change of −(an empty bucket's teeth beyond 1 m from the pile's centre), m |
+    | reach | ``reach_weight`` × the change of −(an empty bucket's teeth beyond 1 m from the pile, plus above it), m |
     | load | ``load_weight`` × the change of the tonnes in the bucket |
     | lift | ``lift_weight`` × the change of tonnes × the teeth's height above the pile (up to 1 m) |
     | carry | ``carry_weight`` × the change of tonnes × the share of the way from the pile to the bed |

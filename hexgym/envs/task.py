@@ -409,7 +409,7 @@ def potentials(
     teeth are and what its bucket holds (t):
 
     - reach: an empty bucket's teeth, minus their horizontal distance (m) beyond ``SHAPING_PILE_REACHED_M``
-      from the pile's centre (0 while loaded);
+      from the pile's centre and minus their height above the pile's surface (0 while loaded): down onto it;
     - load: the tonnes in the bucket;
     - lift: the tonnes times the teeth's height above the pile's surface, up to ``SHAPING_LIFT_M``, over it;
     - carry: the tonnes times how much of the way from the pile's centre to the bed's the teeth have come
@@ -420,9 +420,10 @@ def potentials(
         x, y, z = site_xpos[i, tip_site, 0], site_xpos[i, tip_site, 1], site_xpos[i, tip_site, 2]
         tonnes = stores[i, 0] / 1000.0
         to_pile = math.hypot(x - layout[i, 0], y - layout[i, 1])
-        out[i, 0] = -max(to_pile - SHAPING_PILE_REACHED_M, 0.0) if stores[i, 0] < SHAPING_EMPTY_KG else 0.0
-        out[i, 1] = tonnes
         above = z - ew.height_at(heights, origin, spacing, i, x, y)
+        empty = stores[i, 0] < SHAPING_EMPTY_KG
+        out[i, 0] = -max(to_pile - SHAPING_PILE_REACHED_M, 0.0) - max(above, 0.0) if empty else 0.0
+        out[i, 1] = tonnes
         out[i, 2] = tonnes * min(max(above, 0.0), SHAPING_LIFT_M) / SHAPING_LIFT_M
         span = math.hypot(layout[i, 5] - layout[i, 0], layout[i, 6] - layout[i, 1])
         out[i, 3] = tonnes * (1.0 - min(math.hypot(x - layout[i, 5], y - layout[i, 6]) / span, 1.0))
