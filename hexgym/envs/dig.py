@@ -96,7 +96,7 @@ class HexDigEnv(HexLoadingEnv):
             "carry_weight",
         ):
             if name in loading_kwargs:
-                raise TypeError(f"HexDig-v0 has no argument {name!r} (it delivers nothing to the truck)")
+                raise TypeError(f"HexDig-v0 has no argument {name!r} (HexLoading-v0's; this task's reward is its own)")
         if not _is_number(fill_kg) or not 0.0 < fill_kg <= HEAPED_BUCKET_KG:
             raise ValueError(
                 f"fill_kg must be > 0 and at most the heaped bucket's {HEAPED_BUCKET_KG:.0f} kg, got {fill_kg!r}"
