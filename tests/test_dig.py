@@ -9,8 +9,8 @@ from gymnasium.utils.env_checker import check_env
 
 import hexgym  # noqa: F401  (registers the environments)
 from hexgym.agents.scripted import ScriptedLoader
-from hexgym.envs.dig import DIG_REWARD_TERMS, START_HEIGHT, START_RADIUS_NOISE, HexDigEnv
-from hexgym.envs.loading import OBSERVATION_NAMES
+from hexgym.envs.dig import DIG_REWARD_TERMS, HexDigEnv
+from hexgym.envs.loading import DIG_START_HEIGHT, DIG_START_RADIUS_NOISE, OBSERVATION_NAMES, HexLoadingEnv
 from hexgym.envs.world import entry_radius
 
 ABOVE_PILE = OBSERVATION_NAMES.index("tip_above_pile")
@@ -32,8 +32,8 @@ def test_starts_with_the_teeth_over_the_cut_entry_and_is_seeded(env):
         obs, info = env.reset(seed=seed)
         u = env.unwrapped
         tip, lay = u.physics.tip_position(), u.layout
-        assert abs(math.hypot(tip[0], tip[1]) - entry_radius(lay)) <= START_RADIUS_NOISE + 0.05
-        assert START_HEIGHT[0] - 0.05 <= tip[2] - lay.pile_height <= START_HEIGHT[1] + 0.05
+        assert abs(math.hypot(tip[0], tip[1]) - entry_radius(lay)) <= DIG_START_RADIUS_NOISE + 0.05
+        assert DIG_START_HEIGHT[0] - 0.05 <= tip[2] - lay.pile_height <= DIG_START_HEIGHT[1] + 0.05
         assert obs[ABOVE_PILE] > 0.2 and info["bucket_kg"] == 0.0 and not info["is_success"]
         assert env.observation_space.contains(obs)
     np.testing.assert_array_equal(env.reset(seed=4)[0], env.reset(seed=4)[0])
@@ -98,3 +98,19 @@ def test_video_films_the_dig(tmp_path):
     assert result["frames"] == 10 and result["episodes"][0]["success"] is False and result["video"].stat().st_size
     with pytest.raises(ValueError, match="the shipped agent loads trucks"):
         record_video("shipped", tmp_path / "x.mp4", env_id="HexDig-v0")
+
+
+def test_the_loading_task_can_start_some_episodes_at_the_dig():
+    """``dig_start_share``: that share of HexLoading-v0's episodes start as HexDig-v0's do; 0 leaves it as it was."""
+    plain, mixed = HexLoadingEnv(), HexLoadingEnv(dig_start_share=0.5)
+    over_pile = []
+    for seed in range(12):
+        obs_plain = plain.reset(seed=seed)[0]
+        np.testing.assert_array_equal(obs_plain, HexLoadingEnv().reset(seed=seed)[0])  # the default draws as before
+        mixed.reset(seed=seed)
+        tip = mixed.physics.tip_position()
+        over_pile.append(abs(math.hypot(tip[0], tip[1]) - entry_radius(mixed.layout)) <= DIG_START_RADIUS_NOISE + 0.05)
+        assert mixed.layout == plain.layout  # the same site either way
+    assert 2 <= sum(over_pile) <= 10
+    with pytest.raises(ValueError, match="dig_start_share must be a number from 0 to 1"):
+        HexLoadingEnv(dig_start_share=1.5)

@@ -83,8 +83,14 @@ def test_results_equal_single_envs_through_digging_contacts_and_autoreset(backen
     assert seen["resets"] >= 4  # every site's episode ended (t = 7 s) and restarted on the next step
 
 
-def test_shaping_terms_equal_single_envs():
-    shaping = {"reach_weight": 0.05, "load_weight": 0.3, "lift_weight": 0.2, "carry_weight": 0.3}
+def test_shaping_terms_and_dig_starts_equal_single_envs():
+    shaping = {
+        "reach_weight": 0.05,
+        "load_weight": 0.3,
+        "lift_weight": 0.2,
+        "carry_weight": 0.3,
+        "dig_start_share": 0.5,
+    }
     seen = _compare_with_single_envs(num_envs=3, steps=130, time_limit=12.0, **shaping)
     assert seen["bucket_kg"] > 50 and seen["resets"] >= 3
 

@@ -13,19 +13,12 @@ from typing import Any
 
 import numpy as np
 
-from hexgym.envs.loading import OBSERVATION_NAMES, HexLoadingEnv, _is_number
-from hexgym.envs.world import Layout, entry_radius, sample_layout
-from hexgym.machine import kinematics
+from hexgym.envs.loading import OBSERVATION_NAMES, HexLoadingEnv, _is_number, dig_start_pose
+from hexgym.envs.world import Layout, sample_layout
 from hexgym.machine import parameters as p
 
 HEAPED_BUCKET_KG = p.BUCKET_HEAPED_CAPACITY * p.MATERIAL_DENSITY
 CARRIED_TILT = 0.6  # rad: a mouth this close to facing up holds its load (the material's repose angle: 0.59)
-START_SWING_NOISE = 0.05  # rad about the pile's direction
-START_RADIUS_NOISE = 0.5  # m about the cut's entry radius
-START_HEIGHT = (0.3, 1.0)  # m of the teeth above the pile's top
-START_TEETH_ANGLE = (-130.0, -100.0)  # deg: the teeth's planar world direction (-90: straight down)
-_TEETH_ANGLE = math.atan2(p.BUCKET_TEETH_DIRECTION[1], p.BUCKET_TEETH_DIRECTION[0])  # in the bucket frame
-_FRONT_GUESS = np.array([0.65, -0.3, 0.0])  # boom, stick, bucket near an entry pose (the search's start)
 _PAYLOAD, _ABOVE_PILE, _TILT = (OBSERVATION_NAMES.index(n) for n in ("payload", "tip_above_pile", "bucket_tilt"))
 DIG_REWARD_TERMS = ("load", "lift", "success", "time", "spill", "contact")
 
@@ -88,6 +81,7 @@ class HexDigEnv(HexLoadingEnv):
         **loading_kwargs: Any,
     ) -> None:
         for name in (
+            "dig_start_share",
             "delivery_weight",
             "fill_weight",
             "fuel_weight",
@@ -125,15 +119,8 @@ class HexDigEnv(HexLoadingEnv):
 
     def _draw_start(self, rng: np.random.Generator) -> tuple[Layout, np.ndarray]:
         """A site, and joint angles with the teeth over its cut's entry, above the pile's top, pointing down."""
-        lay = sample_layout(rng)
-        while True:
-            radius = entry_radius(lay) + rng.uniform(-START_RADIUS_NOISE, START_RADIUS_NOISE)
-            height = lay.pile_height + rng.uniform(*START_HEIGHT)
-            bucket = math.radians(rng.uniform(*START_TEETH_ANGLE)) - _TEETH_ANGLE
-            front, miss = kinematics.front_angles_for(radius, height, bucket, _FRONT_GUESS)
-            if miss < 0.05:  # within reach (always, for the layouts drawn; a miss draws again)
-                swing = lay.pile_direction + rng.uniform(-START_SWING_NOISE, START_SWING_NOISE)
-                return lay, np.array([swing, *front])
+        layout = sample_layout(rng)
+        return layout, dig_start_pose(rng, layout)
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
         """Hold the spools for 0.1 s."""

@@ -34,6 +34,7 @@ from hexgym.envs.world import (
     Layout,
     World,
     build_world_model,
+    entry_radius,
     sample_layout,
 )
 from hexgym.machine import kinematics
@@ -131,6 +132,27 @@ def sample_start(rng: np.random.Generator) -> tuple[Layout, np.ndarray]:
     for i, name in enumerate(kinematics.JOINTS[1:], start=1):
         q[i] = np.clip(q[i], *kinematics.joint_range(name))
     return layout, q
+
+
+DIG_START_SWING_NOISE = 0.05  # rad about the pile's direction
+DIG_START_RADIUS_NOISE = 0.5  # m about the cut's entry radius
+DIG_START_HEIGHT = (0.3, 1.0)  # m of the teeth above the pile's top
+DIG_START_TEETH_ANGLE = (-130.0, -100.0)  # deg: the teeth's planar world direction (-90: straight down)
+_TEETH_ANGLE = math.atan2(p.BUCKET_TEETH_DIRECTION[1], p.BUCKET_TEETH_DIRECTION[0])  # in the bucket frame
+_FRONT_GUESS = np.array([0.65, -0.3, 0.0])  # boom, stick, bucket near an entry pose (the search's start)
+
+
+def dig_start_pose(rng: np.random.Generator, layout: Layout) -> np.ndarray:
+    """Joint angles with the empty bucket open over ``layout``'s cut entry, above the pile's top, teeth down
+    (``HexDig-v0``'s start; ``HexLoading-v0``'s with ``dig_start_share``)."""
+    while True:
+        radius = entry_radius(layout) + rng.uniform(-DIG_START_RADIUS_NOISE, DIG_START_RADIUS_NOISE)
+        height = layout.pile_height + rng.uniform(*DIG_START_HEIGHT)
+        bucket = math.radians(rng.uniform(*DIG_START_TEETH_ANGLE)) - _TEETH_ANGLE
+        front, miss = kinematics.front_angles_for(radius, height, bucket, _FRONT_GUESS)
+        if miss < 0.05:  # within reach (always, for the layouts drawn; a miss draws again)
+            swing = layout.pile_direction + rng.uniform(-DIG_START_SWING_NOISE, DIG_START_SWING_NOISE)
+            return np.array([swing, *front])
 
 
 def heap_for(layout: Layout) -> Pile:
@@ -328,6 +350,7 @@ class HexLoadingEnv(gym.Env):
     | earthwork_periods | 4 | control periods (25 ms) per dig (fill, pile cut, spill) near the pile; 1: every period |
     | tables | ``"paper"`` | the learned model's table set: ``"paper"`` or ``"extended"`` (:mod:`hexgym.mbl.schema`) |
     | model | ``"learned"`` | ``"reference"``: the same task on the analytical circuit (the real machine's stand-in) |
+    | dig_start_share | 0.0 | share of episodes starting with the open bucket over the pile (a curriculum) |
 
     ``model="reference"`` runs the whole task on the reference model (:mod:`hexgym.envs.reference_machine`):
     a few times real time, for checking what was learned on the fast model, not for training.
@@ -364,8 +387,12 @@ class HexLoadingEnv(gym.Env):
         earthwork_periods: int = EARTHWORK_PERIODS,
         tables: str = DEFAULT_TABLE_SET,
         model: str = "learned",
+        dig_start_share: float = 0.0,
     ) -> None:
         _check_model(model, backend, tables)
+        if not _is_number(dig_start_share) or not 0.0 <= dig_start_share <= 1.0:
+            raise ValueError(f"dig_start_share must be a number from 0 to 1, got {dig_start_share!r}")
+        self.dig_start_share = float(dig_start_share)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             why = " ('human' needs a display: DISPLAY is unset)" if render_mode == "human" else ""
             raise ValueError(
@@ -448,9 +475,12 @@ class HexLoadingEnv(gym.Env):
         return self.task.observe(_SITE)[0], self._info(None, 0.0, 0.0)
 
     def _draw_start(self, rng: np.random.Generator) -> tuple[Layout, np.ndarray]:
-        """An episode's site and the machine's start angles (:func:`sample_start`; a task with another start
-        overrides this)."""
-        return sample_start(rng)
+        """An episode's site and the machine's start angles: :func:`sample_start`, or with probability
+        ``dig_start_share`` :func:`dig_start_pose` on its site (a task with another start overrides this)."""
+        layout, q = sample_start(rng)
+        if self.dig_start_share > 0.0 and rng.uniform() < self.dig_start_share:  # no draw at the default 0
+            q = dig_start_pose(rng, layout)
+        return layout, q
 
     def start_machine(self, q: np.ndarray, layout: Layout) -> None:
         """Put the machine at rest at angles ``q`` with an empty bucket on a site laid out as ``layout``

@@ -24,7 +24,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from hexgym.envs.loading import HexLoadingEnv, heap_for, make_machine, native_world_model, sample_start, start_machine
+from hexgym.envs.loading import HexLoadingEnv, heap_for, make_machine, native_world_model, start_machine
 from hexgym.envs.sites import BatchSites, MachineSites
 from hexgym.envs.task import CONTACT_SLOTS, INFO_STORES, REWARD_TERMS, STEP_PERIOD, LoadingTask
 from hexgym.envs.world import Layout, World
@@ -261,7 +261,7 @@ class HexLoadingVectorEnv(VectorEnv):
         """Draw site ``i``'s episode as HexLoadingEnv.reset does (on the scratch environment) and load it."""
         if seed is not None or self._rngs[i] is None:
             self._rngs[i], _ = gym.utils.seeding.np_random(seed)
-        layout, q = sample_start(self._rngs[i])
+        layout, q = self._scratch._draw_start(self._rngs[i])  # the single environment's start, dig starts too
         scratch, sites = self._scratch, self.sites
         if isinstance(sites, BatchSites):
             scratch.start_machine(q, layout)
