@@ -281,6 +281,23 @@ def evaluate(
     return result
 
 
+def run_success_episode(
+    env: gym.Env, policy: Policy, seed: int, on_step: StepCallback | None = None
+) -> tuple[bool, int, float]:
+    """One episode of a task with a success criterion (``info["is_success"]`` at its end) from
+    ``env.reset(seed=seed)``; ``on_step(env, info)`` after each step. Returns whether it succeeded, its steps
+    and its return."""
+    obs, info = env.reset(seed=seed)
+    policy.reset()
+    done, total, steps = False, 0.0, 0
+    while not done:
+        obs, reward, terminated, truncated, info = env.step(policy.act(obs, env.unwrapped))
+        total, steps, done = total + float(reward), steps + 1, terminated or truncated
+        if on_step is not None:
+            on_step(env, info)
+    return bool(info.get("is_success", False)), steps, total
+
+
 def evaluate_success(
     model_path: str | Path, env_id: str, episodes: int = 50, seed: int = 0, env_kwargs: dict | None = None
 ) -> dict[str, Any]:
@@ -294,21 +311,12 @@ def evaluate_success(
         raise ValueError(f"the scripted loader acts on the loading site: HexLoading-v0 or {DIG_ENV_ID}, not {env_id}")
     policy = ScriptedPolicy() if model_path == "scripted" else load_trained(model_path, env_id)
     env = gym.make(env_id, **(env_kwargs or {}))
-    successes, returns, seconds = [], [], []
     try:
-        for s in range(seed, seed + int(episodes)):
-            obs, info = env.reset(seed=s)
-            policy.reset()
-            done, total, steps = False, 0.0, 0
-            while not done:
-                obs, reward, terminated, truncated, info = env.step(policy.act(obs, env.unwrapped))
-                total, steps, done = total + float(reward), steps + 1, terminated or truncated
-            successes.append(bool(info.get("is_success", False)))
-            returns.append(total)
-            seconds.append(steps / env.metadata["render_fps"])
+        runs = [run_success_episode(env, policy, s) for s in range(seed, seed + int(episodes))]
     finally:
         env.close()
-    won = [t for t, ok in zip(seconds, successes, strict=True) if ok]
+    successes, returns = [ok for ok, _, _ in runs], [total for _, _, total in runs]
+    won = [steps / env.metadata["render_fps"] for ok, steps, _ in runs if ok]
     return {
         "policy": str(model_path), "env_id": env_id, "seed": seed, "episodes": int(episodes),
         "success_rate": float(np.mean(successes)), "mean_return": float(np.mean(returns)),

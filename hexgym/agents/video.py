@@ -14,7 +14,14 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from hexgym.agents.evaluate import Policy, ScriptedPolicy, load_policy, load_trained, run_episode
+from hexgym.agents.evaluate import (
+    Policy,
+    ScriptedPolicy,
+    load_policy,
+    load_trained,
+    run_episode,
+    run_success_episode,
+)
 from hexgym.checks import check_count, check_positive, check_seed
 from hexgym.envs import DIG_ENV_ID, ENV_ID
 from hexgym.envs.loading import STEP_PERIOD
@@ -61,15 +68,13 @@ def _frame_recorder(frames: list[np.ndarray], episode: int) -> Any:
 
 def _dig_episode(env: gym.Env, policy: Policy, seed: int, frames: list[np.ndarray], episode: int) -> dict[str, Any]:
     """One ``HexDig-v0`` episode, its captioned frames appended: whether and when it succeeded, its return."""
-    obs, info = env.reset(seed=seed)
-    policy.reset()
-    done, total = False, 0.0
-    while not done:
-        obs, reward, terminated, truncated, info = env.step(policy.act(obs, env.unwrapped))
-        total, done = total + float(reward), terminated or truncated
+
+    def on_step(env: Any, info: dict) -> None:
         caption = f"ep {episode}  t {info['time_s']:4.1f} s  bucket {info['bucket_kg'] / 1000:4.2f} t"
         frames.append(overlay_text(env.render(), caption + ("  lifted" if info["is_success"] else "")))
-    return {"seed": seed, "success": bool(info["is_success"]), "time_s": info["time_s"], "return": total}
+
+    success, steps, total = run_success_episode(env, policy, seed, on_step)
+    return {"seed": seed, "success": success, "time_s": steps * STEP_PERIOD, "return": total}
 
 
 def record_video(

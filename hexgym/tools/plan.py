@@ -70,13 +70,20 @@ def start_states(seed: int) -> dict[str, tuple[MachineState, Goal]]:
     return out
 
 
-def scripted_move(seed: int, state: MachineState, goal: Goal, model: RolloutModel) -> dict[str, Any]:
-    """The scripted loader from ``state`` (at rest) on seed ``seed``'s site until at ``goal``: time, fuel, clearance."""
-    env = HexLoadingEnv(backend="native")
+def env_at(seed: int, state: MachineState, **env_kwargs: Any) -> HexLoadingEnv:
+    """The environment (native backend) on seed ``seed``'s site with the machine at rest in ``state``, its bucket
+    holding the state's payload: where a move is replayed, run by the scripted loader or filmed."""
+    env = HexLoadingEnv(backend="native", **env_kwargs)
     env.reset(seed=seed)
     env.start_machine(state.q, state.layout)
     env.earth.bucket_kg = state.payload_kg
     env.physics.set_payload(state.payload_kg)
+    return env
+
+
+def scripted_move(seed: int, state: MachineState, goal: Goal, model: RolloutModel) -> dict[str, Any]:
+    """The scripted loader from ``state`` (at rest) on seed ``seed``'s site until at ``goal``: time, fuel, clearance."""
+    env = env_at(seed, state)
     loader = ScriptedLoader()
     qs, actions, reached_at = [], [], None
     while env.elapsed < _SCRIPTED_LIMIT_S:
@@ -101,11 +108,7 @@ def scripted_move(seed: int, state: MachineState, goal: Goal, model: RolloutMode
 def learned_replay(seed: int, state: MachineState, goal: Goal, plan: Plan, model: RolloutModel) -> dict[str, Any]:
     """The plan's spools in the environment (the learned model with its fuel account) from ``state`` (at rest): the
     time to the goal (0.1 s steps; each holds the spools of its start), fuel to then (or the plan's end)."""
-    env = HexLoadingEnv(backend="native")
-    env.reset(seed=seed)
-    env.start_machine(state.q, state.layout)
-    env.earth.bucket_kg = state.payload_kg
-    env.physics.set_payload(state.payload_kg)
+    env = env_at(seed, state)
     per_step = round(STEP_PERIOD / model.control_period)
     qs, reached_at = [], None
     for k in range(0, len(plan.spools_m), per_step):
@@ -361,11 +364,7 @@ def plan_video(result: dict[str, Any], out: str | Path, width: int = 640, height
     scripted = np.asarray(result["scripted_spools_mm"]) / 1e3 / p.SPOOL_STROKE  # one row per 0.1 s step
     frames: list[np.ndarray] = []
     for label, actions in (("plan", planned), ("scripted loader", scripted)):
-        env = HexLoadingEnv(backend="native", render_mode="rgb_array", width=width, height=height)
-        env.reset(seed=result["seed"])
-        env.start_machine(state.q, state.layout)
-        env.earth.bucket_kg = state.payload_kg
-        env.physics.set_payload(state.payload_kg)
+        env = env_at(result["seed"], state, render_mode="rgb_array", width=width, height=height)
         if label == "plan":  # the plan's spools per control period: a step holds those of its start
             actions = actions[:: round(STEP_PERIOD / env.machine.control_period)]
         check_frame_memory(len(frames) + len(actions), width, height)
