@@ -187,7 +187,6 @@ def _spill(
         flows[i, 2] += out
 
 
-
 def _merged(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The sorted site ids of two disjoint sorted sets (cheaper than np.union1d's general one)."""
     return np.sort(np.concatenate((a, b))) if len(a) and len(b) else (b if len(b) else a)
