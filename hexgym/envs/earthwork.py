@@ -281,43 +281,6 @@ def clearance(
     return z - highest
 
 
-PILE_BLOCK = 9  # grid points per side of the blocks whose highest points bound a window's (a quick clearance test)
-
-
-@jit
-def block_maxima(heights: np.ndarray, i: int, out: np.ndarray) -> None:
-    """The highest point of each ``PILE_BLOCK``-square block of pile ``i``'s grid, into ``out[i]``."""
-    n, b = heights.shape[1], PILE_BLOCK
-    for br in range(out.shape[1]):
-        for bc in range(out.shape[2]):
-            highest = -math.inf
-            for r in range(br * b, min(br * b + b, n)):
-                for c in range(bc * b, min(bc * b + b, n)):
-                    highest = max(highest, heights[i, r, c])
-            out[i, br, bc] = highest
-
-
-@jit
-def clearance_blocked(
-    heights: np.ndarray, blocks: np.ndarray, origin: np.ndarray, spacing: float, top: float, i: int, x: float,
-    y: float, z: float, radius: float, enough: float,
-) -> float:  # fmt: skip
-    """:func:`clearance`, first against the highest of the blocks (:func:`block_maxima`, current) the window
-    touches: where that leaves ``enough``, the height above it (>= ``enough``) without visiting the points."""
-    if z - top >= enough:
-        return z - top
-    r0, r1, c0, c1 = window(heights.shape[1], spacing, x - origin[i, 0], y - origin[i, 1], radius)
-    if r1 <= r0 or c1 <= c0:
-        return math.inf
-    highest = -math.inf
-    for br in range(r0 // PILE_BLOCK, (r1 - 1) // PILE_BLOCK + 1):
-        for bc in range(c0 // PILE_BLOCK, (c1 - 1) // PILE_BLOCK + 1):
-            highest = max(highest, blocks[i, br, bc])
-    if z - highest >= enough:
-        return z - highest
-    return clearance(heights, origin, spacing, top, i, x, y, z, radius, enough)
-
-
 @jit
 def relax(h: np.ndarray, limit: float, iterations: int) -> None:
     """Let slopes steeper than ``limit`` (height difference per grid step) slide, in place, mass-conserving:

@@ -67,7 +67,7 @@ class MachineSites:
     """N learned machine models (any backend, the same site model) as the task's sites.
 
     The spools to hold are set in :attr:`spools_m` (N, 4) before a step. A machine with
-    integrated-velocity servos (the Python backend) has their targets limited at the end of each task interval
+    integrated-velocity servos (the Python backend) has their targets limited after each step
     (:meth:`limit_servo_windup`). The task's arrays are views of the machine's ``MjData`` for one
     machine, else copies refreshed after each step, re-massing and (:meth:`refresh`) start.
     """
@@ -117,12 +117,8 @@ class MachineSites:
         """Hold each site's :attr:`spools_m` for ``periods`` control periods."""
         for i in ids.tolist():
             self.machines[i].step(self.spools_m[i], n=periods)
-        self.refresh(ids)
-
-    def end_intervals(self, ids: np.ndarray) -> None:
-        """Limit the servo targets of sites ``ids`` (:meth:`limit_servo_windup`) at the end of a task interval."""
-        for i in ids.tolist():
             self.limit_servo_windup(i)
+        self.refresh(ids)
 
     def apply_tip_force(self, ids: np.ndarray, force: np.ndarray) -> None:
         """Push each site's teeth with its ``force`` row (N, world) from now on."""
@@ -225,9 +221,6 @@ class BatchSites:
         """
         np.copyto(self._joints[0], self._qpos)
         np.copyto(self._joints[1], self._qvel)
-
-    def end_intervals(self, ids: np.ndarray) -> None:
-        """Nothing to settle: the plugin's actuators keep their own state."""
 
     def apply_tip_force(self, ids: np.ndarray, force: np.ndarray) -> None:
         """ExcavatorPhysics.apply_tip_force of the sites ``ids``: ``qfrc_applied = J^T force`` at the teeth.

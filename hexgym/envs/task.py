@@ -111,10 +111,6 @@ class SitePhysics(Protocol):
         """Advance the sites ``ids`` by ``periods`` control periods with their spools (positions and velocities
         then current)."""
 
-    def end_intervals(self, ids: np.ndarray) -> None:
-        """The sites ``ids`` have ended an interval of the task (a site's machine may settle what a step of it
-        leaves, as the Python backend's servos' targets)."""
-
     def apply_tip_force(self, ids: np.ndarray, force: np.ndarray) -> None:
         """Apply ``force`` (k, 3; N, world) at the teeth of sites ``ids`` from now on (zero: none)."""
 
@@ -187,11 +183,6 @@ def _spill(
         flows[i, 2] += out
 
 
-def _merged(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The sorted site ids of two disjoint sorted sets (cheaper than np.union1d's general one)."""
-    return np.sort(np.concatenate((a, b))) if len(a) and len(b) else (b if len(b) else a)
-
-
 @jit
 def begin_step(
     ids: np.ndarray, periods: int, left: np.ndarray, flows: np.ndarray, fuel_l: np.ndarray, impulse: np.ndarray
@@ -206,30 +197,25 @@ def begin_step(
 
 @jit
 def clear_count(
-    i: int, periods: int, site_xpos: np.ndarray, tip_site: int, heights: np.ndarray, blocks: np.ndarray,
-    pile_flags: np.ndarray, origin: np.ndarray, spacing: float, top: np.ndarray,
+    i: int, periods: int, site_xpos: np.ndarray, tip_site: int, heights: np.ndarray, origin: np.ndarray,
+    spacing: float, top: np.ndarray,
 ) -> int:  # fmt: skip
     """Control periods (up to a step's ``periods``) within which site ``i``'s teeth surely stay out of the pile.
 
     The teeth travel at most ``PILE_MARGIN`` per step, ``m`` periods at most ``m / periods`` of it; the dig
     samples lie within half a bucket width of them. ``m`` periods are clear when no pile point within half a
-    width plus that travel stands higher than the teeth less that travel. The pile's block maxima, which bound
-    the test, are found again first where the pile changed (``pile_flags[i, 3]``).
+    width plus that travel stands higher than the teeth less that travel.
     """
-    if pile_flags[i, 3]:
-        ew.block_maxima(heights, i, blocks)
-        pile_flags[i, 3] = 0
     per_period = PILE_MARGIN / periods
     x, y, z = site_xpos[i, tip_site, 0], site_xpos[i, tip_site, 1], site_xpos[i, tip_site, 2]
     whole = periods * per_period
     # the usual case first: clear over the whole step is clear over each part (less travel, a smaller window)
-    if ew.clearance_blocked(heights, blocks, origin, spacing, top[i], i, x, y, z, _HALF_WIDTH + whole, whole) >= whole:
+    if ew.clearance(heights, origin, spacing, top[i], i, x, y, z, _HALF_WIDTH + whole, whole) >= whole:
         return periods
     clear = 0
     while clear < periods:
         travel = (clear + 1) * per_period
-        if ew.clearance_blocked(heights, blocks, origin, spacing, top[i], i, x, y, z, _HALF_WIDTH + travel,
-                                travel) < travel:  # fmt: skip
+        if ew.clearance(heights, origin, spacing, top[i], i, x, y, z, _HALF_WIDTH + travel, travel) < travel:
             break
         clear += 1
     return clear
@@ -238,9 +224,8 @@ def clear_count(
 @jit
 def plan(
     ids: np.ndarray, left: np.ndarray, periods: int, earthwork_periods: int, period: float, site_xpos: np.ndarray,
-    tip_site: int, heights: np.ndarray, blocks: np.ndarray, pile_flags: np.ndarray, origin: np.ndarray,
-    spacing: float, top: np.ndarray, force_on: np.ndarray, interval: np.ndarray, seconds: np.ndarray,
-    tip_start: np.ndarray, clear: np.ndarray,
+    tip_site: int, heights: np.ndarray, origin: np.ndarray, spacing: float, top: np.ndarray, force_on: np.ndarray,
+    interval: np.ndarray, seconds: np.ndarray, tip_start: np.ndarray, clear: np.ndarray,
 ) -> int:  # fmt: skip
     """Each site's next interval: the periods it stays clear of the pile (:func:`clear_count`, none while its
     edge cuts), else ``earthwork_periods`` with a dig; at most the ``left`` of its step.
@@ -251,8 +236,8 @@ def plan(
     code, first = 0, -1
     for k in range(len(ids)):
         i = ids[k]
-        n = 0 if force_on[i] else min(clear_count(i, periods, site_xpos, tip_site, heights, blocks, pile_flags,
-                                                  origin, spacing, top), left[i])  # fmt: skip
+        n = 0 if force_on[i] else min(clear_count(i, periods, site_xpos, tip_site, heights, origin, spacing, top),
+                                      left[i])  # fmt: skip
         clear[k] = n > 0
         if n > 0:
             for a in range(3):
@@ -324,7 +309,7 @@ def begin_dig(
         if depth <= 0.0:
             _spill(i, tilt, seconds[i], xpos, xmat, bucket, truck, stores, flows)
         else:
-            pile_flags[i, 0] = pile_flags[i, 1] = pile_flags[i, 3] = 1
+            pile_flags[i, 0] = pile_flags[i, 1] = 1
             pile_flags[i, 2] += 1
             any_cut = True
         push[k] = depth > 0.0 or force_on[i]
@@ -581,11 +566,8 @@ class LoadingTask:
         self.top = np.zeros(n)  # upper bound of each pile's surface (digging only lowers it)
         self.spacing = PILE_GRID_SPACING
         self._volume = np.zeros(n)
-        # per pile: changed since its fullest cut line was found, volume stale, revision (counts the cuts), block
-        # maxima stale; and the highest point of each block of its grid (clear_count's quick test)
-        self.pile_flags = np.zeros((n, 4), np.int64)
-        blocks = -(-PILE_GRID_POINTS // ew.PILE_BLOCK)
-        self._blocks = np.zeros((n, blocks, blocks))
+        # per pile: changed since its fullest cut line was found, volume stale, revision (counts the cuts)
+        self.pile_flags = np.zeros((n, 3), np.int64)
         self.layouts: list[Layout | None] = [None] * n
         # pile centre x, y, direction, cos, sin; truck centre x, y, direction, cos yaw, sin yaw
         self.layout = np.zeros((n, 10))
@@ -604,8 +586,6 @@ class LoadingTask:
         self._left, self._interval = np.zeros(n, np.int64), np.zeros(n, np.int64)
         self._seconds, self._tip_start = np.zeros(n), np.zeros((n, 3))
         self._flows, self._fuel, self._impulse = np.zeros((n, 3)), np.zeros(n), np.zeros(n)
-        # and where it is in the step: its interval's first and end period, whether it is clear of the pile
-        self._began, self._ends, self._clear = np.zeros(n, np.int64), np.zeros(n, np.int64), np.zeros(n, np.bool_)
         # shaping potentials after the last step and now (zeros, never computed, while every shaping weight is 0)
         self._shaping = any(float(weights[term]) != 0.0 for term in SHAPING_TERMS)
         self._potential, self._potential_now = np.zeros((n, 4)), np.zeros((n, 4))
@@ -625,7 +605,7 @@ class LoadingTask:
         self.heights[i] = pile.heights
         self.origin[i] = pile.origin
         self.top[i] = pile.top
-        self.pile_flags[i, :2] = self.pile_flags[i, 3] = 1
+        self.pile_flags[i, :2] = 1
         c, s = math.cos(layout.pile_direction), math.sin(layout.pile_direction)
         ct, st = math.cos(layout.truck_yaw), math.sin(layout.truck_yaw)
         (px, py), (tx, ty) = layout.pile_centre, layout.truck_centre
@@ -689,55 +669,34 @@ class LoadingTask:
         return self._impulse
 
     def _advance(self, ids: np.ndarray) -> None:
-        """Step the sites through their step's intervals, clear of the pile or digging (:meth:`_begin_intervals`),
-        all in the same physics calls, each from one interval's end to the next (cutting sites one period at a
-        time, their force re-aimed between periods by :func:`follow_resistance`): waking the batch's threads
-        costs as much as stepping several sites, so a few calls of all the sites beat a call per group."""
-        ph = self.physics
-        now = 0  # periods into the step
-        starting, going, cutting = ids, ids[:0], ids[:0]
-        while True:
-            if len(starting):
-                cutting = _merged(cutting, self._begin_intervals(starting))
-                self._began[starting], self._ends[starting] = now, now + self._interval[starting]
-                going = _merged(going, starting)
-            until = now + 1 if len(cutting) else int(self._ends[going].min())
-            aim = cutting[self._began[cutting] < now]  # (the dig just begun aimed the others)
-            if len(aim):
-                force = np.empty((len(aim), 3))
-                follow_resistance(aim, ph.site_xpos, ph.xmat, ph.tip_site, ph.bucket_body, self.tip_before,
-                                  self.tip_velocity, self.tip_interval, self.period, self._blend_one,
-                                  self.dig_depth, self.stores, force)  # fmt: skip
-                ph.apply_tip_force(aim, force)
-            ph.step(going, until - now)
-            self.tip_interval[cutting] = self.period
-            now = until
-            ended = self._ends[going] == now
-            done, going = going[ended], going[~ended]
-            ph.end_intervals(done)
-            cutting = cutting[self._ends[cutting] > now]
-            ph.end_intervals(cutting)  # (to the machine, a cut's interval is each period)
-            if not len(done):  # (only cutting sites ended a period)
-                starting = done
-                continue
-            clear = done[self._clear[done]]
-            if len(clear):
-                self._end_clear(clear)
-            self._account(done)
-            starting = done[self._left[done] > 0]
-            if not len(starting) and not len(going):
-                return
-
-    def _begin_intervals(self, ids: np.ndarray) -> np.ndarray:
-        """Plan each site's next interval (:func:`plan`) and begin the digs (:meth:`_dig`); returns the sites that
-        cut (to be stepped one period at a time)."""
+        """Rounds of clear or digging intervals until each site has advanced its step's periods."""
         ph = self.physics
         clear = np.empty(len(ids), np.bool_)
-        code = plan(ids, self._left, self.periods, self.earthwork_periods, self.period, ph.site_xpos, ph.tip_site,
-                    self.heights, self._blocks, self.pile_flags, self.origin, self.spacing, self.top, self.force_on,
-                    self._interval, self._seconds, self._tip_start, clear)  # fmt: skip
-        self._clear[ids] = clear
-        return self._dig(ids[~clear]) if code == 2 else ids[:0]
+        while True:
+            code = plan(ids, self._left, self.periods, self.earthwork_periods, self.period, ph.site_xpos, ph.tip_site,
+                        self.heights, self.origin, self.spacing, self.top, self.force_on, self._interval,
+                        self._seconds, self._tip_start, clear)  # fmt: skip
+            if code == 0:  # the usual case: all clear of the pile, for the same periods
+                ph.step(ids, int(self._interval[ids[0]]))
+                self._end_clear(ids)
+            elif code == 1:
+                self._step_grouped(ids)
+                self._end_clear(ids)
+            else:
+                self._dig(ids[~clear])
+                if clear.any():
+                    self._step_grouped(ids[clear])
+                    self._end_clear(ids[clear])
+            if not self._account(ids):
+                return
+            ids = ids[self._left[ids] > 0]
+            clear = clear[: len(ids)]
+
+    def _step_grouped(self, ids: np.ndarray) -> None:
+        """Advance each site by its interval's periods: one physics call per distinct count."""
+        periods = self._interval[ids]
+        for count in sorted(set(periods.tolist())):
+            self.physics.step(ids[periods == count], count)
 
     def _end_clear(self, ids: np.ndarray) -> None:
         """After an interval clear of the pile (:func:`end_clear`): no digging force acted; re-mass the bucket."""
@@ -748,8 +707,9 @@ class LoadingTask:
                      self._flows, self.payload_kg, change):  # fmt: skip
             ph.set_payload(ids[change], self.payload_kg[ids[change]])
 
-    def _dig(self, ids: np.ndarray) -> np.ndarray:
-        """One dig (:func:`begin_dig`) of sites ``ids`` for their interval; returns those whose edge cuts."""
+    def _dig(self, ids: np.ndarray) -> None:
+        """One dig (:func:`begin_dig`), then the interval's periods: cutting sites period by period, re-aiming their
+        digging force between them (:func:`follow_resistance`)."""
         ph = self.physics
         k = len(ids)
         force, push, change = np.empty((k, 3)), np.empty(k, np.bool_), np.empty(k, np.bool_)
@@ -763,13 +723,24 @@ class LoadingTask:
             ph.apply_tip_force(ids[push], force[push])
         if any_change:
             ph.set_payload(ids[change], self.payload_kg[ids[change]])
-        if not any_cut:
-            self.tip_interval[ids] = self._seconds[ids]
-            return ids[:0]
-        cutting = self.force_on[ids]
-        still = ids[~cutting]
-        self.tip_interval[still] = self._seconds[still]
-        return ids[cutting]
+        cutting = self.force_on[ids] if any_cut else np.zeros(k, np.bool_)
+        if not any_cut or not cutting.all():
+            still = ids[~cutting]
+            self._step_grouped(still)
+            self.tip_interval[still] = self._seconds[still]
+        if any_cut:
+            cut_ids = ids[cutting]
+            cut_periods = self._interval[cut_ids]
+            for start in range(int(cut_periods.max())):
+                now = cut_ids[cut_periods > start] if start else cut_ids
+                if start:
+                    force = np.empty((len(now), 3))
+                    follow_resistance(now, ph.site_xpos, ph.xmat, ph.tip_site, ph.bucket_body, self.tip_before,
+                                      self.tip_velocity, self.tip_interval, self.period, self._blend_one,
+                                      self.dig_depth, self.stores, force)  # fmt: skip
+                    ph.apply_tip_force(now, force)
+                ph.step(now, 1)
+                self.tip_interval[now] = self.period
 
     def _account(self, ids: np.ndarray) -> int:
         """Fuel, hard-contact impulse and joint loads at the end of the sites' intervals (:func:`account`); returns
@@ -837,8 +808,7 @@ class LoadingTask:
         """:func:`clear_count` of sites ``ids`` (0 where the edge cuts)."""
         ph = self.physics
         return np.array([0 if self.force_on[i] else clear_count(i, self.periods, ph.site_xpos, ph.tip_site,
-                         self.heights, self._blocks, self.pile_flags, self.origin, self.spacing, self.top)
-                         for i in ids.tolist()])  # fmt: skip
+                         self.heights, self.origin, self.spacing, self.top) for i in ids.tolist()])  # fmt: skip
 
     def hard_contact_forces(self, ids: np.ndarray) -> np.ndarray:
         """:func:`hard_contact_force` of sites ``ids``, N."""
