@@ -147,8 +147,11 @@ def test_the_shield_works_with_make_vec_and_sb3():
 def test_shield_command_writes_the_figures(tmp_path, capsys):
     from hexgym.tools.cli import main
 
-    out = tmp_path / "shield.json"
-    assert main(["shield", "--policy", "random", "--episodes", "1", "--seconds", "5", "--json", str(out)]) == 0
+    out, plot = tmp_path / "shield.json", tmp_path / "shield.png"
+    argv = ["shield", "--policy", "random", "--episodes", "2", "--seconds", "5", "--json", str(out)]
+    argv += ["--plot", str(plot)]
+    assert main(argv) == 0
+    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and plot.stat().st_size > 10_000
     result = json.loads(out.read_text())
     for key in ("contacts_per_hour_without", "contacts_per_hour_with", "interventions_per_hour",
                 "tonnes_per_hour_without", "tonnes_per_hour_with", "shield_ms_per_step"):  # fmt: skip

@@ -260,6 +260,10 @@ def _cmd_shield(args: argparse.Namespace) -> int:
     print_comparison(result)
     if args.json:
         print(f"wrote {args.json}")
+    if args.plot:
+        from hexgym.tools.shield import plot_comparison
+
+        print(f"wrote {plot_comparison(result, args.plot)}")
     return 0
 
 
@@ -475,6 +479,7 @@ def _add_planning_parsers(sub: argparse._SubParsersAction) -> None:
     shield.add_argument("--seconds", type=float, default=None, help="episode time limit, s (default: the env's)")
     shield.add_argument("--horizon", type=float, default=1.5, help="prediction horizon, s (default: 1.5)")
     shield.add_argument("--json", metavar="OUT", default=None, help="also write the figures to this JSON file")
+    shield.add_argument("--plot", metavar="PNG", default=None, help="also plot the figures per episode to this PNG")
     shield.set_defaults(func=_cmd_shield)
 
     plan = sub.add_parser("plan", help="plan a time-and-fuel-optimal dump or return move on the fast model; replay "
@@ -595,7 +600,7 @@ _POSITIVE = {"seconds": "s", "fps": "frames/s", "dt_out": "s"}
 # Paths, by (command, option): files and directories written, files and directories read.
 _OUTPUT_FILES = {("simulate", "out"), ("video", "out"), ("video", "snapshot"), ("evaluate", "json"),
                  ("bench", "json"), ("scripted", "json"), ("clone", "out"), ("view", "screenshot"),
-                 ("convert-normalizer", "out"), ("shield", "json"),
+                 ("convert-normalizer", "out"), ("shield", "json"), ("shield", "plot"),
                  ("plan", "json"), ("plan", "plot"), ("plan", "video"), ("curves", "out"),
                  ("curves", "json")}  # fmt: skip
 _OUTPUT_DIRS = {("demo", "out"), ("reference-report", "out"), ("validate", "out"), ("collect", "out"),

@@ -32,7 +32,7 @@ import numpy as np
 
 from hexgym.agents.scripted import ScriptedLoader
 from hexgym.envs.loading import STEP_PERIOD, HexLoadingEnv
-from hexgym.files import write_json
+from hexgym.files import save_figure, write_json
 from hexgym.machine import parameters as p
 from hexgym.parallel import executor
 from hexgym.planning.planner import MARGIN_M, Goal, Plan, dump_goal, plan_motion, return_goal
@@ -346,10 +346,7 @@ def plot_plan(result: dict[str, Any], out: str | Path) -> Path:
         fontsize=10,
     )
     fig.tight_layout()
-    out = Path(out)
-    fig.savefig(out, dpi=90)
-    plt.close(fig)
-    return out
+    return save_figure(fig, out)
 
 
 def plan_video(result: dict[str, Any], out: str | Path, width: int = 640, height: int = 384) -> Path:

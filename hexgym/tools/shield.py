@@ -9,6 +9,8 @@ Figures (pooled over the episodes; an hour is one of simulated time):
 - ``tonnes_per_hour_without`` / ``_with``: delivered tonnes per hour, and their relative change;
 - ``shield_ms_per_step``: the shield's own wall time per step (prediction and candidate search);
 - ``step_ms_without`` / ``step_ms_with``: the whole step's wall time (policy excluded).
+
+:func:`plot_comparison` draws them per episode.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ import gymnasium as gym
 import numpy as np
 
 from hexgym.agents.evaluate import Policy, load_policy
-from hexgym.files import write_json
+from hexgym.files import save_figure, write_json
 from hexgym.wrappers import CollisionShield
 
 
@@ -128,3 +130,46 @@ def print_comparison(result: dict[str, Any]) -> None:
           f"({pct(r['tonnes_per_hour_change'])})")  # fmt: skip
     print(f"  interventions per hour: {r['interventions_per_hour']:.0f}; shield {r['shield_ms_per_step']:.2f} ms/step "
           f"(step {r['step_ms_without']:.2f} ms without, {r['step_ms_with']:.2f} ms with)")  # fmt: skip
+
+
+def plot_comparison(result: dict[str, Any], out: str | Path) -> Path:
+    """The comparison per episode as a PNG: hard contacts per hour without and with the shield (log scale: a random
+    policy's fall by orders of magnitude), tonnes per hour without and with, and the shield's interventions per
+    hour and its wall time per step."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    runs = result["per_episode"]
+    seeds = np.array([e["seed"] for e in runs["without"]])
+    per_hour = {label: {key: np.array([3600.0 * e[key] / e["sim_seconds"] for e in eps])
+                        for key in ("contacts", "delivered_t", "interventions")}
+                for label, eps in runs.items()}  # fmt: skip
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    width = 0.4
+    for key, ax, title, unit in (("contacts", axes[0], "hard contacts", "per hour (log; 0 marked)"),
+                                 ("delivered_t", axes[1], "delivered", "t per hour")):  # fmt: skip
+        for shift, label, colour in ((-width / 2, "without", "C3"), (width / 2, "with", "C0")):
+            values = per_hour[label][key]
+            ax.bar(seeds + shift, values, width, color=colour, label=f"{label} the shield")
+            if key == "contacts":  # a log axis has no 0: mark the episodes without a contact
+                zero = values == 0
+                ax.plot(seeds[zero] + shift, np.ones(zero.sum()), "o", color=colour, markersize=4)
+        ax.set(xlabel="episode seed", ylabel=unit, title=title, xticks=seeds)
+        if key == "contacts":
+            ax.set_yscale("log")
+            ax.set_ylim(bottom=0.5)
+        elif not any(per_hour[label][key].any() for label in per_hour):
+            ax.text(0.5, 0.5, "nothing delivered", transform=ax.transAxes, ha="center")
+        ax.legend(fontsize=8)
+    ms = np.array([e["shield_ms"] for e in runs["with"]])
+    axes[2].bar(seeds, per_hour["with"]["interventions"], 0.6, color="C1")
+    axes[2].set(xlabel="episode seed", ylabel="interventions per hour", xticks=seeds,
+                title=f"interventions (shield {ms.mean():.2f} ms/step)")  # fmt: skip
+    reduction = result["contact_reduction"]
+    fig.suptitle(f"collision shield, policy {result['policy']}, horizon {result['horizon_s']} s: hard contacts "
+                 f"{result['contacts_per_hour_without']:.1f} -> {result['contacts_per_hour_with']:.1f} per hour"
+                 + ("" if reduction is None else f" ({100 * reduction:.2f} % fewer)"), fontsize=10)  # fmt: skip
+    fig.tight_layout()
+    return save_figure(fig, out)
