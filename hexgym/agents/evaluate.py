@@ -138,10 +138,13 @@ def load_trained(model_path: str | Path, env_id: str = ENV_ID) -> TrainedPolicy:
     return TrainedPolicy(model, normalizer if normalizer.norm_obs else None)
 
 
-def load_policy(spec: str) -> Policy:
-    """``"scripted"``, ``"shipped"``, a model path or an RLlib checkpoint directory -> a policy."""
+def load_policy(spec: str | Path, env_id: str = ENV_ID) -> Policy:
+    """``"scripted"``, ``"shipped"``, a model path or an RLlib checkpoint directory -> a policy for ``env_id``
+    (another task than HexLoading-v0: ``"scripted"`` or a model trained on it)."""
     if spec == "scripted":
         return ScriptedPolicy()
+    if env_id != ENV_ID:
+        return load_trained(spec, env_id)
     if spec == "shipped":
         if not SHIPPED_POLICY.is_file():
             raise FileNotFoundError(f"no shipped policy at {SHIPPED_POLICY}: see README, Training agents")
@@ -309,7 +312,7 @@ def evaluate_success(
     check_seed("seed", seed)
     if model_path == "scripted" and env_id != DIG_ENV_ID:
         raise ValueError(f"the scripted loader acts on the loading site: HexLoading-v0 or {DIG_ENV_ID}, not {env_id}")
-    policy = ScriptedPolicy() if model_path == "scripted" else load_trained(model_path, env_id)
+    policy = load_policy(model_path, env_id)
     env = gym.make(env_id, **(env_kwargs or {}))
     try:
         runs = [run_success_episode(env, policy, s) for s in range(seed, seed + int(episodes))]

@@ -14,14 +14,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from hexgym.agents.evaluate import (
-    Policy,
-    ScriptedPolicy,
-    load_policy,
-    load_trained,
-    run_episode,
-    run_success_episode,
-)
+from hexgym.agents.evaluate import Policy, load_policy, run_episode, run_success_episode
 from hexgym.checks import check_count, check_positive, check_seed
 from hexgym.envs import DIG_ENV_ID, ENV_ID
 from hexgym.envs.loading import STEP_PERIOD
@@ -115,10 +108,7 @@ def record_video(
     check_output_file(out, "video", inputs=(policy_file,))
     if snapshot is not None:
         check_output_file(snapshot, "snapshot", inputs=(policy_file, out))
-    if env_id == ENV_ID:
-        policy = load_policy(policy_spec)
-    else:
-        policy = ScriptedPolicy() if policy_spec == "scripted" else load_trained(policy_spec, env_id)
+    policy = load_policy(policy_spec, env_id)
     kwargs: dict[str, Any] = {"render_mode": "rgb_array", "camera": camera, "width": width, "height": height,
                               "model": model}  # fmt: skip
     if seconds is not None:

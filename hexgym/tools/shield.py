@@ -163,10 +163,9 @@ def plot_comparison(result: dict[str, Any], out: str | Path) -> Path:
         elif not any(per_hour[label][key].any() for label in per_hour):
             ax.text(0.5, 0.5, "nothing delivered", transform=ax.transAxes, ha="center")
         ax.legend(fontsize=8)
-    ms = np.array([e["shield_ms"] for e in runs["with"]])
     axes[2].bar(seeds, per_hour["with"]["interventions"], 0.6, color="C1")
     axes[2].set(xlabel="episode seed", ylabel="interventions per hour", xticks=seeds,
-                title=f"interventions (shield {ms.mean():.2f} ms/step)")  # fmt: skip
+                title=f"interventions (shield {result['shield_ms_per_step']:.2f} ms/step)")  # fmt: skip
     reduction = result["contact_reduction"]
     fig.suptitle(f"collision shield, policy {result['policy']}, horizon {result['horizon_s']} s: hard contacts "
                  f"{result['contacts_per_hour_without']:.1f} -> {result['contacts_per_hour_with']:.1f} per hour"
