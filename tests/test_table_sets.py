@@ -10,7 +10,7 @@ import pytest
 
 from hexgym.mbl import table
 from hexgym.mbl.lwr_params import LWRParams
-from hexgym.mbl.schema import TABLE_SETS, table_set_of
+from hexgym.mbl.schema import NATIVE_TABLE_SETS, TABLE_SETS, table_set_of
 from hexgym.mbl.table import MBLTable, load_tables, packaged_tables_dir
 from hexgym.model.plugin import native_available
 from hexgym.model.replay import replay
@@ -119,7 +119,7 @@ def test_a_torque_table_keeps_the_swings_angular_momentum(extended_dir, tmp_path
 
 
 @needs_plugin
-@pytest.mark.parametrize("table_set", list(TABLE_SETS))
+@pytest.mark.parametrize("table_set", NATIVE_TABLE_SETS)
 def test_python_and_native_agree_on_each_set(table_set, extended_dir):
     from hexgym.model.native_backend import NativeLearnedModel
     from hexgym.model.python_backend import LearnedModel

@@ -51,6 +51,7 @@ faster; the swing torque returned is on the swing axis.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -80,7 +81,7 @@ STATE_SIZE = len(STATE_NAMES)
 TANK = N_NODES  # index of the ground node in the extended pressure vector
 _PORTS = {"boom": (4, 5), "stick": (6, 7), "bucket": (8, 9), "swing": (10, 11)}
 _SQRT_2_RHO = np.sqrt(2.0 / p.OIL_DENSITY)
-_SWING_DISPLACEMENT_RAD = p.SWING_MOTOR_DISPLACEMENT / (2.0 * np.pi)  # m^3/rad
+SWING_DISPLACEMENT_RAD = p.SWING_MOTOR_DISPLACEMENT / (2.0 * np.pi)  # m^3/rad
 _VACUUM = 1e3 - p.ATMOSPHERIC_PRESSURE  # Pa gauge: the floor of the compliance law
 
 
@@ -140,6 +141,7 @@ class SpoolAreas:
     at: np.ndarray  # a -> T
     bt: np.ndarray  # b -> T
     bypass: np.ndarray  # centre bypass through this section
+    pump_bypass: np.ndarray | None = None  # (2,) each pump's bypass, both sections; None: their series
 
 
 def _unit(z: np.ndarray) -> np.ndarray:
@@ -306,7 +308,8 @@ class HydraulicCircuit:
 
     MAX_SPLITS = 6  # a step is cut to 1/64 at most
 
-    def __init__(self) -> None:
+    def __init__(self, valve: Callable[[np.ndarray], SpoolAreas] = spool_areas) -> None:
+        self.valve = valve  # spools (m) -> passage areas: the data sheet's law, or a learned one
         self.split_count = 0
         self.branches, self._groups = _build_branches()
         br = self.branches
@@ -328,13 +331,13 @@ class HydraulicCircuit:
         self._pump_sections = [np.array([i for i, f in enumerate(FUNCTIONS) if PUMP_OF[f] == k]) for k in (0, 1)]
         self._cushioned = np.array([FUNCTIONS.index(n) for n in CYLINDER_NAMES])
         self._spool_key: bytes | None = None
-        self._spool_areas = spool_areas(np.zeros(len(FUNCTIONS)))
+        self._spool_areas = self.valve(np.zeros(len(FUNCTIONS)))
         self._eye = np.eye(STATE_SIZE)
         # d(volume rate)/d(v_boom, v_stick, v_bucket, swing rate) of every node
         self._displacement = np.zeros((N_NODES, 4))
         self._displacement[self._head_nodes, np.arange(3)] = self.head_area
         self._displacement[self._rod_nodes, np.arange(3)] = -self.rod_area
-        swept = _SWING_DISPLACEMENT_RAD * p.SWING_REDUCTION
+        swept = SWING_DISPLACEMENT_RAD * p.SWING_REDUCTION
         self._displacement[10, 3], self._displacement[11, 3] = swept, -swept
 
     # ---- initial state ---------------------------------------------------------------------
@@ -379,7 +382,7 @@ class HydraulicCircuit:
         """Geometric area (m^2) of every branch for these spools and cylinder extensions."""
         key = spools.tobytes()
         if key != self._spool_key:  # spools are held for many steps: reuse their areas
-            self._spool_key, self._spool_areas = key, spool_areas(spools)
+            self._spool_key, self._spool_areas = key, self.valve(spools)
         sa = self._spool_areas
         area = self.branches.area.copy()
         g = self._groups
@@ -391,7 +394,7 @@ class HydraulicCircuit:
         area[g["at"]], area[g["bt"]] = at, bt
         for k, sections in enumerate(self._pump_sections):  # the pump's spools in series
             first, second = sa.bypass[sections]
-            area[g["bypass"][k]] = series_area(first, second)
+            area[g["bypass"][k]] = series_area(first, second) if sa.pump_bypass is None else sa.pump_bypass[k]
         return area
 
     def branch_flows(self, pressures: np.ndarray, area: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -559,7 +562,7 @@ class HydraulicCircuit:
         sech2 = 1.0 - np.tanh(v / p.CYLINDER_FRICTION_VELOCITY) ** 2  # d tanh / dx; no overflow at speed
         friction = p.CYLINDER_COULOMB_FRICTION / p.CYLINDER_FRICTION_VELOCITY * sech2 + p.CYLINDER_VISCOUS_FRICTION
         ratio = p.SWING_REDUCTION
-        dtorque = ratio * _SWING_DISPLACEMENT_RAD * (sensitivity[10, 3] - sensitivity[11, 3])
+        dtorque = ratio * SWING_DISPLACEMENT_RAD * (sensitivity[10, 3] - sensitivity[11, 3])
         dtorque -= ratio * ratio * p.SWING_MOTOR_VISCOUS_FRICTION
         return dpressure - self._count * friction, float(dtorque)
 
@@ -607,7 +610,7 @@ class HydraulicCircuit:
         """Torque (N m) on the swing axis from the motor port pressures."""
         omega = p.SWING_REDUCTION * swing_rate
         dp = state[10] - state[11]
-        ideal = _SWING_DISPLACEMENT_RAD * dp
+        ideal = SWING_DISPLACEMENT_RAD * dp
         loss = (1.0 - p.SWING_MECHANICAL_EFFICIENCY) * abs(ideal) * np.tanh(omega / p.SWING_FRICTION_SPEED)
         return float(p.SWING_REDUCTION * (ideal - loss - p.SWING_MOTOR_VISCOUS_FRICTION * omega))
 

@@ -84,12 +84,14 @@ from typing import Any
 import numpy as np
 
 from hexgym.files import atomic_path, check_output_dir
+from hexgym.hydraulics.circuit import HydraulicCircuit
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.mbl.operator_logs import DT as OPERATOR_DT
 from hexgym.mbl.operator_logs import DURATION_S as OPERATOR_DURATION_S
 from hexgym.mbl.operator_logs import operator_log
 from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS
+from hexgym.mbl.valve import identify_areas
 from hexgym.parallel import Executor, add_ray_option, executor
 
 GENERATOR_VERSION = 1
@@ -138,6 +140,12 @@ class CollectConfig:
     operator_interval_s: float = 0.2  # operator group: one row this often along each log
     operator_duration_s: float | None = None  # operator group: each log this long (None: 30-60 s)
     operator_sample_factor: int = 2  # operator group: this many times the samples per group
+
+    @property
+    def operator_style(self) -> str:
+        """How the operator group's logs move the joysticks (:data:`hexgym.mbl.operator_logs.STYLES`): the
+        valve's tables need every spool position passed slowly, the others an operator's motion."""
+        return "sweep" if self.table_set == "circuit" else "operator"
 
     def groups(self) -> tuple[str, ...]:
         """The collection groups the table set's tables learn from, in ``GROUPS`` order."""
@@ -450,7 +458,7 @@ def collect_operator_episode(sim: Any, episode: int, seed: int, config: CollectC
     cylinder on pump 2 (the stick) is driven into its stroke end are left out: there its relief,
     not the valve, sets the pressure, and the learned model closes that spool.
     """
-    drawn = operator_log(episode_rng(seed, "operator", episode), config.operator_duration_s)
+    drawn = operator_log(episode_rng(seed, "operator", episode), config.operator_duration_s, config.operator_style)
     sim.reset("home", drawn.payload_kg)  # clears what a reset to joint angles keeps (see collect_episode)
     sim.reset(drawn.start_pose, drawn.payload_kg)
     ph, dt = sim.physics, sim.timestep
@@ -464,7 +472,9 @@ def collect_operator_episode(sim: Any, episode: int, seed: int, config: CollectC
     pending: dict[int, dict[str, float]] = {}
     result = EpisodeResult(rows={t: [] for t in config.tables("operator")})
     stick, stroke = _CYL["stick"], _STROKE[_CYL["stick"]]
+    valve = config.table_set == "circuit"  # the valve's samples need the ports' pressure rates
     for k in range(1, steps + 1):
+        before = sim.state[:12].copy()
         try:
             sim.step(spools_m[k - 1])
         except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:  # a diverged model: end it here
@@ -488,13 +498,26 @@ def collect_operator_episode(sim: Any, episode: int, seed: int, config: CollectC
                 "pump1_pressure_pa": float(sim.state[0]),
                 "pump2_pressure_pa": float(sim.state[1]),
             }
+            if valve:
+                pending[k] |= _valve_samples(sim, u, (sim.state[:12] - before) / dt)
         for c in [c for c in pending if c + half <= k]:
             q = pending.pop(c) | {"swing_torque_nm": float((momentum[c + half] - momentum[c - half]) / (2 * half * dt))}
             for table in config.tables("operator"):
                 spec = TABLE_SETS[config.table_set][table]
-                result.rows[table].append((np.array([q[name] for name in spec.inputs]), q[spec.output], c))
+                if not math.isnan(q[spec.output]):  # a valve passage not metering clearly gives none
+                    result.rows[table].append((np.array([q[name] for name in spec.inputs]), q[spec.output], c))
     result.segments = 1
     return result
+
+
+def _valve_samples(sim: Any, spools_m: np.ndarray, pressure_rates: np.ndarray) -> dict[str, float]:
+    """The valve's passage areas identifiable at this instant of ``sim`` (:func:`identify_areas`)."""
+    state, ph = sim.state, sim.physics
+    flows, _, _ = HydraulicCircuit.pump_flows(state[0:2], state[12:14])
+    ext, vel = ph.cylinder_extensions(), ph.cylinder_velocities()
+    volumes = sim.circuit.volumes(ext)
+    rate = float(ph.joint_velocities()[0])
+    return identify_areas(state[:12], pressure_rates, volumes, flows, spools_m, ext, vel, rate)
 
 
 def _episode(sim: Any, group: str, episode: int, seed: int, config: CollectConfig) -> EpisodeResult:
@@ -976,7 +999,8 @@ def add_collect_parser(subparsers: Any) -> argparse.ArgumentParser:
         "--tables",
         choices=tuple(TABLE_SETS),
         default=DEFAULT_TABLE_SET,
-        help=f"which table set's data: paper, or extended (also operator-like logs for the swing's tables) "
+        help="which table set's data: paper, extended (also operator-like logs for the swing's tables) or circuit "
+        "(the valve's passages, from logs that sweep the spools) "
         f"(default: {DEFAULT_TABLE_SET})",
     )
     parser.set_defaults(func=run_collect)

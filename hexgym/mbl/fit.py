@@ -31,7 +31,12 @@ HOLDOUT_FRACTION = 0.2  # of the episodes
 MAX_GRID_NODES = {
     "paper": {"boom": 60_000, "bucket": 60_000, "stick": 60_000, "swing": 200_000},
     "extended": {"boom": 60_000, "bucket": 60_000, "stick": 60_000, "swing": 150_000, "pump2": 250_000},
+    "circuit": {name: 200 for name in TABLE_SETS["circuit"]},
 }  # fmt: skip
+# A one-input table (the circuit set's valve passages over their spool, sampled at any spool position
+# along operator-like motion) gets this many nodes per kernel width, up to ONE_INPUT_NODES in all.
+ONE_INPUT_NODES_PER_WIDTH = 4.0
+ONE_INPUT_NODES = 89
 MAX_POINTS = 12_000  # a seeded subsample above this: LOO selection and the grid stay minutes, not hours
 
 
@@ -75,8 +80,11 @@ def fit_table(name: str, data: TableData, seed: int = 0, table_set: str = DEFAUL
     X, y = data.X, data.y
     split = episode_split(data.episode, HOLDOUT_FRACTION, seed)
     params, _ = select_params(X[split[0]], y[split[0]], seed=seed)
-    steps = tuple(SPOOL_STEP if n.endswith("_spool_m") else None for n in spec.inputs)
-    axes = suggest_axes(X, params, steps=steps, max_total=MAX_GRID_NODES[table_set][name])
+    if len(spec.inputs) == 1:
+        axes = suggest_axes(X, params, nodes_per_bandwidth=ONE_INPUT_NODES_PER_WIDTH, max_nodes=ONE_INPUT_NODES)
+    else:
+        steps = tuple(SPOOL_STEP if n.endswith("_spool_m") else None for n in spec.inputs)
+        axes = suggest_axes(X, params, steps=steps, max_total=MAX_GRID_NODES[table_set][name])
     table = build_table(name, spec.inputs, spec.output, X, y, params, axes, seed=seed, split=split)
     span = table.metrics["output_range"]
     baselines = compare_baselines(X, y, seed=seed, split=split)

@@ -18,6 +18,10 @@ These logs are drawn afresh from a seed, as an operator would move the joysticks
 
 Rows are every 0.05 s, 30-60 s long; all times lie on that grid. Each log is reproducible on
 its own: :func:`suite_log` seeds it from ``np.random.SeedSequence([suite_seed, index])``.
+
+The ``sweep`` style (:data:`STYLES`) moves the joysticks as someone learning the valve would: partial
+levels anywhere from the dead band up and slow ramps, so that every spool position is passed and
+held, where an operator mostly pushes the stick to its stop.
 """
 
 from __future__ import annotations
@@ -42,6 +46,21 @@ START_FRACTION = (0.15, 0.85)  # of each cylinder's stroke
 # (``hexgym reference-report``); only to estimate where a cylinder is in its stroke.
 NOMINAL_SPEED_MPS = {"boom": (0.14, 0.45), "stick": (0.35, 0.42), "bucket": (0.29, 0.43)}
 P_FULL = 0.6  # a joystick pushed to its stop
+
+
+@dataclass(frozen=True)
+class Style:
+    """How the joysticks move: the chance of a full stroke, partial levels (mm) and ramp times (s)."""
+
+    p_full: float
+    partial_mm: tuple[float, float]
+    ramp_s: tuple[float, float]
+
+
+STYLES = {
+    "operator": Style(P_FULL, PARTIAL_MM, RAMP_S),
+    "sweep": Style(0.2, (p.SPOOL_DEAD_BAND * 1e3, SPOOL_LIMIT_MM), (0.5, 3.0)),
+}
 P_SWING_PHASE = 0.35
 P_STOP_AT_END = 0.85  # a hold that would run the cylinder into its end is cut short
 
@@ -113,10 +132,10 @@ def pose_from_fractions(swing: float, fractions: np.ndarray) -> np.ndarray:
     return np.array(q)
 
 
-def _stroke(rng: np.random.Generator, function: str, start: float, fractions: dict[str, float]) -> Stroke:
+def _stroke(rng: np.random.Generator, function: str, start: float, fractions: dict[str, float], style: Style) -> Stroke:
     """One joystick movement of ``function``; moves the estimated stroke fraction in ``fractions``."""
-    level = SPOOL_LIMIT_MM if rng.random() < P_FULL else float(rng.uniform(*PARTIAL_MM))
-    ramp_up, ramp_down = (_grid(rng.uniform(*RAMP_S)) for _ in range(2))
+    level = SPOOL_LIMIT_MM if rng.random() < style.p_full else float(rng.uniform(*style.partial_mm))
+    ramp_up, ramp_down = (_grid(rng.uniform(*style.ramp_s)) for _ in range(2))
     if function == "swing":
         level *= float(rng.choice([-1.0, 1.0]))
         return Stroke(function, level, start, ramp_up, _grid(rng.uniform(*SWING_HOLD_S)), ramp_down)
@@ -133,23 +152,26 @@ def _stroke(rng: np.random.Generator, function: str, start: float, fractions: di
     return Stroke(function, level if extend else -level, start, ramp_up, hold, ramp_down)
 
 
-def _phase(rng: np.random.Generator, start: float, fractions: dict[str, float]) -> list[Stroke]:
+def _phase(rng: np.random.Generator, start: float, fractions: dict[str, float], style: Style) -> list[Stroke]:
     """The strokes of one phase: a long swing (alone or with the stick), or 1-3 functions."""
     if rng.random() < P_SWING_PHASE:
-        swing = _stroke(rng, "swing", start, fractions)
+        swing = _stroke(rng, "swing", start, fractions, style)
         if rng.random() < 0.5:
             return [swing]
-        return [swing, _stroke(rng, "stick", _grid(start + rng.uniform(0.0, 2.0)), fractions)]
+        return [swing, _stroke(rng, "stick", _grid(start + rng.uniform(0.0, 2.0)), fractions, style)]
     k = rng.choice([1, 2, 3], p=[0.35, 0.4, 0.25])
     functions = rng.choice(kinematics.JOINTS, size=k, replace=False)
     return [
-        _stroke(rng, str(fn), start if i == 0 else _grid(start + rng.uniform(0.0, 1.0)), fractions)
+        _stroke(rng, str(fn), start if i == 0 else _grid(start + rng.uniform(0.0, 1.0)), fractions, style)
         for i, fn in enumerate(functions)
     ]
 
 
-def operator_log(rng: np.random.Generator, duration_s: float | None = None) -> OperatorLog:
-    """Draw one operator-like log (30-60 s unless ``duration_s``), its start pose and payload."""
+def operator_log(rng: np.random.Generator, duration_s: float | None = None, style: str = "operator") -> OperatorLog:
+    """Draw one operator-like log (30-60 s unless ``duration_s``), its start pose and payload; ``style``:
+    a key of :data:`STYLES`."""
+    if style not in STYLES:
+        raise ValueError(f"style must be one of {tuple(STYLES)}, got {style!r}")
     duration = _grid(rng.uniform(*DURATION_S) if duration_s is None else duration_s)
     payload = float(rng.choice(PAYLOADS_KG))
     start_fractions = rng.uniform(*START_FRACTION, size=3)
@@ -159,7 +181,7 @@ def operator_log(rng: np.random.Generator, duration_s: float | None = None) -> O
     t, misses = _grid(rng.uniform(0.3, 1.0)), 0
     while duration - t > 3.0 and misses < 20:  # phases until the last few seconds; it ends in neutral
         trial = dict(fractions)
-        phase = _phase(rng, t, trial)
+        phase = _phase(rng, t, trial, STYLES[style])
         end = max(s.end_s for s in phase)
         if end > duration - 0.5:
             misses += 1  # too long for what is left: draw another

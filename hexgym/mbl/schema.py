@@ -15,8 +15,15 @@ its spool is open and the swing rate. Both learn from operator-like motion (grou
 joystick ramps, swings with and without the stick), where the pressure's transients the steady
 segments never show take place. Boom, bucket and stick keep the paper's tables.
 
+The third set, ``circuit``, learns the control valve instead of the machine's response: one 1-D table
+per passage (each section's centre bypass, pump to port a or b, port a or b to tank) giving its
+orifice area against the spool, identified from the pressures, pump flows and velocities of
+operator-like motion (:mod:`hexgym.mbl.valve`). The circuit model (:mod:`hexgym.model.circuit_model`)
+runs the open-centre circuit's structure from the machine's data sheet with these areas. The native
+plugin runs the ``paper`` and ``extended`` sets (``NATIVE_TABLE_SETS``).
+
 Quantity names carry their SI unit as a suffix: ``_m`` m, ``_n`` N, ``_nm`` N m, ``_kgm2`` kg m^2,
-``_radps`` rad/s, ``_mps`` m/s, ``_radps2`` rad/s^2, ``_pa`` Pa. ``stick_drive_force_n`` is the stick
+``_radps`` rad/s, ``_mps`` m/s, ``_radps2`` rad/s^2, ``_pa`` Pa, ``_m2`` m^2. ``stick_drive_force_n`` is the stick
 cylinder's force load while its spool is open and 0 while it is closed (the closed spool cuts the
 cylinder off from the pump, so its load then says nothing about the pump's pressure).
 """
@@ -98,6 +105,18 @@ TABLE_SETS: dict[str, dict[str, TableSchema]] = {
         ),
     ),
 }
+# The control valve's passages: each section's centre bypass, then pump -> port a, pump -> port b,
+# port a -> tank, port b -> tank (port a: a cylinder's head end, the swing motor's turning-positive port).
+VALVE_PASSAGES = ("bypass", "pa", "pb", "at", "bt")
+VALVE_FUNCTIONS = ("swing", "boom", "stick", "bucket")  # the spool order
+TABLE_SETS["circuit"] = _tables(
+    *[
+        TableSchema(f"{f}_{passage}", "operator", (f"{f}_spool_m",), f"{f}_{passage}_area_m2", "trajectory")
+        for passage in VALVE_PASSAGES  # the bypass first: identifiable in most rows, it is the one counted
+        for f in VALVE_FUNCTIONS
+    ]
+)
+NATIVE_TABLE_SETS = ("paper", "extended")  # the sets the native plugin runs
 DEFAULT_TABLE_SET = "paper"
 
 

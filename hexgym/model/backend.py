@@ -56,9 +56,17 @@ def make_learned_model(
 ) -> LearnedModelBase:
     """The learned model on ``backend`` ("native", "python" or "auto"), on the lean machine.
 
-    ``table_set``: "extended" or "paper" (:mod:`hexgym.mbl.schema`); ``tables_dir``: other tables of
-    that set than the packaged ones (both backends read the same files).
+    ``table_set``: "paper", "extended" or "circuit" (:mod:`hexgym.mbl.schema`; the circuit model,
+    :mod:`hexgym.model.circuit_model`, runs in Python whatever ``backend`` "auto" would choose);
+    ``tables_dir``: other tables of that set than the packaged ones (both backends read the same files).
     """
+    if table_set == "circuit":  # the circuit model runs in Python only
+        if backend == "native":
+            raise ValueError("backend 'native' does not run the circuit model: use backend 'python' or 'auto'")
+        from hexgym.mbl.table import load_tables
+        from hexgym.model.circuit_model import CircuitModel
+
+        return CircuitModel(load_tables(tables_dir, table_set), control_period=control_period)
     backend = resolve_backend(backend)
     if backend == "native":
         from hexgym.model.native_backend import NativeLearnedModel

@@ -24,7 +24,7 @@ import numpy as np
 
 from hexgym.files import atomic_path
 from hexgym.machine import kinematics
-from hexgym.mbl.schema import DEFAULT_TABLE_SET, QUANTITIES, TABLE_SETS
+from hexgym.mbl.schema import DEFAULT_TABLE_SET, NATIVE_TABLE_SETS, QUANTITIES, TABLE_SETS
 from hexgym.mbl.table import FORMAT_VERSION
 
 PLUGIN_NAME = "hexgym.mbl"
@@ -83,7 +83,7 @@ def interface() -> dict:
         "quantities": list(QUANTITIES),
         "table_sets": {
             set_name: [{"name": s.name, "inputs": list(s.inputs), "output": s.output} for s in tables.values()]
-            for set_name, tables in TABLE_SETS.items()
+            for set_name, tables in _native_sets().items()
         },
         "default_table_set": DEFAULT_TABLE_SET,
         "table_format_version": FORMAT_VERSION,
@@ -141,22 +141,22 @@ def header_text() -> str:
         *[f"    {quote(q)}," for q in QUANTITIES],
         "};",
         "",
-        f"constexpr int kMaxTableInputs = {max(len(s.inputs) for t in TABLE_SETS.values() for s in t.values())};",
+        f"constexpr int kMaxTableInputs = {max(len(s.inputs) for t in _native_sets().values() for s in t.values())};",
         "struct TableSchema {",
         "  const char* name;",
         "  int num_inputs;",
         "  Quantity inputs[kMaxTableInputs];",
         "  const char* output;",
         "};",
-        *[line for name, tables in TABLE_SETS.items() for line in _table_set_lines(name, tables)],
+        *[line for name, tables in _native_sets().items() for line in _table_set_lines(name, tables)],
         "struct TableSet {",
         "  const char* name;",
         "  int num_tables;",
         "  const TableSchema* tables;",
         "};",
-        f"constexpr int kNumTableSets = {len(TABLE_SETS)};",
+        f"constexpr int kNumTableSets = {len(NATIVE_TABLE_SETS)};",
         "constexpr TableSet kTableSets[kNumTableSets] = {",
-        *[f"    {{{json.dumps(n)}, {len(t)}, k{_camel(n)}Tables}}," for n, t in TABLE_SETS.items()],
+        *[f"    {{{json.dumps(n)}, {len(t)}, k{_camel(n)}Tables}}," for n, t in _native_sets().items()],
         "};",
         f"constexpr char kDefaultTableSet[] = {quote(DEFAULT_TABLE_SET)};",
         "",
@@ -169,6 +169,11 @@ def header_text() -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def _native_sets() -> dict:
+    """The table sets the plugin runs, by name."""
+    return {name: TABLE_SETS[name] for name in NATIVE_TABLE_SETS}
 
 
 def _table_set_lines(name: str, tables: dict) -> list[str]:

@@ -60,19 +60,13 @@ class LearnedModel(LearnedModelBase):
         control_period: float | None = None,
         table_set: str | None = None,
     ) -> None:
-        self.physics = ExcavatorPhysics(model if model is not None else load_model(lean=True))
-        if control_period is None:
-            control_period = self.physics.timestep
+        self._init_machine(model, control_period)
         if tables is None:
             tables = load_tables(table_set=table_set or DEFAULT_TABLE_SET)
         self.table_set = table_set_of(tables)
         self.tables = tables
         self._schema = TABLE_SETS[self.table_set]
         self._swing_torque = self._schema["swing"].output == "swing_torque_nm"
-        self._substeps = int(round(control_period / self.physics.timestep))
-        if self._substeps < 1 or abs(self._substeps * self.physics.timestep - control_period) > 1e-9:
-            raise ValueError(f"control_period must be a multiple of the model step, got {control_period}")
-        self._dofs = np.array([self.physics.model.joint(n).dofadr[0] for n in kinematics.JOINTS])
         self.spools_m = np.zeros(4)
         self._swing_acceleration = 0.0
         self._swing_rate_target = 0.0
@@ -81,6 +75,17 @@ class LearnedModel(LearnedModelBase):
         self._pressure_tables = [n for n, spec in self._schema.items() if spec.output in QUANTITIES]
         rate_axis = tables["swing"].axes[tables["swing"].inputs.index("swing_rate_radps")]
         self._slowest_swing, self._fastest_swing = rate_axis[0], rate_axis[-1]
+
+    def _init_machine(self, model: mujoco.MjModel | None, control_period: float | None) -> None:
+        """The lean machine (or ``model``), the control period's MuJoCo steps and the contact stall's data."""
+        self.physics = ExcavatorPhysics(model if model is not None else load_model(lean=True))
+        if control_period is None:
+            control_period = self.physics.timestep
+        self._substeps = int(round(control_period / self.physics.timestep))
+        if self._substeps < 1 or abs(self._substeps * self.physics.timestep - control_period) > 1e-9:
+            raise ValueError(f"control_period must be a multiple of the model step, got {control_period}")
+        self._dofs = np.array([self.physics.model.joint(n).dofadr[0] for n in kinematics.JOINTS])
+        self.spools_m = np.zeros(4)
         self._constraint_load = np.zeros(self.physics.model.nv)  # see _step_physics
         m = self.physics.model
         upper = m.body("upper").id  # the swinging structure and all it carries

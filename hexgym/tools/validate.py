@@ -35,7 +35,7 @@ from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.mbl.operator_logs import pose_from_fractions, suite_log
 from hexgym.mbl.schema import DEFAULT_TABLE_SET
-from hexgym.mbl.table import load_tables
+from hexgym.model.backend import make_learned_model
 from hexgym.model.commandlog import CommandLog
 from hexgym.model.python_backend import LearnedModel
 from hexgym.model.replay import replay
@@ -292,7 +292,7 @@ def run_validation(
         raise ValueError(f"workers must be >= 1, got {workers}")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    learned = learned or LearnedModel(load_tables(tables_dir, table_set))
+    learned = learned or make_learned_model("python", tables_dir, table_set=table_set)
     summary: dict[str, object] = {"tables": learned.table_set}
     if not suite_only:
         reference = ReferenceModel()

@@ -1,0 +1,133 @@
+"""The circuit model: the open-centre circuit's structure with a learned valve, on the lean machine.
+
+The table models (:mod:`hexgym.model.python_backend`) map spools and loads to velocities with no
+circuit state, so they cannot see how the functions share the pumps' flow and power over time: the
+swing line's pressure, the pump lines' oil, a cavitated chamber refilling. This model keeps that state
+and learns only what a real machine's data sheet does not give, the control valve's passage areas
+(:mod:`hexgym.mbl.valve`, the ``circuit`` tables). Everything else is the machine's data
+(:mod:`hexgym.machine.parameters`): the pumps' regulator law, reliefs, cylinder and motor sizes, line
+volumes, the oil's bulk modulus.
+
+Every control period (one 25 ms step of the lean machine), ``SUBSTEPS`` times:
+
+1. the circuit (:class:`hexgym.hydraulics.circuit.HydraulicCircuit` with the learned valve) advances
+   its 14 states (12 pressures, 2 pump displacements) at the present joint rates, and gives the
+   pressures' sensitivity to those rates;
+2. the main joints' rates follow ``M dw/dt = tau_oil(w) - tau_load``: ``M`` the lean machine's mass
+   matrix of the four main joints and ``tau_load`` the torque that holds the present motion (gravity,
+   velocity terms, joint damping, any tip force; :meth:`LearnedModel.joint_loads`), both from the
+   period's start; the oil's torques are linearised in the rates (the circuit's sensitivity) and the
+   step is implicit in them, so the stiff oil springs stay stable at this step;
+3. a cylinder reaching a stroke end stops there.
+
+The lean machine's stiff rate servos then follow the period's end rates, as with the tables.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from hexgym.hydraulics.circuit import HydraulicCircuit
+from hexgym.mbl.table import MBLTable
+from hexgym.mbl.valve import LearnedValve
+from hexgym.model.python_backend import LearnedModel
+
+STOP_CLEARANCE = 1e-3  # m: the circuit's stroke ends, inside MuJoCo's joint limits (which would kick the servos)
+MAX_RATE = 10.0  # rad/s: the servos' range here, far beyond any joint's
+SUBSTEPS = 8  # circuit steps per 25 ms period (3.1 ms): finer steps changed the replays by < 0.05 m
+
+
+class CircuitModel(LearnedModel):
+    """The lean MuJoCo machine driven by the open-centre circuit with the learned valve, in Python.
+
+    Args:
+        tables: the ``circuit`` tables (default: the packaged ones).
+        model, control_period: as :class:`~hexgym.model.python_backend.LearnedModel`.
+        substeps: circuit steps per control period.
+    """
+
+    def __init__(
+        self,
+        tables: dict[str, MBLTable] | None = None,
+        model: mujoco.MjModel | None = None,
+        control_period: float | None = None,
+        substeps: int = SUBSTEPS,
+    ) -> None:
+        if tables is None:
+            from hexgym.mbl.table import load_tables
+
+            tables = load_tables(table_set="circuit")
+        if not isinstance(substeps, int) or substeps < 1:
+            raise ValueError(f"substeps must be a whole number >= 1, got {substeps!r}")
+        self._init_machine(model, control_period)
+        # the servos follow the circuit's rates; their ranges (the table models' limits) would clip a
+        # swing that the pump drives faster with the front pulled in
+        self.physics.model.actuator_ctrlrange[:] = (-MAX_RATE, MAX_RATE)
+        self.tables, self.table_set = tables, "circuit"
+        self.circuit = HydraulicCircuit(valve=LearnedValve(tables))
+        self.substeps = substeps
+        self.state = self.circuit.initial_state()
+
+    def reset(self, start: str | np.ndarray = "home", payload_kg: float = 0.0) -> None:
+        """Start at a keyframe name or joint angles (rad), at rest, loads held, spools neutral."""
+        super().reset(start, payload_kg)
+        holding = self.joint_loads()[1:] / self.physics.moment_arms()
+        self.state = self.circuit.initial_state(holding)
+        self.rates = np.zeros(4)
+
+    def _control_period(self) -> None:
+        ph = self.physics
+        m, d = ph.model, ph.data
+        arms = ph.moment_arms()
+        load = self.joint_loads()
+        full = np.zeros((m.nv, m.nv))
+        mujoco.mj_fullM(m, d, full)
+        mass = full[np.ix_(self._dofs, self._dofs)]
+        rates, ext = self.rates, ph.cylinder_extensions().copy()
+        lo, hi = STOP_CLEARANCE, self.circuit.stroke - STOP_CLEARANCE
+        h = self.control_period / self.substeps
+        travel = np.zeros(4)
+        for _ in range(self.substeps):
+            vel = arms * rates[1:]
+            predicted, sens = self.circuit.step_with_sensitivity(self.state, h, self.spools_m, ext, vel, rates[0])
+            forces, torque = self.circuit.actuator_forces(predicted, ext, vel, rates[0], end_stops=False)
+            dforce, dtorque = self.circuit.coupling_derivatives(sens, vel, rates[0])
+            oil = np.concatenate(([torque], forces * arms))
+            lhs = mass - h * np.diag(np.concatenate(([dtorque], dforce * arms**2)))
+            rhs = h * (oil - load)
+            new = rates + np.linalg.solve(lhs, rhs)
+            new_ext = ext + arms * new[1:] * h
+            new_vel = arms * new[1:]
+            stopped = ((new_ext > hi) & (new_vel > 0.0)) | ((new_ext < lo) & (new_vel < 0.0))
+            if stopped.any():  # the stops hold those joints; their impulse reaches the others through M
+                new = _with_joints_held(lhs, rhs, rates, np.concatenate(([False], stopped)))
+                new_ext = np.where(stopped, ext, ext + arms * new[1:] * h)
+            dv = np.append(arms * (new[1:] - rates[1:]), new[0] - rates[0])
+            self.state = predicted + sens @ dv  # the pressures follow the rates the step reached
+            travel += new * h
+            rates, ext = new, new_ext
+        # MuJoCo's machine moves as far as the circuit's joints did over the period (the mean rate);
+        # the rates at its end are the model's state
+        targets = travel / self.control_period
+        blocked = self.blocked_by_contact(targets)
+        targets[blocked], rates[blocked] = 0.0, 0.0
+        self.rates = rates
+        ph.set_actuator_targets(targets)
+        self._step_physics(self._substeps)
+
+    @property
+    def pump_pressures(self) -> tuple[float, float]:
+        """The two pumps' delivery pressures, Pa."""
+        return float(self.state[0]), float(self.state[1])
+
+
+def _with_joints_held(lhs: np.ndarray, rhs: np.ndarray, rates: np.ndarray, held: np.ndarray) -> np.ndarray:
+    """The implicit step ``lhs (new - rates) = rhs`` with the ``held`` joints' new rates zero: the rows
+    of the free joints, with the held joints' change (to rest) moved to the right-hand side."""
+    new = np.zeros_like(rates)
+    free = ~held
+    change_held = -rates[held]
+    b = rhs[free] - lhs[np.ix_(free, held)] @ change_held
+    new[free] = rates[free] + np.linalg.solve(lhs[np.ix_(free, free)], b)
+    return new

@@ -1,0 +1,166 @@
+"""The circuit model: the valve identified from measured motion, its tables, and the model that runs
+the circuit's structure with them on the lean machine."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hexgym.hydraulics.circuit import FUNCTIONS, HydraulicCircuit, series_area, spool_areas
+from hexgym.hydraulics.reference import ReferenceModel
+from hexgym.machine import parameters as p
+from hexgym.mbl.operator_logs import STYLES, operator_log
+from hexgym.mbl.schema import TABLE_SETS, VALVE_PASSAGES
+from hexgym.mbl.table import load_tables
+from hexgym.mbl.valve import LearnedValve, identify_areas, pump_bypass_area
+from hexgym.model.backend import make_learned_model
+from hexgym.model.circuit_model import CircuitModel
+from hexgym.model.commandlog import CommandLog
+from hexgym.model.replay import replay
+
+
+def _measure(sim: ReferenceModel, spools_m: np.ndarray) -> dict[str, float]:
+    """One step of the reference, then the areas identified from what it measured."""
+    before = sim.state[:12].copy()
+    sim.step(spools_m)
+    ph = sim.physics
+    flows, _, _ = HydraulicCircuit.pump_flows(sim.state[0:2], sim.state[12:14])
+    ext, vel = ph.cylinder_extensions(), ph.cylinder_velocities()
+    rates = (sim.state[:12] - before) / sim.timestep
+    return identify_areas(
+        sim.state[:12], rates, sim.circuit.volumes(ext), flows, spools_m, ext, vel, float(ph.joint_velocities()[0])
+    )
+
+
+def test_identification_recovers_the_data_sheet_valve() -> None:
+    """Stick out and swing on pump 2 at partial spools: the metering passages and the bypass come out
+    at the data sheet's areas (the reference is the machine that was measured)."""
+    sim = ReferenceModel()
+    sim.reset("home")
+    spools = np.array([6e-3, 0.0, 7e-3, 0.0])
+    samples: dict[str, list[float]] = {}
+    for k in range(600):  # 1.2 s: the motion settles, then every step is a measurement
+        out = _measure(sim, spools)
+        if k > 300:
+            for key, value in out.items():
+                if not np.isnan(value):
+                    samples.setdefault(key, []).append(value)
+    true = spool_areas(spools)
+    expected = {
+        "stick_pa_area_m2": true.pa[2],
+        "stick_bt_area_m2": true.bt[2],
+        "swing_pa_area_m2": true.pa[0],
+        "swing_bt_area_m2": true.bt[0],
+    }
+    for key, area in expected.items():
+        assert key in samples, f"no sample of {key}"
+        assert np.median(samples[key]) == pytest.approx(area, rel=0.03), key
+    # the stick's passages with the swing at 6 mm are not the pump's bypass with the partner at neutral
+    assert "stick_bypass_area_m2" not in samples and "swing_bypass_area_m2" not in samples
+
+
+def test_neutral_bypass_is_identified() -> None:
+    sim = ReferenceModel()
+    sim.reset("home")
+    for _ in range(400):
+        out = _measure(sim, np.zeros(4))
+    neutral = spool_areas(np.zeros(4)).bypass
+    assert out["boom_bypass_area_m2"] == pytest.approx(series_area(neutral[1], neutral[3]), rel=0.02)
+    assert np.isnan(out["boom_pa_area_m2"]) and np.isnan(out["stick_at_area_m2"])  # spools closed
+
+
+def test_pump_bypass_law_is_exact_for_any_split() -> None:
+    """Each section's table is the pump's bypass with the partner at neutral; combining two gives the
+    series of both sections whatever the neutral areas of the two."""
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        n1, n2, a1, a2 = rng.uniform(1e-5, 3e-4, 4)
+        a1, a2 = min(a1, n1), min(a2, n2)
+        got = pump_bypass_area(series_area(a1, n2), series_area(n1, a2), series_area(n1, n2))
+        assert got == pytest.approx(series_area(a1, a2), rel=1e-9)
+    assert pump_bypass_area(np.float64(0.0), np.float64(1e-4), 1e-4) < 1e-11  # a closed section closes it
+
+
+def test_learned_valve_is_closed_where_the_spool_closes_it() -> None:
+    valve = LearnedValve(load_tables(table_set="circuit"))
+    neutral = valve(np.zeros(4))
+    for key in ("pa", "pb", "at", "bt"):
+        assert np.all(getattr(neutral, key) == 0.0)
+    extend = valve(np.array([0.0, 8e-3, 0.0, 0.0]))
+    assert extend.pa[1] > 0 and extend.bt[1] > 0 and extend.pb[1] == 0 and extend.at[1] == 0
+    assert np.all(neutral.pump_bypass > 1e-4)  # the open centre
+    assert valve(np.array([0.0, 11e-3, 0.0, 11e-3])).pump_bypass[0] < 1e-6  # both spools closed it
+
+
+def test_learned_valve_is_near_the_data_sheet() -> None:
+    """The packaged tables against the law they were measured from, at the metering passages' mid and
+    full strokes (the ``hexgym tables`` figures are the fit's own)."""
+    valve = LearnedValve(load_tables(table_set="circuit"))
+    for j, f in enumerate(FUNCTIONS):
+        for u in (6e-3, 11e-3, -6e-3, -11e-3):
+            spools = np.zeros(4)
+            spools[j] = u
+            got, true = valve(spools), spool_areas(spools)
+            inlet = "pa" if u > 0 else "pb"
+            full = p.VALVE_AREAS[f][inlet]
+            assert abs(getattr(got, inlet)[j] - getattr(true, inlet)[j]) < 0.15 * full, (f, u)
+
+
+def test_learned_valve_needs_every_table() -> None:
+    tables = load_tables(table_set="circuit")
+    del tables["boom_pa"]
+    with pytest.raises(ValueError, match="boom_pa"):
+        LearnedValve(tables)
+
+
+def test_schema_has_a_table_per_passage() -> None:
+    names = set(TABLE_SETS["circuit"])
+    assert names == {f"{f}_{k}" for f in FUNCTIONS for k in VALVE_PASSAGES}
+    assert all(len(spec.inputs) == 1 and spec.inputs[0].endswith("_spool_m") for spec in TABLE_SETS["circuit"].values())
+
+
+@pytest.fixture(scope="module")
+def model() -> CircuitModel:
+    return CircuitModel()
+
+
+def test_neutral_spools_hold_the_machine(model: CircuitModel) -> None:
+    model.reset("home", 2000.0)
+    tip = model.physics.tip_position().copy()
+    model.step(np.zeros(4), n=80)  # 2 s
+    assert np.linalg.norm(model.physics.tip_position() - tip) < 0.01
+
+
+def test_circuit_model_follows_the_reference() -> None:
+    """Boom up with the swing, then the stick out: 4 s, tip within 0.2 m of the reference's."""
+    t = np.arange(0.0, 4.0001, 0.05)
+    spools = np.zeros((len(t), 4))
+    spools[(t > 0.2) & (t < 2.5), 1] = 11.0
+    spools[(t > 0.2) & (t < 3.5), 0] = 8.0
+    spools[t > 1.5, 2] = 9.0
+    log = CommandLog(t, spools)
+    learned = replay(CircuitModel(), log, start="home", dt_out=0.05)
+    reference = replay(ReferenceModel(), log, start="home", dt_out=0.05)
+    error = np.sqrt(sum((learned[f"tip_{k}"] - reference[f"tip_{k}"]) ** 2 for k in "xyz"))
+    assert np.ptp(reference["q_swing"]) > 0.3 and np.ptp(reference["q_boom"]) > 0.2  # it moved
+    assert error.max() < 0.2  # the paper tables: 0.47 m
+
+
+def test_the_native_backend_refuses_the_circuit_model() -> None:
+    with pytest.raises(ValueError, match="native"):
+        make_learned_model("native", table_set="circuit")
+    assert isinstance(make_learned_model("auto", table_set="circuit"), CircuitModel)
+
+
+def test_bad_substeps_are_refused() -> None:
+    with pytest.raises(ValueError, match="substeps"):
+        CircuitModel(substeps=0)
+
+
+def test_sweep_logs_pass_small_spools_slowly() -> None:
+    rng = np.random.default_rng(3)
+    levels = [abs(s.level_mm) for _ in range(10) for s in operator_log(rng, style="sweep").strokes]
+    assert min(levels) < 3.0  # the operator style's partial levels start at 3 mm
+    assert STYLES["sweep"].ramp_s[1] > STYLES["operator"].ramp_s[1]
+    with pytest.raises(ValueError, match="style"):
+        operator_log(rng, style="fast")
