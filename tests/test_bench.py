@@ -16,6 +16,7 @@ ISSUE_KEYS = (
     "hexloading_steps_per_s",
     "hopper_steps_per_s",
     "vector_steps_per_s",
+    "circuit_realtime_factor_python",
 )
 
 

@@ -164,3 +164,10 @@ def test_sweep_logs_pass_small_spools_slowly() -> None:
     assert STYLES["sweep"].ramp_s[1] > STYLES["operator"].ramp_s[1]
     with pytest.raises(ValueError, match="style"):
         operator_log(rng, style="fast")
+
+
+def test_the_environments_refuse_the_circuit_model() -> None:
+    import gymnasium as gym
+
+    with pytest.raises(ValueError, match="circuit model runs in hexgym simulate and validate"):
+        gym.make("HexLoading-v0", tables="circuit")

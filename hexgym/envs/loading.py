@@ -41,7 +41,7 @@ from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.machine.assets import SCENE_FILE, asset_path
 from hexgym.machine.render import ModelMirror
-from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS
+from hexgym.mbl.schema import DEFAULT_TABLE_SET, NATIVE_TABLE_SETS, TABLE_SETS
 from hexgym.mbl.table import load_tables
 from hexgym.model.backend import resolve_backend
 from hexgym.model.base import LearnedModelBase
@@ -423,8 +423,10 @@ class HexLoadingEnv(gym.Env):
         for name, weight in self.weights.items():
             if not _is_number(weight) or not math.isfinite(weight):
                 raise ValueError(f"{name}_weight must be a finite number, got {weight!r}")
-        if tables not in TABLE_SETS:
-            raise ValueError(f"tables must be one of {tuple(TABLE_SETS)}, got {tables!r}")
+        if tables not in NATIVE_TABLE_SETS:  # the circuit model runs on the lean machine alone, in Python
+            note = " (the circuit model runs in hexgym simulate and validate, not in the environments)"
+            note = note if tables in TABLE_SETS else ""
+            raise ValueError(f"tables must be one of {NATIVE_TABLE_SETS}, got {tables!r}{note}")
         self._scene_path, self._backend, self.tables = scene_path, backend, tables
         self.machine_model = model  # "learned" or "reference" (``model`` is MuJoCo's in Gymnasium's envs)
         self.observation_space, self.action_space = task_spaces()

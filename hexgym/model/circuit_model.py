@@ -35,7 +35,7 @@ from hexgym.model.python_backend import LearnedModel
 
 STOP_CLEARANCE = 1e-3  # m: the circuit's stroke ends, inside MuJoCo's joint limits (which would kick the servos)
 MAX_RATE = 10.0  # rad/s: the servos' range here, far beyond any joint's
-SUBSTEPS = 8  # circuit steps per 25 ms period (3.1 ms): finer steps changed the replays by < 0.05 m
+SUBSTEPS = 5  # circuit steps per 25 ms period (5 ms): 3.1 ms steps moved the selection logs by < 0.02 m
 
 
 class CircuitModel(LearnedModel):

@@ -11,7 +11,8 @@
   entry point when there is one, else Gymnasium's ``SyncVectorEnv`` (``vector_env`` names which ran).
 - ``learned_realtime_factor_python`` / ``_native`` (one thread) and ``batch_realtime_factor_native``
   (64 rollouts on every core): simulated seconds per wall second of the learned machine model
-  alone (targets: native >= 5,000x, batch >= 10,000x on 2 cores).
+  alone (targets: native >= 5,000x, batch >= 10,000x on 2 cores); ``circuit_realtime_factor_python``
+  the circuit model's (:mod:`hexgym.model.circuit_model`, Python only).
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from hexgym.files import write_json
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.model.base import LearnedModelBase
+from hexgym.model.circuit_model import CircuitModel
 from hexgym.model.commandlog import CommandLog
 from hexgym.model.native_backend import NativeLearnedModel
 from hexgym.model.plugin import CTRL_PER_SPOOL_M, native_available
@@ -274,7 +276,7 @@ def print_bench(result: dict, json_path: str | Path | None = None) -> None:
         ratio = bound / r["hopper_steps_per_s"]
         print(f"  its physics alone (no task logic): {bound:.0f} env steps/s, ratio {ratio:.3f}")
         print(f"  vector / physics alone: {r['vector_steps_per_s'] / bound:.3f} (target >= 0.7)")
-    for key in ("learned_realtime_factor_python", "learned_realtime_factor_native"):
+    for key in ("learned_realtime_factor_python", "circuit_realtime_factor_python", "learned_realtime_factor_native"):
         print(f"{key}: {result.get(key, float('nan')):.0f}x real time (one thread)")
     if "batch_realtime_factor_native" in result:
         print(
@@ -396,6 +398,7 @@ def native_benchmark(seconds: float = 3.0) -> dict[str, float]:
     pose, repeated for at least ``seconds`` of wall time each:
 
     - ``learned_realtime_factor_python``: :class:`LearnedModel`, one ``step`` per control period;
+    - ``circuit_realtime_factor_python``: :class:`CircuitModel` (the circuit with the learned valve), the same;
     - ``learned_realtime_factor_native``: :func:`native_rollout_realtime_factor`, the native
       model's own speed;
     - ``learned_realtime_factor_native_python_loop``: :class:`NativeLearnedModel`, one ``step``
@@ -414,7 +417,10 @@ def native_benchmark(seconds: float = 3.0) -> dict[str, float]:
 
         return run
 
-    out = {"learned_realtime_factor_python": _timed(per_period(LearnedModel()), seconds)}
+    out = {
+        "learned_realtime_factor_python": _timed(per_period(LearnedModel()), seconds),
+        "circuit_realtime_factor_python": _timed(per_period(CircuitModel()), seconds),
+    }
     if not native_available():
         return out
     out["learned_realtime_factor_native"] = native_rollout_realtime_factor(seconds)

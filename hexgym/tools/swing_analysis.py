@@ -78,11 +78,13 @@ def grid_bias_figures(
 ) -> dict[str, float]:
     """Mean swing-table error (rad/s^2) on the collected swing data at one spool (stick spool
     closed, ``0 < rate < below_rate``): of the packaged grid and of the LWR it was built from."""
-    inputs, y = load_table_data(Path(data_dir) / "swing.npz", "swing")
+    data = load_table_data(Path(data_dir) / "swing.npz", "swing")
+    inputs, y = data.X, data.y
     near = (np.abs(inputs[:, 0] - spool_mm * 1e-3) < 6e-4) & (np.abs(inputs[:, 1]) < 6e-4)
     near &= (inputs[:, 4] > 0.0) & (inputs[:, 4] < below_rate)
     table = load_tables()["swing"]
-    lwr = LocallyWeightedRegression(table.params).fit(*fitted_points(inputs, y))
+    kept = fitted_points(data)
+    lwr = LocallyWeightedRegression(table.params).fit(kept.X, kept.y)
     return {
         "points": float(near.sum()),
         "grid_mean_error": float(np.mean(table.lookup(inputs[near]) - y[near])),

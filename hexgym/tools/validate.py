@@ -34,7 +34,7 @@ from hexgym.hydraulics.reference import ReferenceModel
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.mbl.operator_logs import pose_from_fractions, suite_log
-from hexgym.mbl.schema import DEFAULT_TABLE_SET
+from hexgym.mbl.schema import DEFAULT_TABLE_SET, NATIVE_TABLE_SETS
 from hexgym.model.backend import make_learned_model
 from hexgym.model.commandlog import CommandLog
 from hexgym.model.python_backend import LearnedModel
@@ -151,12 +151,12 @@ def plot_test(result: dict[str, object], path: Path, error_panels: bool | None =
     return save_figure(fig, path, dpi=80)
 
 
-def _speed(test3: dict[str, object]) -> dict[str, float]:
+def _speed(test3: dict[str, object], table_set: str) -> dict[str, float]:
     """Real-time factors on Test 3 (one core): the reference's replay, the learned model's fastest path.
 
     The learned model's figure is the native plugin's (Test 3's spools through ``mujoco.rollout``,
-    one thread, :func:`hexgym.tools.bench.native_rollout_realtime_factor`) when it is built, else the
-    Python path's (this run's replay of Test 3).
+    one thread, :func:`hexgym.tools.bench.native_rollout_realtime_factor`) when it is built and runs
+    ``table_set``, else the Python path's (this run's replay of Test 3).
     """
     from hexgym.model.plugin import native_available
     from hexgym.tools.bench import native_rollout_realtime_factor
@@ -164,7 +164,7 @@ def _speed(test3: dict[str, object]) -> dict[str, float]:
     wall_ref, wall_python = test3["wall"]
     duration = float(test3["duration"])
     python = duration / wall_python
-    native = native_available()
+    native = native_available() and table_set in NATIVE_TABLE_SETS
     learned = native_rollout_realtime_factor(seconds=3.0) if native else python
     reference = duration / wall_ref
     return {
@@ -301,7 +301,7 @@ def run_validation(
             plot_test(result, out_dir / f"{name}.png")
             summary[name] = _tip_error_figures(result)
             if name == "test3":
-                summary["speed"] = _speed(result)
+                summary["speed"] = _speed(result, learned.table_set)
     interactions = {} if suite_only else interaction_cases()
     logs = {f"suite log {i} (seed {suite_seed})": suite_log(suite_seed, i, suite_duration_s) for i in range(suite)}
     jobs = [(name, *case) for name, case in interactions.items()]
