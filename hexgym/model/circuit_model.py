@@ -68,6 +68,7 @@ class CircuitModel(LearnedModel):
         self.circuit = HydraulicCircuit(valve=LearnedValve(tables))
         self.substeps = substeps
         self.state = self.circuit.initial_state()
+        self.rates = np.zeros(4)  # the main joints' rates, rad/s: the model's mechanical state
 
     def reset(self, start: str | np.ndarray = "home", payload_kg: float = 0.0) -> None:
         """Start at a keyframe name or joint angles (rad), at rest, loads held, spools neutral."""
@@ -85,28 +86,11 @@ class CircuitModel(LearnedModel):
         mujoco.mj_fullM(m, d, full)
         mass = full[np.ix_(self._dofs, self._dofs)]
         rates, ext = self.rates, ph.cylinder_extensions().copy()
-        lo, hi = STOP_CLEARANCE, self.circuit.stroke - STOP_CLEARANCE
         h = self.control_period / self.substeps
         travel = np.zeros(4)
         for _ in range(self.substeps):
-            vel = arms * rates[1:]
-            predicted, sens = self.circuit.step_with_sensitivity(self.state, h, self.spools_m, ext, vel, rates[0])
-            forces, torque = self.circuit.actuator_forces(predicted, ext, vel, rates[0], end_stops=False)
-            dforce, dtorque = self.circuit.coupling_derivatives(sens, vel, rates[0])
-            oil = np.concatenate(([torque], forces * arms))
-            lhs = mass - h * np.diag(np.concatenate(([dtorque], dforce * arms**2)))
-            rhs = h * (oil - load)
-            new = rates + np.linalg.solve(lhs, rhs)
-            new_ext = ext + arms * new[1:] * h
-            new_vel = arms * new[1:]
-            stopped = ((new_ext > hi) & (new_vel > 0.0)) | ((new_ext < lo) & (new_vel < 0.0))
-            if stopped.any():  # the stops hold those joints; their impulse reaches the others through M
-                new = _with_joints_held(lhs, rhs, rates, np.concatenate(([False], stopped)))
-                new_ext = np.where(stopped, ext, ext + arms * new[1:] * h)
-            dv = np.append(arms * (new[1:] - rates[1:]), new[0] - rates[0])
-            self.state = predicted + sens @ dv  # the pressures follow the rates the step reached
-            travel += new * h
-            rates, ext = new, new_ext
+            rates, ext = self._substep(h, rates, ext, arms, mass, load)
+            travel += rates * h
         # MuJoCo's machine moves as far as the circuit's joints did over the period (the mean rate);
         # the rates at its end are the model's state
         targets = travel / self.control_period
@@ -116,10 +100,29 @@ class CircuitModel(LearnedModel):
         ph.set_actuator_targets(targets)
         self._step_physics(self._substeps)
 
-    @property
-    def pump_pressures(self) -> tuple[float, float]:
-        """The two pumps' delivery pressures, Pa."""
-        return float(self.state[0]), float(self.state[1])
+    def _substep(
+        self, h: float, rates: np.ndarray, ext: np.ndarray, arms: np.ndarray, mass: np.ndarray, load: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """One circuit step of ``h`` s with the joints' rates implicit in the oil's torques: the new
+        joint rates (swing, boom, stick, bucket) and cylinder extensions; the circuit state advances."""
+        vel = arms * rates[1:]
+        predicted, sens = self.circuit.step_with_sensitivity(self.state, h, self.spools_m, ext, vel, rates[0])
+        forces, torque = self.circuit.actuator_forces(predicted, ext, vel, rates[0], end_stops=False)
+        dforce, dtorque = self.circuit.coupling_derivatives(sens, vel, rates[0])
+        oil = np.concatenate(([torque], forces * arms))
+        lhs = mass - h * np.diag(np.concatenate(([dtorque], dforce * arms**2)))
+        rhs = h * (oil - load)
+        new = rates + np.linalg.solve(lhs, rhs)
+        new_ext = ext + arms * new[1:] * h
+        new_vel = arms * new[1:]
+        lo, hi = STOP_CLEARANCE, self.circuit.stroke - STOP_CLEARANCE
+        stopped = ((new_ext > hi) & (new_vel > 0.0)) | ((new_ext < lo) & (new_vel < 0.0))
+        if stopped.any():  # the stops hold those joints; their impulse reaches the others through M
+            new = _with_joints_held(lhs, rhs, rates, np.concatenate(([False], stopped)))
+            new_ext = np.where(stopped, ext, ext + arms * new[1:] * h)
+        dv = np.append(arms * (new[1:] - rates[1:]), new[0] - rates[0])
+        self.state = predicted + sens @ dv  # the pressures follow the rates the step reached
+        return new, new_ext
 
 
 def _with_joints_held(lhs: np.ndarray, rhs: np.ndarray, rates: np.ndarray, held: np.ndarray) -> np.ndarray:
