@@ -424,8 +424,8 @@ class HexLoadingEnv(gym.Env):
             if not _is_number(weight) or not math.isfinite(weight):
                 raise ValueError(f"{name}_weight must be a finite number, got {weight!r}")
         if tables not in NATIVE_TABLE_SETS:  # the circuit model runs on the lean machine alone, in Python
-            note = " (the circuit model runs in hexgym simulate and validate, not in the environments)"
-            note = note if tables in TABLE_SETS else ""
+            circuit = " (the circuit model runs in hexgym simulate and validate, not in the environments)"
+            note = circuit if tables in TABLE_SETS else ""
             raise ValueError(f"tables must be one of {NATIVE_TABLE_SETS}, got {tables!r}{note}")
         self._scene_path, self._backend, self.tables = scene_path, backend, tables
         self.machine_model = model  # "learned" or "reference" (``model`` is MuJoCo's in Gymnasium's envs)

@@ -474,7 +474,7 @@ def collect_operator_episode(sim: Any, episode: int, seed: int, config: CollectC
     stick, stroke = _CYL["stick"], _STROKE[_CYL["stick"]]
     valve = config.table_set == "circuit"  # the valve's samples need the ports' pressure rates
     for k in range(1, steps + 1):
-        before = sim.state[:12].copy()
+        before = sim.state[:12].copy() if valve else None
         try:
             sim.step(spools_m[k - 1])
         except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:  # a diverged model: end it here

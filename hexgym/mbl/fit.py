@@ -31,10 +31,10 @@ HOLDOUT_FRACTION = 0.2  # of the episodes
 MAX_GRID_NODES = {
     "paper": {"boom": 60_000, "bucket": 60_000, "stick": 60_000, "swing": 200_000},
     "extended": {"boom": 60_000, "bucket": 60_000, "stick": 60_000, "swing": 150_000, "pump2": 250_000},
-    "circuit": {name: 200 for name in TABLE_SETS["circuit"]},
 }  # fmt: skip
 # A one-input table (the circuit set's valve passages over their spool, sampled at any spool position
-# along operator-like motion) gets this many nodes per kernel width, up to ONE_INPUT_NODES in all.
+# along operator-like motion) gets this many nodes per kernel width, up to ONE_INPUT_NODES in all
+# (instead of a MAX_GRID_NODES budget).
 ONE_INPUT_NODES_PER_WIDTH = 4.0
 ONE_INPUT_NODES = 89
 MAX_POINTS = 12_000  # a seeded subsample above this: LOO selection and the grid stay minutes, not hours

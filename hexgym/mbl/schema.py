@@ -32,6 +32,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from hexgym.machine.kinematics import JOINTS
+
 # Every quantity a table may read, in a fixed order (the plugin's query vector uses this order).
 QUANTITIES = (
     "swing_spool_m",
@@ -108,12 +110,11 @@ TABLE_SETS: dict[str, dict[str, TableSchema]] = {
 # The control valve's passages: each section's centre bypass, then pump -> port a, pump -> port b,
 # port a -> tank, port b -> tank (port a: a cylinder's head end, the swing motor's turning-positive port).
 VALVE_PASSAGES = ("bypass", "pa", "pb", "at", "bt")
-VALVE_FUNCTIONS = ("swing", "boom", "stick", "bucket")  # the spool order
 TABLE_SETS["circuit"] = _tables(
     *[
         TableSchema(f"{f}_{passage}", "operator", (f"{f}_spool_m",), f"{f}_{passage}_area_m2", "trajectory")
         for passage in VALVE_PASSAGES  # the bypass first: identifiable in most rows, it is the one counted
-        for f in VALVE_FUNCTIONS
+        for f in JOINTS  # the spool order
     ]
 )
 NATIVE_TABLE_SETS = ("paper", "extended")  # the sets the native plugin runs

@@ -27,9 +27,9 @@ import math
 
 import numpy as np
 
-from hexgym.hydraulics.circuit import PUMP_OF, SWING_DISPLACEMENT_RAD, SpoolAreas, compliance, orifice_law
+from hexgym.hydraulics.circuit import FUNCTIONS, PUMP_OF, SWING_DISPLACEMENT_RAD, SpoolAreas, compliance, orifice_law
 from hexgym.machine import parameters as p
-from hexgym.mbl.schema import TABLE_SETS, VALVE_FUNCTIONS, VALVE_PASSAGES
+from hexgym.mbl.schema import TABLE_SETS, VALVE_PASSAGES
 from hexgym.mbl.table import MBLTable
 
 MIN_DROP_PA = 0.5e6  # metering passages: a smaller drop says little about the area (flows near zero)
@@ -87,10 +87,10 @@ def identify_areas(
     out.update(areas)
     meter_in[1] += flow
     known[1] &= not math.isnan(flow)
-    for f in VALVE_FUNCTIONS:
+    for f in FUNCTIONS:
         pump = PUMP_OF[f]
-        partner = next(g for g in VALVE_FUNCTIONS if g != f and PUMP_OF[g] == pump)
-        if abs(spools_m[VALVE_FUNCTIONS.index(partner)]) >= p.SPOOL_DEAD_BAND or not known[pump]:
+        partner = next(g for g in FUNCTIONS if g != f and PUMP_OF[g] == pump)
+        if abs(spools_m[FUNCTIONS.index(partner)]) >= p.SPOOL_DEAD_BAND or not known[pump]:
             continue
         if pressures[pump] > p.MAIN_RELIEF - RELIEF_MARGIN_PA:
             continue
@@ -174,25 +174,28 @@ class LearnedValve:
         if missing:
             raise ValueError(f"the circuit model needs the valve tables {missing}")
         self.tables = tables
-        self._neutral = {
-            pump: float(np.mean([tables[f"{f}_bypass"]((0.0,)) for f in VALVE_FUNCTIONS if PUMP_OF[f] == pump]))
-            for pump in (0, 1)
-        }
-        if min(self._neutral.values()) <= 0.0:
+        # each pump's two sections (indices in FUNCTIONS) and its bypass area with both at neutral
+        self._sections = [[i for i, f in enumerate(FUNCTIONS) if PUMP_OF[f] == k] for k in (0, 1)]
+        self._neutral = [
+            float(np.mean([tables[f"{FUNCTIONS[i]}_bypass"]((0.0,)) for i in sections])) for sections in self._sections
+        ]
+        if min(self._neutral) <= 0.0:
             raise ValueError(f"the bypass tables give a closed centre at neutral ({self._neutral} m^2)")
 
     def __call__(self, spools_m: np.ndarray) -> SpoolAreas:
-        """The passage areas (m^2, ``VALVE_FUNCTIONS`` order) at these spools (m)."""
+        """The passage areas (m^2, ``FUNCTIONS`` order) at these spools (m)."""
         u = np.asarray(spools_m, dtype=float)
-        area = {k: np.zeros(len(VALVE_FUNCTIONS)) for k in VALVE_PASSAGES}
-        for i, f in enumerate(VALVE_FUNCTIONS):
+        area = {k: np.zeros(len(FUNCTIONS)) for k in VALVE_PASSAGES}
+        for i, f in enumerate(FUNCTIONS):
             area["bypass"][i] = self._area(f, "bypass", u[i])
             if abs(u[i]) >= p.SPOOL_DEAD_BAND:
                 for key in ("pa", "bt") if u[i] > 0 else ("pb", "at"):
                     area[key][i] = self._area(f, key, u[i])
-        pumps = [[i for i, f in enumerate(VALVE_FUNCTIONS) if PUMP_OF[f] == k] for k in (0, 1)]
         pump_bypass = np.array(
-            [pump_bypass_area(area["bypass"][a], area["bypass"][b], self._neutral[k]) for k, (a, b) in enumerate(pumps)]
+            [
+                pump_bypass_area(area["bypass"][a], area["bypass"][b], neutral)
+                for (a, b), neutral in zip(self._sections, self._neutral, strict=True)
+            ]
         )
         return SpoolAreas(**area, pump_bypass=pump_bypass)
 

@@ -18,9 +18,10 @@ Every control period (one 25 ms step of the lean machine), ``SUBSTEPS`` times:
    velocity terms, joint damping, any tip force; :meth:`LearnedModel.joint_loads`), both from the
    period's start; the oil's torques are linearised in the rates (the circuit's sensitivity) and the
    step is implicit in them, so the stiff oil springs stay stable at this step;
-3. a cylinder reaching a stroke end stops there.
+3. a cylinder reaching a stroke end stops there, and its impulse reaches the other joints through ``M``.
 
-The lean machine's stiff rate servos then follow the period's end rates, as with the tables.
+The lean machine's stiff rate servos then move the joints by the period's mean rates (so MuJoCo's
+positions follow the circuit's); the rates at the period's end stay the model's state.
 """
 
 from __future__ import annotations

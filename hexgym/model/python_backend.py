@@ -67,7 +67,6 @@ class LearnedModel(LearnedModelBase):
         self.tables = tables
         self._schema = TABLE_SETS[self.table_set]
         self._swing_torque = self._schema["swing"].output == "swing_torque_nm"
-        self.spools_m = np.zeros(4)
         self._swing_acceleration = 0.0
         self._swing_rate_target = 0.0
         self._pressures = (0.0, 0.0)  # the pump pressure tables' last outputs, Pa (extended tables)
