@@ -357,6 +357,38 @@ class HydraulicCircuit:
         y[10:12] = rest_pressure
         return y
 
+    # ---- the layout, read-only (for compiled copies of this law, hexgym.model.circuit_kernel) ----
+    @property
+    def branch_groups(self) -> dict[str, np.ndarray]:
+        """Branch indices of the valve's passages: ``pa``, ``pb``, ``at``, ``bt`` in ``FUNCTIONS`` order,
+        ``bypass`` one per pump (copies)."""
+        return {k: v.copy() for k, v in self._groups.items()}
+
+    @property
+    def head_nodes(self) -> np.ndarray:
+        """Node index of each cylinder's head chamber, ``CYLINDER_NAMES`` order (a copy)."""
+        return self._head_nodes.copy()
+
+    @property
+    def rod_nodes(self) -> np.ndarray:
+        """Node index of each cylinder's rod chamber, ``CYLINDER_NAMES`` order (a copy)."""
+        return self._rod_nodes.copy()
+
+    @property
+    def cylinder_count(self) -> np.ndarray:
+        """Cylinders per function (the boom has two), ``CYLINDER_NAMES`` order (a copy)."""
+        return self._count.copy()
+
+    @property
+    def port_volumes(self) -> np.ndarray:
+        """Each cylinder's oil volume (m^3) in its lines and ports, per chamber (a copy)."""
+        return self._port_volume.copy()
+
+    @property
+    def displacement(self) -> np.ndarray:
+        """d(node volume rate)/d(boom, stick, bucket velocity, swing rate), (N_NODES, 4) (a copy)."""
+        return self._displacement.copy()
+
     # ---- pieces ---------------------------------------------------------------------------
     def volumes(self, ext: np.ndarray) -> np.ndarray:
         """Oil volume (m^3) of every node at cylinder extensions ``ext``."""
