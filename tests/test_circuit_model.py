@@ -6,9 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hexgym.hydraulics.circuit import FUNCTIONS, HydraulicCircuit, series_area, spool_areas
+from hexgym.hydraulics.circuit import FUNCTIONS, PUMP_OF, HydraulicCircuit, series_area, spool_areas
 from hexgym.hydraulics.reference import ReferenceModel
 from hexgym.machine import parameters as p
+from hexgym.mbl.collect import CollectConfig, collect_operator_episode
 from hexgym.mbl.operator_logs import STYLES, operator_log
 from hexgym.mbl.schema import TABLE_SETS, VALVE_PASSAGES
 from hexgym.mbl.table import load_tables
@@ -59,6 +60,30 @@ def test_identification_recovers_the_data_sheet_valve() -> None:
     assert "stick_bypass_area_m2" not in samples and "swing_bypass_area_m2" not in samples
 
 
+def test_collected_valve_samples_match_the_data_sheet() -> None:
+    """A 20 s sweep log's samples as ``hexgym collect --tables circuit`` takes them, against the law the
+    reference was built with, ramps included: each sample carries the spools that acted on the step it
+    was measured over, and a bypass sample is taken while its section meters into a held cylinder too
+    (the inlet's continuity gives the meter-in flow)."""
+    config = CollectConfig(table_set="circuit", operator_duration_s=20.0)
+    result = collect_operator_episode(ReferenceModel(), 0, 0, config)
+    neutral = spool_areas(np.zeros(4)).bypass
+    errors = []
+    for name, rows in result.rows.items():
+        f, passage = name.split("_")
+        j = FUNCTIONS.index(f)
+        for x, area, _ in rows:
+            spools = np.zeros(4)
+            spools[j] = x[0]
+            true = getattr(spool_areas(spools), passage)[j]
+            full = p.VALVE_AREAS[f][passage]
+            if passage == "bypass":  # the pump's bypass with the partner at neutral
+                true, full = series_area(true, neutral[j]), series_area(neutral[j], neutral[j])
+            errors.append(abs(area - true) / full)
+    assert len(errors) > 300
+    assert np.percentile(errors, 95) < 0.01  # of the passage's full area (4.7 % with the next row's spools)
+
+
 def test_neutral_bypass_is_identified() -> None:
     sim = ReferenceModel()
     sim.reset("home")
@@ -94,7 +119,7 @@ def test_learned_valve_is_closed_where_the_spool_closes_it() -> None:
 
 def test_learned_valve_is_near_the_data_sheet() -> None:
     """The packaged tables against the law they were measured from, at the metering passages' mid and
-    full strokes (the ``hexgym tables`` figures are the fit's own)."""
+    full strokes and where the bypass closes (the ``hexgym tables`` figures are the fit's own)."""
     valve = LearnedValve(load_tables(table_set="circuit"))
     for j, f in enumerate(FUNCTIONS):
         for u in (6e-3, 11e-3, -6e-3, -11e-3):
@@ -104,6 +129,14 @@ def test_learned_valve_is_near_the_data_sheet() -> None:
             inlet = "pa" if u > 0 else "pb"
             full = p.VALVE_AREAS[f][inlet]
             assert abs(getattr(got, inlet)[j] - getattr(true, inlet)[j]) < 0.15 * full, (f, u)
+        for u in (1.0e-3, 2.0e-3, 2.5e-3, 4.0e-3, -2.0e-3):  # the bypass closing, where the pump's pressure builds
+            spools = np.zeros(4)
+            spools[j] = u
+            got, true = valve(spools).pump_bypass, spool_areas(spools)
+            true_pump = [
+                series_area(*true.bypass[[i for i, g in enumerate(FUNCTIONS) if PUMP_OF[g] == k]]) for k in (0, 1)
+            ]
+            assert got == pytest.approx(true_pump, rel=0.05), (f, u)
 
 
 def test_learned_valve_needs_every_table() -> None:

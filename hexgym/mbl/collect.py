@@ -451,7 +451,8 @@ def collect_episode(sim: Any, group: str, episode: int, seed: int, config: Colle
 def collect_operator_episode(sim: Any, episode: int, seed: int, config: CollectConfig) -> EpisodeResult:
     """One operator-like log (:func:`hexgym.mbl.operator_logs.operator_log`) replayed on ``sim``.
 
-    Rows along the motion every ``operator_interval_s``, each with the spools about to act, the
+    Rows along the motion every ``operator_interval_s``, each with the spools about to act (the valve's
+    samples: the spools that acted on the step just taken), the
     stick's load while its spool is open, the swing rate, pump 2's pressure and the swing's torque
     d(I w)/dt (central difference over twice ``swing_half_width_s``: the torque that turned the
     upper structure, its friction included, whatever the inertia did meanwhile). Rows where a
@@ -484,7 +485,9 @@ def collect_operator_episode(sim: Any, episode: int, seed: int, config: CollectC
         inertia, rate = ph.swing_inertia(), float(ph.joint_velocities()[0])
         momentum[k] = inertia * rate
         if k % every == 0 and half <= k <= steps - half:
-            u = spools_m[k]
+            # the tables' spools: those about to act, but for the valve's samples those the step just
+            # taken ran with (its flows and pressure rates); the log's rows change them every 0.05 s
+            u = spools_m[k - 1] if valve else spools_m[k]
             ext = ph.cylinder_extensions()[stick]
             stalled = (ext <= p.STROKE_END_MARGIN and u[2] < 0) or (ext >= stroke - p.STROKE_END_MARGIN and u[2] > 0)
             if stalled:

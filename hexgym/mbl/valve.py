@@ -108,12 +108,17 @@ def _cylinder(
     if abs(u) < p.SPOOL_DEAD_BAND:
         return 0.0, {}  # the section passes nothing to the cylinder
     extending = u > 0.0
-    if (v if extending else -v) < MIN_SPEED_MPS:
-        return math.nan, {}  # stalled, held or overrun backwards: no clear metering
+    speed = v if extending else -v
     a_in, a_out = (cyl.head_area, cyl.rod_area) if extending else (cyl.rod_area, cyl.head_area)
     p_in, p_out = (p_head, p_rod) if extending else (p_rod, p_head)
     c_in, c_out = (c_head, c_rod) if extending else (c_rod, c_head)
-    q_in, q_out = a_in * abs(v) + c_in, a_out * abs(v) - c_out
+    q_in, q_out = a_in * speed + c_in, a_out * speed - c_out
+    # The inlet's continuity gives the meter-in flow at any speed (a held cylinder's closed load check
+    # passes none) unless make-up oil from tank or the port relief takes part.
+    fed = MIN_PORT_PA < p_in < p.LINE_RELIEF[f] - RELIEF_MARGIN_PA
+    flow = q_in if fed else math.nan
+    if speed < MIN_SPEED_MPS:
+        return flow, {}  # stalled, held or overrun backwards: no clear metering
     inlet, outlet = ("pa", "bt") if extending else ("pb", "at")
     out = {}
     if p_in > MIN_PORT_PA and p_pump - p_in > _CHECK_OPEN and p_pump < p.MAIN_RELIEF - RELIEF_MARGIN_PA:
@@ -123,8 +128,7 @@ def _cylinder(
         seen = _area(q_out, p_out)  # the valve's passage in series with the cushion's open port
         port = cyl.count * p.CUSHION_PORT_AREA
         out[f"{f}_{outlet}_area_m2"] = 1.0 / math.sqrt(max(1.0 / seen**2 - 1.0 / port**2, 1.0 / port**2))
-    fed = p_in > MIN_PORT_PA  # otherwise make-up oil from tank fills part of the inlet
-    return (q_in if fed else math.nan), out
+    return flow, out
 
 
 def _swing(
@@ -135,22 +139,23 @@ def _swing(
     if abs(u) < p.SPOOL_DEAD_BAND:
         return 0.0, {}
     positive = u > 0.0
-    if (rate if positive else -rate) < MIN_SWING_RATE:
-        return math.nan, {}  # starting, braking or reversing: the ports' oil, not the valve, rules
     cross = (1.0 - _SHARE) * p.SWING_MOTOR_LEAKAGE * (pa - pb)
     drain = 0.5 * _SHARE * p.SWING_MOTOR_LEAKAGE
     into_a = _SWEPT * rate + cross + drain * pa + compression[0]  # what must enter port a
     into_b = -_SWEPT * rate - cross + drain * pb + compression[1]
     q_in, q_out = (into_a, -into_b) if positive else (into_b, -into_a)
     p_in, p_out = (pa, pb) if positive else (pb, pa)
+    if abs(pa - pb) > p.SWING_RELIEF - RELIEF_MARGIN_PA:
+        return math.nan, {}  # the crossover reliefs may pass oil
+    flow = q_in if p_in > MIN_PORT_PA else math.nan  # the inlet's continuity, unless make-up oil enters
+    if (rate if positive else -rate) < MIN_SWING_RATE:
+        return flow, {}  # starting, braking or reversing: the ports' oil, not the valve, rules
     inlet, outlet = ("pa", "bt") if positive else ("pb", "at")
     out = {}
-    if abs(pa - pb) > p.SWING_RELIEF - RELIEF_MARGIN_PA:
-        return math.nan, out  # the crossover reliefs may pass oil
     if p_in > MIN_PORT_PA and p_pump - p_in > _CHECK_OPEN:
         out[f"swing_{inlet}_area_m2"] = _area(q_in, p_pump - p_in)
     out[f"swing_{outlet}_area_m2"] = _area(q_out, p_out)
-    return (q_in if p_in > MIN_PORT_PA else math.nan), out
+    return flow, out
 
 
 def pump_bypass_area(first: np.ndarray, second: np.ndarray, neutral: float) -> np.ndarray:
