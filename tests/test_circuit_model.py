@@ -199,8 +199,21 @@ def test_sweep_logs_pass_small_spools_slowly() -> None:
         operator_log(rng, style="fast")
 
 
-def test_the_environments_refuse_the_circuit_model() -> None:
+def test_the_environments_run_the_circuit_model_in_python() -> None:
+    """``tables="circuit"``: the single and the batched HexLoading-v0 on the circuit model (equal bit for bit);
+    the native backend, which does not run it, is refused naming the tables."""
     import gymnasium as gym
 
-    with pytest.raises(ValueError, match="circuit model runs in hexgym simulate and validate"):
-        gym.make("HexLoading-v0", tables="circuit")
+    single = gym.make("HexLoading-v0", tables="circuit")
+    batched = gym.make_vec("HexLoading-v0", num_envs=2, tables="circuit")
+    assert isinstance(single.unwrapped.machine, CircuitModel)
+    obs, _ = single.reset(seed=5)
+    batch_obs, _ = batched.reset(seed=[5, 6])
+    actions = np.random.default_rng(0).uniform(-1.0, 1.0, (40, 4)).astype(np.float32)
+    for action in actions:
+        obs, reward, *_ = single.step(action)
+        batch_obs, batch_reward, *_ = batched.step(np.stack([action, action]))
+        assert np.array_equal(obs, batch_obs[0]) and reward == batch_reward[0]
+    assert np.abs(single.unwrapped.machine.rates).max() > 0.05  # it moved
+    with pytest.raises(ValueError, match="native.*circuit"):
+        gym.make("HexLoading-v0", tables="circuit", backend="native")

@@ -156,9 +156,10 @@ def _packaged_tables() -> dict[str, MBLTable]:
 
 
 def _tables(env: HexLoadingEnv) -> dict[str, MBLTable]:
-    """The machine's MBL tables (the native backend keeps its own copy in C++: use the packaged files)."""
+    """The machine's velocity tables; the packaged ones where it has none here (the native backend keeps its
+    copy in C++, the circuit model learns the valve instead): the loader's model of the machine, not the machine."""
     tables = getattr(env.machine, "tables", None)
-    return tables if tables is not None else _packaged_tables()
+    return tables if tables is not None and "boom" in tables else _packaged_tables()
 
 
 def front_spools(env: HexLoadingEnv, target: np.ndarray, feed: np.ndarray | None = None) -> np.ndarray:

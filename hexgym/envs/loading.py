@@ -41,11 +41,9 @@ from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.machine.assets import SCENE_FILE, asset_path
 from hexgym.machine.render import ModelMirror
-from hexgym.mbl.schema import DEFAULT_TABLE_SET, NATIVE_TABLE_SETS, TABLE_SETS
-from hexgym.mbl.table import load_tables
-from hexgym.model.backend import resolve_backend
+from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS
+from hexgym.model.backend import backend_for, python_learned_model
 from hexgym.model.base import LearnedModelBase
-from hexgym.model.python_backend import LearnedModel
 
 # s: the Python backend's table period on a scene whose step is finer than the lean machine's 25 ms (e.g. the
 # full scene.xml at 2 ms); on the lean machine the tables are asked every step
@@ -78,15 +76,15 @@ def make_machine(
 ) -> LearnedModelBase:
     """The machine model that drives the environment, on the loading site.
 
-    ``"python"``: :class:`hexgym.model.python_backend.LearnedModel` on the lean machine (``scene_lean.xml``:
+    ``"python"``: :func:`hexgym.model.backend.python_learned_model` on the lean machine (``scene_lean.xml``:
     no cylinder bodies, 25 ms step); ``"native"``: the ``hexgym.mbl`` MuJoCo plugin on
     ``cat325_mbl.xml`` (:mod:`hexgym.model.native_backend`, needs the built plugin). ``scene_path`` overrides
-    the scene (e.g. the full ``scene.xml``). ``"auto"``: :func:`hexgym.model.backend.resolve_backend`.
-    ``table_set``: the learned model's tables, "extended" or "paper" (:mod:`hexgym.mbl.schema`).
+    the scene (e.g. the full ``scene.xml``). ``"auto"``: :func:`hexgym.model.backend.backend_for`.
+    ``table_set``: the learned model's tables, "paper", "extended" or "circuit" (:mod:`hexgym.mbl.schema`;
+    the circuit model runs in Python).
     ``tool_contact_slots``: see :func:`hexgym.envs.world.build_world_model`.
     """
-    backend = resolve_backend(backend)
-    if backend == "native":
+    if backend_for(table_set, backend) == "native":
         from hexgym.model.native_backend import NativeLearnedModel
 
         return NativeLearnedModel(model=native_world_model(scene_path, table_set, tool_contact_slots))
@@ -94,8 +92,8 @@ def make_machine(
         scene_path if scene_path is not None else asset_path(PYTHON_SCENE), tool_contact_slots=tool_contact_slots
     )
     step = model.opt.timestep  # on a finer model than the lean machine's, the tables are asked every 10 ms
-    tables = load_tables(table_set=table_set)
-    return LearnedModel(tables, model=model, control_period=step * max(1, round(PYTHON_CONTROL_PERIOD / step)))
+    period = step * max(1, round(PYTHON_CONTROL_PERIOD / step))
+    return python_learned_model(table_set, model=model, control_period=period)
 
 
 def native_world_model(
@@ -348,7 +346,7 @@ class HexLoadingEnv(gym.Env):
     | scene_path | None | MJCF scene to build the site on (default ``scene_lean.xml``; reference: ``scene.xml``) |
     | backend | ``"auto"`` | ``"native"`` (MuJoCo plugin), ``"python"`` (LearnedModel), ``"auto"`` (native if built) |
     | earthwork_periods | 4 | control periods (25 ms) per dig (fill, pile cut, spill) near the pile; 1: every period |
-    | tables | ``"paper"`` | the learned model's table set: ``"paper"`` or ``"extended"`` (:mod:`hexgym.mbl.schema`) |
+    | tables | ``"paper"`` | the learned model: ``"paper"``, ``"extended"`` or ``"circuit"`` (circuit model, Python) |
     | model | ``"learned"`` | ``"reference"``: the same task on the analytical circuit (the real machine's stand-in) |
     | dig_start_share | 0.0 | share of episodes starting with the open bucket over the pile (a curriculum) |
 
@@ -423,10 +421,9 @@ class HexLoadingEnv(gym.Env):
         for name, weight in self.weights.items():
             if not _is_number(weight) or not math.isfinite(weight):
                 raise ValueError(f"{name}_weight must be a finite number, got {weight!r}")
-        if tables not in NATIVE_TABLE_SETS:  # the circuit model runs on the lean machine alone, in Python
-            circuit = " (the circuit model runs in hexgym simulate and validate, not in the environments)"
-            note = circuit if tables in TABLE_SETS else ""
-            raise ValueError(f"tables must be one of {NATIVE_TABLE_SETS}, got {tables!r}{note}")
+        if tables not in TABLE_SETS:
+            raise ValueError(f"tables must be one of {tuple(TABLE_SETS)}, got {tables!r}")
+        backend_for(tables, backend)  # a set the plugin does not run, with backend "native": refused here
         self._scene_path, self._backend, self.tables = scene_path, backend, tables
         self.machine_model = model  # "learned" or "reference" (``model`` is MuJoCo's in Gymnasium's envs)
         self.observation_space, self.action_space = task_spaces()

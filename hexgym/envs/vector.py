@@ -29,7 +29,8 @@ from hexgym.envs.sites import BatchSites, MachineSites
 from hexgym.envs.task import CONTACT_SLOTS, INFO_STORES, REWARD_TERMS, STEP_PERIOD, LoadingTask
 from hexgym.envs.world import Layout, World
 from hexgym.machine import parameters as p
-from hexgym.model.backend import resolve_backend
+from hexgym.mbl.schema import DEFAULT_TABLE_SET
+from hexgym.model.backend import backend_for
 from hexgym.model.plugin import CTRL_PER_SPOOL_M
 
 _VEL = int(mujoco.mjtStage.mjSTAGE_VEL)  # after a step: positions and velocities current, as mj_step1 leaves them
@@ -88,7 +89,7 @@ class HexLoadingVectorEnv(VectorEnv):
                 f"the batched HexLoading-v0 runs the learned model only (model={env_kwargs['model']!r}): use "
                 "gymnasium.make_vec(..., vectorization_mode='sync') or single environments"
             )
-        backend = resolve_backend(backend)
+        backend = backend_for(env_kwargs.get("tables", DEFAULT_TABLE_SET), backend)
         if backend == "native":
             from hexgym.model.plugin import NativePluginError, load_plugin
 

@@ -12,9 +12,15 @@ from __future__ import annotations
 import os
 import warnings
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from hexgym.mbl.schema import DEFAULT_TABLE_SET
 from hexgym.model.base import LearnedModelBase
+
+if TYPE_CHECKING:  # the CLI's parser imports this module: MuJoCo loads only with a model
+    import mujoco
+
+    from hexgym.model.python_backend import LearnedModel
 
 BACKENDS = ("auto", "python", "native")
 BACKEND_VARIABLE = "HEXGYM_BACKEND"
@@ -48,6 +54,40 @@ def resolve_backend(backend: str = "auto") -> str:
     return "python" if reason else "native"
 
 
+def backend_for(table_set: str, backend: str = "auto") -> str:
+    """The backend that runs ``table_set``: :func:`resolve_backend`, except that a set the plugin does not run
+    (the circuit model's, :data:`hexgym.mbl.schema.NATIVE_TABLE_SETS`) runs in Python, and "native" for it is
+    refused naming both."""
+    from hexgym.mbl.schema import NATIVE_TABLE_SETS
+
+    check_backend(backend)
+    if table_set in NATIVE_TABLE_SETS:
+        return resolve_backend(backend)
+    if backend == "native":
+        raise ValueError(f"backend 'native' does not run the {table_set} tables: use backend 'python' or 'auto'")
+    return "python"
+
+
+def python_learned_model(
+    table_set: str = DEFAULT_TABLE_SET,
+    tables_dir: str | Path | None = None,
+    model: mujoco.MjModel | None = None,
+    control_period: float | None = None,
+) -> LearnedModel:
+    """The Python learned model of ``table_set`` on ``model`` (default: the lean machine): the circuit model
+    (:class:`hexgym.model.circuit_model.CircuitModel`) for "circuit", the table model
+    (:class:`hexgym.model.python_backend.LearnedModel`) for the others."""
+    from hexgym.mbl.table import load_tables
+    from hexgym.model.python_backend import LearnedModel
+
+    tables = load_tables(tables_dir, table_set)
+    if table_set == "circuit":
+        from hexgym.model.circuit_model import CircuitModel
+
+        return CircuitModel(tables, model=model, control_period=control_period)
+    return LearnedModel(tables, model=model, control_period=control_period)
+
+
 def make_learned_model(
     backend: str = "auto",
     tables_dir: str | Path | None = None,
@@ -60,19 +100,8 @@ def make_learned_model(
     :mod:`hexgym.model.circuit_model`, runs in Python whatever ``backend`` "auto" would choose);
     ``tables_dir``: other tables of that set than the packaged ones (both backends read the same files).
     """
-    if table_set == "circuit":  # the circuit model runs in Python only
-        if backend == "native":
-            raise ValueError("backend 'native' does not run the circuit model: use backend 'python' or 'auto'")
-        from hexgym.mbl.table import load_tables
-        from hexgym.model.circuit_model import CircuitModel
-
-        return CircuitModel(load_tables(tables_dir, table_set), control_period=control_period)
-    backend = resolve_backend(backend)
-    if backend == "native":
+    if backend_for(table_set, backend) == "native":
         from hexgym.model.native_backend import NativeLearnedModel
 
         return NativeLearnedModel(tables_dir=tables_dir, control_period=control_period, table_set=table_set)
-    from hexgym.mbl.table import load_tables
-    from hexgym.model.python_backend import LearnedModel
-
-    return LearnedModel(tables=load_tables(tables_dir, table_set), control_period=control_period)
+    return python_learned_model(table_set, tables_dir, control_period=control_period)

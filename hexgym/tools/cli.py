@@ -232,6 +232,8 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
             print(f"wrote {args.json}")
         return 0
     env_kwargs = {"model": args.model} | ({"time_limit": args.seconds} if args.seconds is not None else {})
+    if args.tables != DEFAULT_TABLE_SET:  # with --model reference, the environment refuses it in one line
+        env_kwargs["tables"] = args.tables
     result = evaluate(args.policy, episodes=args.episodes, seed=args.seed, env_kwargs=env_kwargs, json_out=args.json,
                       workers=args.workers, ray=args.ray)  # fmt: skip
     print(json.dumps({k: v for k, v in result.items() if k != "per_episode"}, indent=2))
@@ -564,6 +566,7 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
     evaluate.add_argument("--json", metavar="OUT", default=None, help="also write the figures to this JSON file")
     evaluate.add_argument("--workers", type=int, default=1, help="processes running the episodes (default: 1)")
     evaluate.add_argument("--model", **_MACHINE_MODEL_OPTION)
+    evaluate.add_argument("--tables", **_TABLES_OPTION)
     evaluate.add_argument("--env", default="HexLoading-v0", help="environment id (default: HexLoading-v0; others, "
                           "e.g. HexReach-v0: success rate, mean return, time to success of a model .zip)")  # fmt: skip
     add_ray_option(evaluate, "the episodes")
