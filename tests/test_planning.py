@@ -235,11 +235,49 @@ def test_a_plan_from_inside_the_ground_is_not_reported_safe(env, model):
     assert plan.message.startswith("no collision-free motion found")
 
 
+def test_the_check_replays_a_plan_on_the_circuit_model_and_finds_its_contact(env, model):
+    from hexgym.planning import MachineState
+    from hexgym.planning.check import PlanCheck
+    from hexgym.planning.planner import dump_goal
+
+    layout = env.unwrapped.layout
+    state = MachineState(env.unwrapped.physics.joint_positions(), np.zeros(4), 0.0, layout)
+    check = PlanCheck(model)
+    held = check(np.zeros((40, 4)), state, dump_goal(layout))
+    _, _, clearance = model.at_angles(state.q[None], layout)
+    assert held.collision_free and held.min_clearance_m == pytest.approx(clearance.min(), abs=0.02)
+    down = check(np.tile(BOOM_DOWN, (80, 1)), state, dump_goal(layout))  # 2 s boom down: into the ground
+    assert not down.collision_free and down.time_s is None and down.goal_error_m > 0.0
+
+
+def test_a_checked_plan_keeps_the_clearance_the_check_found_missing(env, model):
+    """Two rounds, each plan checked; the second keeps the clearance the check found the first overstated."""
+    from hexgym.planning import MachineState
+    from hexgym.planning.check import CheckResult
+    from hexgym.planning.planner import dump_goal, plan_checked
+
+    layout = env.unwrapped.layout
+    state = MachineState(env.unwrapped.physics.joint_positions(), np.zeros(4), 2000.0, layout)
+    checked = []
+
+    def check(spools_m, start, goal):  # a machine 0.4 m closer to the truck than the fast model says
+        _, _, clearance = model.at_angles(np.atleast_2d(start.q), layout)
+        result = CheckResult(float(clearance.min()) - 0.4 * len(checked), 1.0, None)
+        checked.append(result)
+        return result
+
+    plan, result = plan_checked(state, dump_goal(layout), model, check, budget=60, population=30, horizon_s=3.0)
+    assert len(checked) == 2 and plan.rollouts == 62  # each round simulates its final plan once more
+    assert result is checked[0]  # the second round's plan, checked worse, is not the one returned
+    with pytest.raises(ValueError, match="budget must be an integer >= 2"):
+        plan_checked(state, dump_goal(layout), model, check, budget=1)
+
+
 def test_plan_command_names_bad_input(capsys):
     from hexgym.tools.cli import main
 
     assert main(["plan", "--task", "dump", "--budget", "0"]) == 2
-    assert "--budget must be >= 1" in capsys.readouterr().err
+    assert "--budget must be >= 2" in capsys.readouterr().err  # two rounds, each checked
     assert main(["plan", "--task", "dump", "--seeds", "5-2"]) == 2
     assert "--seeds must be A-B" in capsys.readouterr().err
     assert main(["plan", "--task", "dump", "--video", "plan.avi"]) == 2

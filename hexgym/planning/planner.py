@@ -25,6 +25,8 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -32,6 +34,7 @@ from hexgym.envs.loading import STEP_PERIOD
 from hexgym.envs.world import Layout, bed_frame, entry_radius
 from hexgym.hydraulics import fuel
 from hexgym.machine import parameters as p
+from hexgym.planning.check import CheckResult
 from hexgym.planning.rollouts import MachineState, RolloutBatch, RolloutModel
 
 TASKS = ("dump", "return", "tip")
@@ -290,3 +293,47 @@ def plan_motion(
         wall_s=time.perf_counter() - start, tip=final.tip[0, : end + 1], mouth=final.mouth[0, : end + 1],
         q=final.q[0, : end + 1],
     )  # fmt: skip
+
+
+def plan_checked(
+    state: MachineState,
+    goal: Goal,
+    model: RolloutModel,
+    check: Callable[[np.ndarray, MachineState, Goal], CheckResult],
+    budget: int = 2000,
+    margin_m: float = MARGIN_M,
+    initial: np.ndarray | None = None,
+    **search: Any,
+) -> tuple[Plan, CheckResult]:
+    """:func:`plan_motion` in two rounds of half the ``budget``, each plan checked on the accurate model (``check``,
+    e.g. :class:`hexgym.planning.check.PlanCheck`): by as much as the check finds the first plan closer to truck or
+    ground than the fast model predicted, the second round keeps more clearance, starting from the first plan. The
+    better checked plan is returned (collision-free first, then at the goal, then sooner) with its check; its
+    ``rollouts`` and ``wall_s`` count both rounds and the checks. ``search``: :func:`plan_motion`'s other options."""
+    if isinstance(budget, bool) or not isinstance(budget, int | np.integer) or budget < 2:
+        raise ValueError(f"planner budget must be an integer >= 2 rollouts (two rounds), got {budget!r}")
+    start = time.perf_counter()
+    first = plan_motion(state, goal, model, budget=budget // 2, margin_m=margin_m, initial=initial, **search)
+    first_check = check(first.spools_m, state, goal)
+    overstated = max(first.min_clearance_m - first_check.min_clearance_m, 0.0)
+    per_knot = round(search.get("knot_s", 0.5) / model.control_period)
+    second = plan_motion(state, goal, model, budget=budget - budget // 2, margin_m=margin_m + overstated,
+                         initial=_knots_of(first.spools_m, per_knot), **search)  # fmt: skip
+    second_check = check(second.spools_m, state, goal)
+    plan, checked = min(((first, first_check), (second, second_check)), key=lambda pc: _check_rank(*pc))
+    wall = time.perf_counter() - start
+    return dataclasses.replace(plan, rollouts=first.rollouts + second.rollouts, wall_s=wall), checked
+
+
+def _knots_of(spools_m: np.ndarray, periods_per_knot: int) -> np.ndarray:
+    """Spools (T, 4, m) per control period -> their fractions per knot (K, 4), the knots' means."""
+    knots = -(-len(spools_m) // periods_per_knot)
+    padded = np.zeros((knots * periods_per_knot, 4))
+    padded[: len(spools_m)] = spools_m / p.SPOOL_STROKE
+    return padded.reshape(knots, periods_per_knot, 4).mean(axis=1)
+
+
+def _check_rank(plan: Plan, checked: CheckResult) -> tuple[bool, bool, float]:
+    """Order of checked plans: collision-free first, then at the goal, then sooner."""
+    at_goal = checked.time_s is not None
+    return (not checked.collision_free, not at_goal, checked.time_s if at_goal else plan.time_s)

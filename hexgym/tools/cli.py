@@ -276,7 +276,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
         raise ValueError(f"--video must be an .mp4 file, got {args.video}")
     seeds = parse_seeds(args.seeds) if args.seeds is not None else [args.seed]
     result = run_plan(args.task, seeds, w_fuel=args.w_fuel, budget=args.budget, nthread=args.threads,
-                      json_out=args.json, margin_m=args.margin, ray=args.ray)  # fmt: skip
+                      json_out=args.json, margin_m=args.margin, ray=args.ray, check=not args.no_check)  # fmt: skip
     shown = result.get("summary", {k: v for k, v in result.items() if not k.endswith("_mm") and k != "paths"})
     print(json.dumps(shown, indent=2))
     if args.plot:
@@ -500,6 +500,11 @@ def _add_planning_parsers(sub: argparse._SubParsersAction) -> None:
                       "the scripted loader's (the learned model, chase camera) to this MP4")  # fmt: skip
     plan.add_argument("--margin", type=float, default=0.5, help="clearance (m) the plan keeps from truck and ground "
                       "(default: 0.5)")  # fmt: skip
+    plan.add_argument(
+        "--no-check",
+        action="store_true",
+        help="plan in one round on the fast model alone (default: two rounds, each plan checked on the circuit model)",
+    )
     plan.add_argument("--json", metavar="OUT", default=None, help="also write the figures to this JSON file")
     add_ray_option(plan, "the seeds (each with --threads cores)")
     plan.set_defaults(func=_cmd_plan)

@@ -35,7 +35,8 @@ from hexgym.envs.loading import STEP_PERIOD, HexLoadingEnv
 from hexgym.files import save_figure, write_json
 from hexgym.machine import parameters as p
 from hexgym.parallel import executor
-from hexgym.planning.planner import MARGIN_M, Goal, Plan, dump_goal, plan_motion, return_goal
+from hexgym.planning.check import PlanCheck
+from hexgym.planning.planner import MARGIN_M, Goal, Plan, dump_goal, plan_checked, plan_motion, return_goal
 from hexgym.planning.rollouts import MachineState, RolloutModel
 
 TASKS = ("dump", "return")
@@ -172,10 +173,13 @@ def plan_task(
     horizon_s: float = 8.0,
     warm_start: bool = True,
     margin_m: float = MARGIN_M,
+    check: bool = True,
 ) -> dict[str, Any]:
     """Plan ``task`` on seed ``seed``, replay it on the reference and in the environment, run the scripted loader:
     the figures. ``warm_start``: start the search from the scripted loader's move (its actions averaged per knot).
-    The horizon is ``horizon_s`` or, shorter, the scripted move's time plus 0.5 s (rounded up to 0.5 s, >= 3 s)."""
+    ``check``: plan in two rounds, each plan checked on the circuit model (:func:`plan_checked`; ``checked_*``);
+    else in one (:func:`plan_motion`). The horizon is ``horizon_s`` or, shorter, the scripted move's time plus
+    0.5 s (rounded up to 0.5 s, >= 3 s)."""
     if task not in TASKS:
         raise ValueError(f"--task must be one of {TASKS}, got {task!r}")
     states = start_states(seed)
@@ -186,8 +190,13 @@ def plan_task(
         initial = scripted_knots(scripted["actions"]) if warm_start else None
         if scripted["time_s"] is not None:  # no longer than the scripted move and a margin: less to simulate
             horizon_s = min(horizon_s, max(3.0, math.ceil(2.0 * (scripted["time_s"] + 0.5)) / 2.0))
-        plan = plan_motion(state, goal, model, w_fuel=w_fuel, budget=budget, horizon_s=horizon_s, seed=seed,
-                           initial=initial, margin_m=margin_m)  # fmt: skip
+        options = {"w_fuel": w_fuel, "budget": budget, "horizon_s": horizon_s, "seed": seed, "initial": initial,
+                   "margin_m": margin_m}  # fmt: skip
+        checked = None
+        if check:
+            plan, checked = plan_checked(state, goal, model, PlanCheck(model), **options)
+        else:
+            plan = plan_motion(state, goal, model, **options)
         reference = reference_replay(plan, state, goal, model)
         learned = learned_replay(seed, state, goal, plan, model)
     finally:
@@ -197,7 +206,10 @@ def plan_task(
         "plan_message": plan.message, "plan_wall_s": plan.wall_s,
         "rollouts": plan.rollouts, "predicted_reached": plan.reached, "predicted_time_s": plan.time_s,
         "predicted_fuel_l": plan.fuel_l, "predicted_min_clearance_m": plan.min_clearance_m,
-        "predicted_collision_free": plan.collision_free, "predicted_spill_free": plan.spill_free,
+        "predicted_collision_free": plan.collision_free, "predicted_spill_free": plan.spill_free, "check": check,
+        "checked_time_s": checked.time_s if checked else None,
+        "checked_min_clearance_m": checked.min_clearance_m if checked else None,
+        "checked_goal_error_m": checked.goal_error_m if checked else None,
         "learned_time_s": learned["time_s"], "learned_fuel_l": learned["fuel_l"],
         "learned_min_clearance_m": learned["min_clearance_m"], "warm_start": warm_start,
         "reference_time_s": reference["time_s"], "reference_fuel_l": reference["fuel_l"],
@@ -276,6 +288,7 @@ def run_plan(
     json_out: str | Path | None = None,
     margin_m: float = MARGIN_M,
     ray: str | None = None,
+    check: bool = True,
 ) -> dict[str, Any]:
     """Plan on each seed; one seed's figures, or with several a summary and the per-seed figures.
 
@@ -283,14 +296,14 @@ def run_plan(
     :mod:`hexgym.parallel`); the same figures but the wall times."""
     if not (math.isfinite(w_fuel) and w_fuel >= 0):
         raise ValueError(f"--w-fuel must be finite and >= 0, got {w_fuel}")
-    if budget < 1:
-        raise ValueError(f"--budget must be >= 1 rollouts, got {budget}")
+    if budget < (2 if check else 1):
+        raise ValueError(f"--budget must be >= {2 if check else 1} rollouts, got {budget}")
     if nthread < 1:
         raise ValueError(f"--threads must be >= 1, got {nthread}")
     if not (math.isfinite(margin_m) and 0 <= margin_m <= 2.0):
         raise ValueError(f"--margin must be within 0 and 2 m, got {margin_m}")
     start = time.perf_counter()
-    jobs = [(task, s, w_fuel, budget, nthread, margin_m) for s in seeds]
+    jobs = [(task, s, w_fuel, budget, nthread, margin_m, check) for s in seeds]
     with executor(1, ray, cpus_per_task=nthread) as pool:
         results = pool.map(_plan_job, jobs)
     out: dict[str, Any] = results[0] if len(results) == 1 else {
@@ -302,9 +315,9 @@ def run_plan(
     return out
 
 
-def _plan_job(job: tuple[str, int, float, int, int, float]) -> dict[str, Any]:
-    task, seed, w_fuel, budget, nthread, margin_m = job
-    return plan_task(task, seed, w_fuel, budget, nthread, margin_m=margin_m)
+def _plan_job(job: tuple[str, int, float, int, int, float, bool]) -> dict[str, Any]:
+    task, seed, w_fuel, budget, nthread, margin_m, check = job
+    return plan_task(task, seed, w_fuel, budget, nthread, margin_m=margin_m, check=check)
 
 
 def plot_plan(result: dict[str, Any], out: str | Path) -> Path:
