@@ -12,7 +12,9 @@
 - ``learned_realtime_factor_python`` / ``_native`` (one thread) and ``batch_realtime_factor_native``
   (64 rollouts on every core): simulated seconds per wall second of the learned machine model
   alone (targets: native >= 5,000x, batch >= 10,000x on 2 cores); ``circuit_realtime_factor_python``
-  the circuit model's (:mod:`hexgym.model.circuit_model`, Python only).
+  the circuit model's (:mod:`hexgym.model.circuit_model`, Python only), and ``circuit_period_compiled_us`` what
+  its compiled control period alone costs (:func:`circuit_period_us`): a floor for a native circuit model's
+  period beside the native table model's whole period (25 ms over ``learned_realtime_factor_native``).
 """
 
 from __future__ import annotations
@@ -278,6 +280,9 @@ def print_bench(result: dict, json_path: str | Path | None = None) -> None:
         print(f"  vector / physics alone: {r['vector_steps_per_s'] / bound:.3f} (target >= 0.7)")
     for key in ("learned_realtime_factor_python", "circuit_realtime_factor_python", "learned_realtime_factor_native"):
         print(f"{key}: {result.get(key, float('nan')):.0f}x real time (one thread)")
+    native_period = 25e3 / result.get("learned_realtime_factor_native", float("nan"))
+    print(f"circuit_period_compiled_us: {result['circuit_period_compiled_us']:.1f} us per 25 ms period (the native "
+          f"table model's whole period: {native_period:.1f} us)")  # fmt: skip
     if "batch_realtime_factor_native" in result:
         print(
             f"batch_realtime_factor_native: {result['batch_realtime_factor_native']:.0f}x real time"
@@ -420,9 +425,39 @@ def native_benchmark(seconds: float = 3.0) -> dict[str, float]:
     out = {
         "learned_realtime_factor_python": _timed(per_period(LearnedModel()), seconds),
         "circuit_realtime_factor_python": _timed(per_period(CircuitModel()), seconds),
+        "circuit_period_compiled_us": circuit_period_us(),
     }
     if not native_available():
         return out
     out["learned_realtime_factor_native"] = native_rollout_realtime_factor(seconds)
     out["learned_realtime_factor_native_python_loop"] = _timed(per_period(NativeLearnedModel()), seconds)
     return out
+
+
+def circuit_period_us(periods: int = 20_000) -> float:
+    """Microseconds of the circuit model's compiled control period alone (its five circuit steps and the joints'
+    coupling, :func:`hexgym.model.circuit_kernel.control_period`), called from compiled code: no Python in the
+    loop. Measured at Test 3's state 2 s in (swing, boom and bucket moving)."""
+    import numba
+
+    from hexgym.model import circuit_kernel
+
+    @numba.njit
+    def repeat(n: int, args: tuple) -> float:
+        total = 0.0
+        for _ in range(n):
+            total += circuit_kernel.control_period(*args)[1][0]
+        return total
+
+    log, pose = _test3()
+    model = CircuitModel()
+    model.reset(pose)
+    for u in (_test3_controls(model) * 1e-3)[:80]:
+        model.step(u)
+    arms, mass, load = model._period_start()
+    args = (*model._constants, model.spools_m, model.state, model.rates, model.physics.cylinder_extensions(),
+            arms, mass, load, model.control_period / model.substeps, model.substeps)  # fmt: skip
+    repeat(10, args)  # compile
+    start = time.perf_counter()
+    repeat(periods, args)
+    return (time.perf_counter() - start) / periods * 1e6
