@@ -136,6 +136,21 @@ def test_bad_actions_name_the_environment():
     vec.close()
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_actions_of_any_layout_and_type_hold_the_same_spools(backend):
+    # float64 rows, a float32 column-major copy and a list give the same results (float32 widens exactly)
+    rows = np.random.default_rng(3).uniform(-1.5, 1.5, (4, 2, 4)).astype(np.float32)
+    given = [lambda a: a.astype(np.float64), lambda a: np.asfortranarray(a), lambda a: a.tolist()]
+    results = []
+    for form in given:
+        vec = gym.make_vec("HexLoading-v0", num_envs=2, backend=backend)
+        vec.reset(seed=4)
+        results.append([vec.step(form(a)) for a in rows])
+        vec.close()
+    for other in results[1:]:
+        _assert_same("steps", tuple(other), tuple(results[0]))
+
+
 def test_without_the_plugin_it_says_to_use_sync(monkeypatch):
     import hexgym.model.plugin
     from hexgym.model.plugin import NativePluginError

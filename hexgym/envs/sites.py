@@ -131,16 +131,13 @@ class MachineSites:
             self.machines[i].physics.set_payload(float(mass_kg[k]))
         self.refresh(ids)
 
-    def joint_loads(self, ids: np.ndarray) -> np.ndarray:
-        """The machine models' joint loads (k, 4), N m."""
-        if len(self.machines) == 1:
-            return self.machines[0].joint_loads()[None]
-        return np.array([self.machines[i].joint_loads() for i in ids.tolist()])
-
-    def swing_torques(self, ids: np.ndarray) -> np.ndarray:
-        """Each swing's inertia times its last table acceleration (k,), N m."""
-        return np.array([self.machines[i].physics.swing_inertia() * self.machines[i].swing_acceleration
-                         for i in ids.tolist()])  # fmt: skip
+    def loads(self, ids: np.ndarray, joint_loads: np.ndarray, swing_torques: np.ndarray) -> None:
+        """The machine models' joint loads into ``joint_loads`` (k, 4), N m, and each swing's inertia times its last
+        table acceleration into ``swing_torques`` (k,), N m."""
+        for k, i in enumerate(ids.tolist()):
+            machine = self.machines[i]
+            joint_loads[k] = machine.joint_loads()
+            swing_torques[k] = machine.physics.swing_inertia() * machine.swing_acceleration
 
     def limit_servo_windup(self, i: int = 0) -> None:
         """Keep each servo's integrated target where the servo is at most saturated (anti-windup).
@@ -214,13 +211,9 @@ class BatchSites:
         self.refresh(ids)
 
     def refresh(self, ids: np.ndarray) -> None:
-        """Copy the joint positions and velocities from the state rows (after a step or a start of the sites ``ids``).
-
-        Every row is copied: the other sites' rows have not changed, and one contiguous copy costs less than
-        gathering the rows ``ids``.
-        """
-        np.copyto(self._joints[0], self._qpos)
-        np.copyto(self._joints[1], self._qvel)
+        """Copy the joint positions and velocities of the sites ``ids`` from their state rows (after a step or a
+        start)."""
+        _copy_rows(ids, self._qpos, self._qvel, *self._joints)
 
     def apply_tip_force(self, ids: np.ndarray, force: np.ndarray) -> None:
         """ExcavatorPhysics.apply_tip_force of the sites ``ids``: ``qfrc_applied = J^T force`` at the teeth.
@@ -248,40 +241,38 @@ class BatchSites:
         self.batch.set_const(ids)
         self.batch.forward(ids, stage=_ACC)
 
-    def joint_loads(self, ids: np.ndarray) -> np.ndarray:
-        """NativeLearnedModel.joint_loads of the sites ``ids`` (N m), (k, 4)."""
-        out = np.empty((len(ids), 4))
-        _joint_loads(ids, self._qfrc_bias, self._qfrc_passive, self._qfrc_applied, self._plugin_state, self.dadr,
-                     self._load_slots, out)  # fmt: skip
-        return out
-
-    def swing_torques(self, ids: np.ndarray) -> np.ndarray:
-        """The swing's inertia times the plugin's last swing acceleration of the sites ``ids``, N m."""
-        out = np.empty(len(ids))
-        _swing_torques(ids, self._mass_matrix, self._swing_diag, self._plugin_state, self._acceleration_slot, out)
-        return out
+    def loads(self, ids: np.ndarray, joint_loads: np.ndarray, swing_torques: np.ndarray) -> None:
+        """NativeLearnedModel.joint_loads of the sites ``ids`` into ``joint_loads`` (k, 4), N m, and the swing's
+        inertia times the plugin's last swing acceleration into ``swing_torques`` (k,), N m."""
+        _loads(ids, self._qfrc_bias, self._qfrc_passive, self._qfrc_applied, self._plugin_state, self.dadr,
+               self._load_slots, self._mass_matrix, self._swing_diag, self._acceleration_slot, joint_loads,
+               swing_torques)  # fmt: skip
 
 
 # compiled: gathering a few numbers per site with numpy's fancy indexing costs more than the numbers
 @jit
-def _joint_loads(
+def _loads(
     ids: np.ndarray, bias: np.ndarray, passive: np.ndarray, applied: np.ndarray, plugin_state: np.ndarray,
-    dadr: np.ndarray, load_slots: np.ndarray, out: np.ndarray,
+    dadr: np.ndarray, load_slots: np.ndarray, mass_matrix: np.ndarray, swing_diag: int, acceleration_slot: int,
+    joint_loads: np.ndarray, swing_torques: np.ndarray,
 ) -> None:  # fmt: skip
     """NativeLearnedModel.joint_loads per site: ``qfrc_bias - qfrc_passive - qfrc_applied`` at the main joints less
-    the plugin's constraint loads (the same operations in the same order: the same floats)."""
+    the plugin's constraint loads (the same operations in the same order: the same floats); and the swing's inertia
+    (its diagonal entry of the sparse mass matrix) times its last table acceleration."""
     for k in range(len(ids)):
         i = ids[k]
         for j in range(4):
             d = dadr[j]
-            out[k, j] = (bias[i, d] - passive[i, d] - applied[i, d]) - plugin_state[i, load_slots[j]]
+            joint_loads[k, j] = (bias[i, d] - passive[i, d] - applied[i, d]) - plugin_state[i, load_slots[j]]
+        swing_torques[k] = mass_matrix[i, swing_diag] * plugin_state[i, acceleration_slot]
 
 
 @jit
-def _swing_torques(
-    ids: np.ndarray, mass_matrix: np.ndarray, swing_diag: int, plugin_state: np.ndarray, slot: int, out: np.ndarray
-) -> None:
-    """The swing's inertia (its diagonal entry of the sparse mass matrix) times its last table acceleration."""
+def _copy_rows(ids: np.ndarray, qpos: np.ndarray, qvel: np.ndarray, qpos_out: np.ndarray, qvel_out: np.ndarray) -> None:
+    """Rows ``ids`` of ``qpos`` and ``qvel`` into their copies."""
     for k in range(len(ids)):
         i = ids[k]
-        out[k] = mass_matrix[i, swing_diag] * plugin_state[i, slot]
+        for j in range(qpos.shape[1]):
+            qpos_out[i, j] = qpos[i, j]
+        for j in range(qvel.shape[1]):
+            qvel_out[i, j] = qvel[i, j]

@@ -117,11 +117,9 @@ class SitePhysics(Protocol):
     def set_payload(self, ids: np.ndarray, mass_kg: np.ndarray) -> None:
         """Re-mass the payload of sites ``ids``, keeping their state."""
 
-    def joint_loads(self, ids: np.ndarray) -> np.ndarray:
-        """The main joints' loads (k, 4), N m (the machine model's ``joint_loads``)."""
-
-    def swing_torques(self, ids: np.ndarray) -> np.ndarray:
-        """The swing's inertia times its last table acceleration (k,), N m."""
+    def loads(self, ids: np.ndarray, joint_loads: np.ndarray, swing_torques: np.ndarray) -> None:
+        """Write the main joints' loads into ``joint_loads`` (k, 4), N m (the machine model's ``joint_loads``), and
+        the swing's inertia times its last table acceleration into ``swing_torques`` (k,), N m."""
 
 
 # -- the compiled stages ----------------------------------------------------------------------------
@@ -374,13 +372,13 @@ def account(
     ids: np.ndarray, seconds: np.ndarray, loads: np.ndarray, swing_torques: np.ndarray, qvel: np.ndarray,
     dadr: np.ndarray, fuel_rates: np.ndarray, fuel_start: float, fuel_step: float, sensordata: np.ndarray,
     contact_adr: int, slots: int, joint_loads: np.ndarray, fuel_l: np.ndarray, impulse: np.ndarray,
-    left: np.ndarray, interval: np.ndarray,
+    left: np.ndarray, interval: np.ndarray, going: np.ndarray,
 ) -> int:  # fmt: skip
     """Close each site's interval of ``seconds``: fuel (the actuators' power at its end through the engine's
     BSFC, :mod:`hexgym.hydraulics.fuel`), hard-contact impulse, the joint loads (k, 4) kept for the
-    observation, and the periods ``left`` of the step. Returns how many sites have periods left, or -1 - i for a
-    site i with too many contacts."""
-    going = 0
+    observation, and the periods ``left`` of the step. Returns how many sites have periods left (their ids first
+    in ``going``, which may be ``ids`` itself), or -1 - i for a site i with too many contacts."""
+    count = 0
     for k in range(len(ids)):
         i = ids[k]
         power = 0.0
@@ -396,8 +394,10 @@ def account(
             return -1 - i
         impulse[i] += force * seconds[i]
         left[i] -= interval[i]
-        going += left[i] > 0
-    return going
+        if left[i] > 0:
+            going[count] = i
+            count += 1
+    return count
 
 
 @jit
@@ -586,6 +586,11 @@ class LoadingTask:
         self._left, self._interval = np.zeros(n, np.int64), np.zeros(n, np.int64)
         self._seconds, self._tip_start = np.zeros(n), np.zeros((n, 3))
         self._flows, self._fuel, self._impulse = np.zeros((n, 3)), np.zeros(n), np.zeros(n)
+        # and per k of a call's sites (written before read): clear of the pile, payload changed, the machines' loads;
+        # the sites with periods left after an interval
+        self._clear, self._change = np.zeros(n, np.bool_), np.zeros(n, np.bool_)
+        self._loads, self._swing_torques = np.zeros((n, 4)), np.zeros(n)
+        self._going = np.zeros(n, np.int64)
         # shaping potentials after the last step and now (zeros, never computed, while every shaping weight is 0)
         self._shaping = any(float(weights[term]) != 0.0 for term in SHAPING_TERMS)
         self._potential, self._potential_now = np.zeros((n, 4)), np.zeros((n, 4))
@@ -624,7 +629,8 @@ class LoadingTask:
         """The teeth and joint loads of freshly started sites (their machines' derived quantities current)."""
         ph = self.physics
         self.tip_before[ids] = ph.site_xpos[ids, ph.tip_site]
-        self.joint_loads[ids] = ph.joint_loads(ids)
+        ph.loads(ids, self._loads, self._swing_torques)
+        self.joint_loads[ids] = self._loads[: len(ids)]
         if self._shaping:
             self._potentials(ids, self._potential)
 
@@ -671,11 +677,10 @@ class LoadingTask:
     def _advance(self, ids: np.ndarray) -> None:
         """Rounds of clear or digging intervals until each site has advanced its step's periods."""
         ph = self.physics
-        clear = np.empty(len(ids), np.bool_)
         while True:
             code = plan(ids, self._left, self.periods, self.earthwork_periods, self.period, ph.site_xpos, ph.tip_site,
                         self.heights, self.origin, self.spacing, self.top, self.force_on, self._interval,
-                        self._seconds, self._tip_start, clear)  # fmt: skip
+                        self._seconds, self._tip_start, self._clear)  # fmt: skip
             if code == 0:  # the usual case: all clear of the pile, for the same periods
                 ph.step(ids, int(self._interval[ids[0]]))
                 self._end_clear(ids)
@@ -683,14 +688,14 @@ class LoadingTask:
                 self._step_grouped(ids)
                 self._end_clear(ids)
             else:
+                clear = self._clear[: len(ids)]
                 self._dig(ids[~clear])
                 if clear.any():
                     self._step_grouped(ids[clear])
                     self._end_clear(ids[clear])
-            if not self._account(ids):
+            ids = self._account(ids)
+            if not len(ids):
                 return
-            ids = ids[self._left[ids] > 0]
-            clear = clear[: len(ids)]
 
     def _step_grouped(self, ids: np.ndarray) -> None:
         """Advance each site by its interval's periods: one physics call per distinct count."""
@@ -701,11 +706,12 @@ class LoadingTask:
     def _end_clear(self, ids: np.ndarray) -> None:
         """After an interval clear of the pile (:func:`end_clear`): no digging force acted; re-mass the bucket."""
         ph = self.physics
-        change = np.empty(len(ids), np.bool_)
+        change = self._change
         if end_clear(ids, self._seconds, self._tip_start, ph.site_xpos, ph.xpos, ph.xmat, ph.tip_site,
                      ph.bucket_body, self.tip_before, self.tip_velocity, self.tip_interval, self.truck, self.stores,
                      self._flows, self.payload_kg, change):  # fmt: skip
-            ph.set_payload(ids[change], self.payload_kg[ids[change]])
+            changed = ids[change[: len(ids)]]
+            ph.set_payload(changed, self.payload_kg[changed])
 
     def _dig(self, ids: np.ndarray) -> None:
         """One dig (:func:`begin_dig`), then the interval's periods: cutting sites period by period, re-aiming their
@@ -742,24 +748,26 @@ class LoadingTask:
                 ph.step(now, 1)
                 self.tip_interval[now] = self.period
 
-    def _account(self, ids: np.ndarray) -> int:
+    def _account(self, ids: np.ndarray) -> np.ndarray:
         """Fuel, hard-contact impulse and joint loads at the end of the sites' intervals (:func:`account`); returns
-        how many sites have periods left."""
+        the sites with periods left."""
         ph = self.physics
-        going = account(ids, self._seconds, ph.joint_loads(ids), ph.swing_torques(ids), ph.qvel, ph.dadr,
-                      self._fuel_rates, self._fuel_start, self._fuel_step, ph.sensordata, ph.contact_adr,
-                      self.contact_slots, self.joint_loads, self._fuel, self._impulse, self._left,
-                      self._interval)  # fmt: skip
+        ph.loads(ids, self._loads, self._swing_torques)
+        going = account(ids, self._seconds, self._loads, self._swing_torques, ph.qvel, ph.dadr, self._fuel_rates,
+                        self._fuel_start, self._fuel_step, ph.sensordata, ph.contact_adr, self.contact_slots,
+                        self.joint_loads, self._fuel, self._impulse, self._left, self._interval,
+                        self._going)  # fmt: skip
         if going < 0:
             raise RuntimeError(f"more than {self.contact_slots} bucket/stick contacts at environment {-1 - going}")
-        return going
+        return self._going[:going]
 
     # -- observation and info ---------------------------------------------------------------------
-    def observe(self, ids: np.ndarray) -> np.ndarray:
-        """The observations of sites ``ids`` (k, 23), float32."""
+    def observe(self, ids: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """The observations of sites ``ids`` (k, 23), float32 (written into ``out`` when given)."""
         self.update_cut_directions(ids)
         ph = self.physics
-        out = np.empty((len(ids), OBSERVATION_SIZE), np.float32)
+        if out is None:
+            out = np.empty((len(ids), OBSERVATION_SIZE), np.float32)
         bad = observe(ids, ph.qpos, ph.qvel, ph.qadr, ph.dadr, ph.site_xpos, ph.xmat, ph.tip_site, ph.bucket_body,
                       self.joint_loads, self._arms, self._arm_start, self._arm_step, self.heights, self.origin,
                       self.spacing, self.layout, self.stores, self.truck_capacity_kg, self.elapsed, self.time_limit,

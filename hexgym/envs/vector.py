@@ -24,9 +24,18 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from hexgym.envs.loading import HexLoadingEnv, heap_for, make_machine, native_world_model, start_machine
+from hexgym.envs.earthwork import jit
+from hexgym.envs.loading import (
+    _INFO_KEYS,
+    _STEP_INFO_KEYS,
+    HexLoadingEnv,
+    heap_for,
+    make_machine,
+    native_world_model,
+    start_machine,
+)
 from hexgym.envs.sites import BatchSites, MachineSites
-from hexgym.envs.task import CONTACT_SLOTS, INFO_STORES, REWARD_TERMS, STEP_PERIOD, LoadingTask
+from hexgym.envs.task import CONTACT_SLOTS, REWARD_TERMS, STEP_PERIOD, LoadingTask
 from hexgym.envs.world import Layout, World
 from hexgym.machine import parameters as p
 from hexgym.mbl.schema import DEFAULT_TABLE_SET
@@ -36,7 +45,12 @@ from hexgym.model.plugin import CTRL_PER_SPOOL_M
 _VEL = int(mujoco.mjtStage.mjSTAGE_VEL)  # after a step: positions and velocities current, as mj_step1 leaves them
 _ACC = int(mujoco.mjtStage.mjSTAGE_ACC)
 _STATE = mujoco.mjtState.mjSTATE_INTEGRATION
-_INFO_KEYS = (*(f"reward_{term}" for term in REWARD_TERMS), *INFO_STORES)
+# the single environment's info keys, each followed by its mask's (SyncVectorEnv's order)
+_MASKED_INFO_KEYS, _MASKED_STEP_INFO_KEYS = (
+    tuple(name for key in keys for name in (key, f"_{key}")) for keys in (_INFO_KEYS, _STEP_INFO_KEYS)
+)
+_ACTION_DTYPES = (np.dtype(np.float32), np.dtype(np.float64))  # (others are converted to float64)
+_STROKE = float(p.SPOOL_STROKE)
 
 
 class HexLoadingVectorEnv(VectorEnv):
@@ -135,6 +149,11 @@ class HexLoadingVectorEnv(VectorEnv):
         self._autoreset = np.zeros(self.num_envs, bool)
         self._obs = np.zeros((self.num_envs, *self.single_observation_space.shape), np.float32)
         self._every = np.arange(self.num_envs)
+        # where the spools go: the batch's ctrl columns in the plugin's units, or the machines' spools in m
+        if isinstance(self.sites, BatchSites):
+            self._spools = self.sites.ctrl, self.sites.ctrl_ids, CTRL_PER_SPOOL_M
+        else:
+            self._spools = self.sites.spools_m, np.arange(4), 1.0
         self._started = False
 
     @property
@@ -183,43 +202,66 @@ class HexLoadingVectorEnv(VectorEnv):
         self._autoreset[sites] = False
         self._started = True
         self._obs[sites] = self.task.observe(sites)
-        return self._obs.copy(), self._infos(mask, np.zeros((self.num_envs, len(REWARD_TERMS))), None)
+        reported = None if mask.all() else mask
+        no_step = np.zeros(self.num_envs, bool)
+        return self._obs.copy(), self._infos(np.zeros((self.num_envs, len(REWARD_TERMS))), reported, no_step)
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         """Step every site by 0.1 s; sites whose episode ended on the last step start a new one instead."""
         if not self._started:
             raise RuntimeError("call reset() before step()")
-        a = self._check_actions(actions)
-        n = self.num_envs
-        stepping = self._every
         if self._autoreset.any():
-            stepping, restarting = np.flatnonzero(~self._autoreset), np.flatnonzero(self._autoreset)
-            for i in restarting:
-                self._start_site(int(i), None)
-            self._finish_starts(restarting)
-        stepped = np.zeros(n, bool)
-        stepped[stepping] = True
-        if len(stepping) == n:  # the usual step: every site steps, its results are the task's arrays
-            self._hold_spools(stepping, a)
-            terms, rewards, ended = self.task.step(stepping)
-        else:  # some sites restart instead: reward 0, not ended
-            terms, rewards, ended = np.zeros((n, len(REWARD_TERMS))), np.zeros(n), np.zeros((n, 2), bool)
-            if len(stepping):
-                self._hold_spools(stepping, a[stepping])
-                terms[stepping], rewards[stepping], ended[stepping] = self.task.step(stepping)
-        self._obs = self.task.observe(self._every)
-        infos = self._infos(np.ones(n, bool), terms, (stepped, self.task.step_fuel_l, self.task.step_impulse))
-        terminated, truncated = ended[:, 0].copy(), ended[:, 1].copy()
+            return self._step_restarting(actions)
+        self._hold_spools(self._every, actions)
+        terms, rewards, ended = self.task.step(self._every)  # every site steps: the task's arrays are the results
+        return self._results(terms, rewards, ended, None)
+
+    def _step_restarting(
+        self, actions: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        """:meth:`step` where some sites start a new episode instead (reward 0, not ended)."""
+        n = self.num_envs
+        stepped = ~self._autoreset
+        stepping, restarting = np.flatnonzero(stepped), np.flatnonzero(self._autoreset)
+        self._hold_spools(stepping, actions)  # (checks every row before a site restarts)
+        for i in restarting:
+            self._start_site(int(i), None)
+        self._finish_starts(restarting)
+        terms, rewards, ended = np.zeros((n, len(REWARD_TERMS))), np.zeros(n), np.zeros((n, 2), bool)
+        if len(stepping):
+            terms[stepping], rewards[stepping], ended[stepping] = self.task.step(stepping)
+        return self._results(terms, rewards, ended, stepped)
+
+    def _results(
+        self, terms: np.ndarray, rewards: np.ndarray, ended: np.ndarray, stepped: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        """A step's returns from every site's reward terms, rewards and ends (terminated, truncated) and the mask of
+        the sites that stepped (None: every site); the observations and ``info`` are read from the task."""
+        self.task.observe(self._every, out=self._obs)
+        infos = self._infos(terms, None, stepped)
+        terminated, truncated = ended.T.copy()
         self._autoreset = terminated | truncated
         return self._obs.copy(), rewards, terminated, truncated, infos
 
     def _hold_spools(self, ids: np.ndarray, actions: np.ndarray) -> None:
-        """Set the spools of sites ``ids`` from their ``actions`` (k, 4; clipped to [-1, 1], scaled to the stroke)."""
-        spools = np.minimum(np.maximum(actions, -1.0), 1.0) * p.SPOOL_STROKE
-        if isinstance(self.sites, BatchSites):
-            self.sites.ctrl[ids[:, None], self.sites.ctrl_ids] = spools * CTRL_PER_SPOOL_M
-        else:
-            self.sites.spools_m[ids] = spools
+        """Check ``actions`` ((num_envs, 4), finite) and hold the spools of sites ``ids`` from their rows."""
+        a = np.asarray(actions)
+        if a.shape != (self.num_envs, 4):
+            raise ValueError(
+                f"actions must have shape ({self.num_envs}, 4) (one row of swing, boom, stick, bucket "
+                f"spools per environment), got shape {a.shape}"
+            )
+        if a.dtype not in _ACTION_DTYPES or not a.flags.c_contiguous:
+            a = np.ascontiguousarray(a, dtype=np.float64)
+        target, columns, scale = self._spools
+        bad = _set_spools(a, ids, target, columns, scale)
+        if bad >= 0:
+            not_finite = ~np.isfinite(a)
+            rows = np.flatnonzero(not_finite.any(axis=1))
+            raise ValueError(
+                f"actions must be finite: environment {bad} got {a[bad]} (NaN or inf in entries "
+                f"{np.flatnonzero(not_finite[bad]).tolist()}; environments {rows.tolist()} have one)"
+            )
 
     def step_physics_only(self, spools_mm: np.ndarray) -> float:
         """Step every site's physics one environment step with ``spools_mm`` ((num_envs, 4), the plugin's ctrl)
@@ -230,7 +272,7 @@ class HexLoadingVectorEnv(VectorEnv):
             raise NotImplementedError("step_physics_only times the native batch; this environment runs in Python")
         self.sites.ctrl[:, self.sites.ctrl_ids] = spools_mm
         start = time.perf_counter()
-        self.sites.batch.step(np.arange(self.num_envs), nstep=self.task.periods, stage=_VEL)
+        self.sites.batch.step(None, nstep=self.task.periods, stage=_VEL)  # as BatchSites.step every site
         return time.perf_counter() - start
 
     def close_extras(self, **kwargs: Any) -> None:
@@ -239,23 +281,6 @@ class HexLoadingVectorEnv(VectorEnv):
             self.sites.batch = None
         if hasattr(self, "_scratch"):
             self._scratch.close()
-
-    def _check_actions(self, actions: np.ndarray) -> np.ndarray:
-        a = np.asarray(actions, dtype=np.float64)
-        if a.shape != (self.num_envs, 4):
-            raise ValueError(
-                f"actions must have shape ({self.num_envs}, 4) (one row of swing, boom, stick, bucket "
-                f"spools per environment), got shape {a.shape}"
-            )
-        if not np.isfinite(a).all():
-            bad = ~np.isfinite(a)
-            rows = np.flatnonzero(bad.any(axis=1))
-            i = int(rows[0])
-            raise ValueError(
-                f"actions must be finite: environment {i} got {a[i]} (NaN or inf in entries "
-                f"{np.flatnonzero(bad[i]).tolist()}; environments {rows.tolist()} have one)"
-            )
-        return a
 
     # -- resets ---------------------------------------------------------------------------------
     def _start_site(self, i: int, seed: int | None) -> None:
@@ -285,30 +310,45 @@ class HexLoadingVectorEnv(VectorEnv):
         self.task.finish_starts(ids)
 
     # -- info ---------------------------------------------------------------------------------------
-    def _infos(
-        self, reported: np.ndarray, terms: np.ndarray, step_extras: tuple[np.ndarray, ...] | None
-    ) -> dict[str, Any]:
-        """The info dicts of the sites where ``reported`` as SyncVectorEnv gathers them: an array (0 elsewhere) and
-        a ``_key`` mask per key; ``terms`` (num_envs, 6); ``step_extras``: (mask of the sites that stepped, their
-        fuel, their impulse)."""
-        info = _columns(_INFO_KEYS, np.concatenate([terms, self.task.stores_of(self._every)], axis=1), reported)
-        if step_extras is not None and step_extras[0].any():
-            stepped, fuel_l, impulse = step_extras
-            info |= _columns(("fuel_l_step", "contact_impulse_ns"), np.stack([fuel_l, impulse], axis=1), stepped)
-        return info
+    def _infos(self, terms: np.ndarray, reported: np.ndarray | None, stepped: np.ndarray | None) -> dict[str, Any]:
+        """The info dicts of the sites as SyncVectorEnv gathers them: per key an array and a ``_key`` mask. The reward
+        ``terms`` (num_envs, 10) and the stores of the ``reported`` sites (a mask; None: every site; 0 elsewhere), and
+        the step's fuel and impulse of the sites that ``stepped`` (a mask, none after a reset; None: every site). The
+        values are the rows of one array, the masks of another."""
+        n, k = self.num_envs, len(_INFO_KEYS)
+        extras = stepped is None or stepped.any()
+        keys = _MASKED_STEP_INFO_KEYS if extras else _MASKED_INFO_KEYS
+        values = np.empty((len(keys) // 2, n))
+        values[: len(REWARD_TERMS)] = terms.T
+        values[len(REWARD_TERMS) : k] = self.task.stores_of(self._every).T
+        if extras:
+            values[k], values[k + 1] = self.task.step_fuel_l, self.task.step_impulse
+        masks = np.ones(values.shape, bool)
+        if reported is not None:  # (a reset of some sites)
+            masks[:k] = reported
+            values[:k, ~reported] = 0.0
+        if extras and stepped is not None:  # (a step where some sites restart)
+            masks[k:] = stepped
+            values[k:, ~stepped] = 0.0
+        entries = [None] * len(keys)
+        entries[0::2], entries[1::2] = values, masks
+        return dict(zip(keys, entries, strict=True))
 
 
-def _columns(keys: tuple[str, ...], columns: np.ndarray, reported: np.ndarray) -> dict[str, np.ndarray]:
-    """``{key: its column of columns where reported, else 0; _key: reported}``, one array each (each a row of one
-    transposed copy: contiguous, and one copy for all keys instead of one per key)."""
-    if not reported.all():
-        columns = np.where(reported[:, None], columns, 0.0)
-    values = np.ascontiguousarray(columns.T)
-    masks = np.repeat(reported[None], len(keys), axis=0)
-    info = {}
-    for k, key in enumerate(keys):
-        info[key], info[f"_{key}"] = values[k], masks[k]
-    return info
+@jit
+def _set_spools(actions: np.ndarray, ids: np.ndarray, target: np.ndarray, columns: np.ndarray, scale: float) -> int:
+    """Set the spools of sites ``ids``: their ``actions`` rows clipped to [-1, 1], times the stroke (m), times
+    ``scale`` (the plugin's ctrl per m, or 1), into ``target``'s ``columns`` (the single environment's arithmetic).
+    Returns the first site whose row is not finite (nothing set then), else -1."""
+    for i in range(actions.shape[0]):
+        for j in range(4):
+            if not math.isfinite(actions[i, j]):
+                return i
+    for k in range(len(ids)):
+        i = ids[k]
+        for j in range(4):
+            target[i, columns[j]] = min(max(float(actions[i, j]), -1.0), 1.0) * _STROKE * scale
+    return -1
 
 
 def make_vector_env(num_envs: int, **kwargs: Any) -> HexLoadingVectorEnv:
