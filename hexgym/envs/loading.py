@@ -423,7 +423,8 @@ class HexLoadingEnv(gym.Env):
                 raise ValueError(f"{name}_weight must be a finite number, got {weight!r}")
         if tables not in TABLE_SETS:
             raise ValueError(f"tables must be one of {tuple(TABLE_SETS)}, got {tables!r}")
-        backend_for(tables, backend)  # a set the plugin does not run, with backend "native": refused here
+        if model == "learned":
+            backend_for(tables, backend)  # a set the plugin does not run, with backend "native": refused here
         self._scene_path, self._backend, self.tables = scene_path, backend, tables
         self.machine_model = model  # "learned" or "reference" (``model`` is MuJoCo's in Gymnasium's envs)
         self.observation_space, self.action_space = task_spaces()

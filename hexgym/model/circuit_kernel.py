@@ -17,7 +17,7 @@ functions freeze no other module's constants, so numba's own check of this file 
 current. The constants are a few arrays with named rows and a few numbers, the values of :class:`Circuit`,
 :class:`Valve` and :class:`Laws` passed as plain tuples; each function names them again on entry
 (``k = Circuit(*circuit)``, free once compiled). Plain tuples because numba's cache index records the argument types
-of every compiled signature and cannot be read at all once a class named there is renamed (numba issue 6018), and
+of every compiled signature and cannot be read at all once a class named there is renamed (numba #6018), and
 because numba types a plain tuple at each call in a fraction of the time a named one takes. Array expressions and
 slice assignments are written as loops: they compile several times slower. The 14-state's and the joints' linear
 systems are solved by Gaussian elimination with partial pivoting (:func:`solve`), as LAPACK's LU does, without

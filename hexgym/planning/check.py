@@ -25,10 +25,48 @@ from hexgym.model.replay import replay
 from hexgym.planning.rollouts import MachineState, RolloutModel
 
 if TYPE_CHECKING:
+    from hexgym.model.base import MachineModel
     from hexgym.planning.planner import Goal
 
-SETTLE_S = 1.5  # s the check runs on with the spools closed after the plan (the swing coasts to rest)
-ROW_S = 0.05  # s between the check's rows (two control periods)
+SETTLE_S = 1.5  # s a replay runs on with the spools closed after the plan (the swing coasts to rest)
+ROW_S = 0.05  # s between a replay's rows (two control periods, and a multiple of the reference's 2 ms step)
+
+
+@dataclasses.dataclass(frozen=True)
+class PlanReplay:
+    """A plan's spools replayed on a machine model: its ``rows`` (:func:`hexgym.model.replay.replay`), the teeth
+    (N, 3), the pairs' ``clearance`` (N, 4, m) and the goal ``error`` (N, m) per row, ``at`` (N,): at the goal with
+    the swing at rest, and ``planned``: the row of the plan's end."""
+
+    rows: np.ndarray
+    tips: np.ndarray
+    clearance: np.ndarray
+    error: np.ndarray
+    at: np.ndarray
+    planned: int
+
+    @property
+    def time_s(self) -> float | None:
+        """The first time at the goal with the swing at rest (None: never)."""
+        return float(self.rows["t"][np.argmax(self.at)]) if self.at.any() else None
+
+
+def replay_plan(
+    machine: MachineModel, spools_m: np.ndarray, state: MachineState, goal: Goal, model: RolloutModel
+) -> PlanReplay:
+    """The plan's spools (T, 4) per control period on ``machine`` from ``state`` (at rest), then ``SETTLE_S`` with
+    the spools closed, measured on the site by ``model``'s geometry (:meth:`RolloutModel.at_angles`)."""
+    period = model.control_period
+    n = len(spools_m)
+    log = CommandLog(np.arange(n + 1) * period, np.vstack([np.asarray(spools_m) * 1e3, np.zeros((1, 4))]))
+    planned = math.ceil(n * period / ROW_S - 1e-9)  # rows to the plan's end
+    rows = replay(machine, log, start=state.q, payload_kg=state.payload_kg, dt_out=ROW_S,
+                  duration=(planned + round(SETTLE_S / ROW_S)) * ROW_S)  # fmt: skip
+    q = np.column_stack([rows[f"q_{j}"] for j in ("swing", "boom", "stick", "bucket")])
+    tips, mouths, clearance = model.at_angles(q, state.layout)
+    error = goal.error_m(mouths, tips)
+    at = (error <= (0.0 if goal.task == "dump" else goal.tolerance_m)) & (np.abs(rows["qd_swing"]) < 0.1)
+    return PlanReplay(rows, tips, clearance, error, at, planned)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -47,7 +85,7 @@ class CheckResult:
 
 
 class PlanCheck:
-    """Replays plans on the circuit model, measured on the site by ``model``'s geometry (``at_angles``)."""
+    """Replays plans on the circuit model, measured on the site by ``model``'s geometry (:func:`replay_plan`)."""
 
     def __init__(self, model: RolloutModel) -> None:
         self.model = model
@@ -56,19 +94,9 @@ class PlanCheck:
     def __call__(self, spools_m: np.ndarray, state: MachineState, goal: Goal) -> CheckResult:
         """The plan's spools (T, 4) per control period from ``state`` (at rest), then ``SETTLE_S`` closed, towards
         ``goal``."""
-        period = self.model.control_period
-        n = len(spools_m)
-        t = np.arange(n + 1) * period
-        log = CommandLog(t, np.vstack([np.asarray(spools_m) * 1e3, np.zeros((1, 4))]))
-        planned = math.ceil(n * period / ROW_S - 1e-9)  # rows to the plan's end
-        rows = replay(self.machine, log, start=state.q, payload_kg=state.payload_kg, dt_out=ROW_S,
-                      duration=(planned + round(SETTLE_S / ROW_S)) * ROW_S)  # fmt: skip
-        q = np.column_stack([rows[f"q_{j}"] for j in ("swing", "boom", "stick", "bucket")])
-        tips, mouths, clearance = self.model.at_angles(q, state.layout)
-        error = goal.error_m(mouths, tips)
-        at = (error <= (0.0 if goal.task == "dump" else goal.tolerance_m)) & (np.abs(rows["qd_swing"]) < 0.1)
+        run = replay_plan(self.machine, spools_m, state, goal, self.model)
         return CheckResult(
-            min_clearance_m=float(clearance[: planned + 1].min()),
-            goal_error_m=float(error[-1]),
-            time_s=float(rows["t"][np.argmax(at)]) if at.any() else None,
+            min_clearance_m=float(run.clearance[: run.planned + 1].min()),
+            goal_error_m=float(run.error[-1]),
+            time_s=run.time_s,
         )

@@ -318,19 +318,20 @@ def plan_checked(
     overstated = max(first.min_clearance_m - first_check.min_clearance_m, 0.0)
     per_knot = round(search.get("knot_s", 0.5) / model.control_period)
     second = plan_motion(state, goal, model, budget=budget - budget // 2, margin_m=margin_m + overstated,
-                         initial=_knots_of(first.spools_m, per_knot), **search)  # fmt: skip
+                         initial=knot_means(first.spools_m / p.SPOOL_STROKE, per_knot), **search)  # fmt: skip
     second_check = check(second.spools_m, state, goal)
     plan, checked = min(((first, first_check), (second, second_check)), key=lambda pc: _check_rank(*pc))
     wall = time.perf_counter() - start
     return dataclasses.replace(plan, rollouts=first.rollouts + second.rollouts, wall_s=wall), checked
 
 
-def _knots_of(spools_m: np.ndarray, periods_per_knot: int) -> np.ndarray:
-    """Spools (T, 4, m) per control period -> their fractions per knot (K, 4), the knots' means."""
-    knots = -(-len(spools_m) // periods_per_knot)
-    padded = np.zeros((knots * periods_per_knot, 4))
-    padded[: len(spools_m)] = spools_m / p.SPOOL_STROKE
-    return padded.reshape(knots, periods_per_knot, 4).mean(axis=1)
+def knot_means(per_step: np.ndarray, steps_per_knot: int) -> np.ndarray:
+    """Spool fractions (T, 4) per step -> per knot of ``steps_per_knot`` steps (K, 4): their means, the last knot
+    padded with closed spools."""
+    knots = -(-len(per_step) // steps_per_knot)
+    padded = np.zeros((knots * steps_per_knot, 4))
+    padded[: len(per_step)] = per_step
+    return padded.reshape(knots, steps_per_knot, 4).mean(axis=1)
 
 
 def _check_rank(plan: Plan, checked: CheckResult) -> tuple[bool, bool, float]:

@@ -449,7 +449,7 @@ def circuit_period_us(periods: int = 20_000) -> float:
             total += circuit_kernel.control_period(*args)[1][0]
         return total
 
-    log, pose = _test3()
+    _, pose = _test3()
     model = CircuitModel()
     model.reset(pose)
     for u in (_test3_controls(model) * 1e-3)[:80]:

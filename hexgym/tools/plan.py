@@ -35,13 +35,20 @@ from hexgym.envs.loading import STEP_PERIOD, HexLoadingEnv
 from hexgym.files import save_figure, write_json
 from hexgym.machine import parameters as p
 from hexgym.parallel import executor
-from hexgym.planning.check import PlanCheck
-from hexgym.planning.planner import MARGIN_M, Goal, Plan, dump_goal, plan_checked, plan_motion, return_goal
+from hexgym.planning.check import ROW_S, PlanCheck, replay_plan
+from hexgym.planning.planner import (
+    MARGIN_M,
+    Goal,
+    Plan,
+    dump_goal,
+    knot_means,
+    plan_checked,
+    plan_motion,
+    return_goal,
+)  # fmt: skip
 from hexgym.planning.rollouts import MachineState, RolloutModel
 
 TASKS = ("dump", "return")
-SETTLE_S = 1.5  # s the reference runs on with the spools closed after the plan (the swing coasts to rest)
-REFERENCE_DT_OUT = 0.05  # s: the reference's rows (a multiple of its 2 ms step and of the plan's 25 ms periods)
 _SCRIPTED_LIMIT_S = 30.0  # s: the scripted move's limit
 _CYCLE_LIMIT_S = 120.0  # s: the scripted first cycle's limit (to find the start states)
 
@@ -129,38 +136,21 @@ def learned_replay(seed: int, state: MachineState, goal: Goal, plan: Plan, model
 
 def scripted_knots(actions: np.ndarray, knot_s: float = 0.5) -> np.ndarray:
     """The scripted move's actions (one per 0.1 s step) as knots every ``knot_s``: their means."""
-    per_knot = max(1, round(knot_s / STEP_PERIOD))
-    knots = -(-len(actions) // per_knot)
-    padded = np.zeros((knots * per_knot, 4))
-    padded[: len(actions)] = actions
-    return padded.reshape(knots, per_knot, 4).mean(axis=1)
+    return knot_means(actions, max(1, round(knot_s / STEP_PERIOD)))
 
 
 def reference_replay(plan: Plan, state: MachineState, goal: Goal, model: RolloutModel) -> dict[str, Any]:
-    """The plan's spools on the reference model from ``state`` (at rest), then ``SETTLE_S`` with the spools closed:
-    the first time at the goal with the swing at rest, the fuel to the plan's end, the goal error where the
-    machine settles (and at the plan's end), the least clearance."""
+    """The plan's spools on the reference model from ``state`` (at rest), then ``SETTLE_S`` with the spools closed
+    (:func:`hexgym.planning.check.replay_plan`): the first time at the goal with the swing at rest, the fuel to the
+    plan's end, the goal error where the machine settles (and at the plan's end), the least clearance."""
     from hexgym.hydraulics.reference import ReferenceModel
-    from hexgym.model.commandlog import CommandLog
-    from hexgym.model.replay import replay
 
-    period = model.control_period
-    n = len(plan.spools_m)
-    t = np.arange(n + 1) * period
-    spools_mm = np.vstack([plan.spools_m * 1e3, np.zeros((1, 4))])
-    dt_out = REFERENCE_DT_OUT
-    planned = math.ceil(n * period / dt_out - 1e-9)  # rows to the plan's end
-    rows = replay(ReferenceModel(), CommandLog(t, spools_mm), start=state.q, payload_kg=state.payload_kg,
-                  dt_out=dt_out, duration=(planned + round(SETTLE_S / dt_out)) * dt_out)  # fmt: skip
-    q = np.column_stack([rows[f"q_{j}"] for j in ("swing", "boom", "stick", "bucket")])
-    tips, mouths, clearance = model.at_angles(q, state.layout)
-    error = goal.error_m(mouths, tips)
-    at = (error <= (0.0 if goal.task == "dump" else goal.tolerance_m)) & (np.abs(rows["qd_swing"]) < 0.1)
-    fuel_l = float(np.sum(rows["fuel_rate_l_per_h"][1 : planned + 1]) * dt_out / 3600.0)
+    run = replay_plan(ReferenceModel(), plan.spools_m, state, goal, model)
+    fuel_l = float(np.sum(run.rows["fuel_rate_l_per_h"][1 : run.planned + 1]) * ROW_S / 3600.0)
     return {
-        "time_s": float(rows["t"][np.argmax(at)]) if at.any() else None, "fuel_l": fuel_l,
-        "goal_error_m": float(error[-1]), "goal_error_at_plan_end_m": float(error[planned]),
-        "min_clearance_m": float(clearance.min()), "tip": tips[: planned + 1],
+        "time_s": run.time_s, "fuel_l": fuel_l,
+        "goal_error_m": float(run.error[-1]), "goal_error_at_plan_end_m": float(run.error[run.planned]),
+        "min_clearance_m": float(run.clearance.min()), "tip": run.tips[: run.planned + 1],
     }  # fmt: skip
 
 
@@ -329,7 +319,7 @@ def plot_plan(result: dict[str, Any], out: str | Path) -> Path:
     import matplotlib.pyplot as plt
 
     paths = {k: np.array(v) for k, v in result["paths"].items()}
-    planned_dt, reference_dt, scripted_dt = 0.025, REFERENCE_DT_OUT, STEP_PERIOD
+    planned_dt, reference_dt, scripted_dt = 0.025, ROW_S, STEP_PERIOD
     fig, axes = plt.subplots(2, 2, figsize=(11, 7.5))
     styles = (("planned_tip", "planned (learned model)", planned_dt, "C0"),
               ("reference_tip", "planned, on the reference", reference_dt, "C3"),
