@@ -95,6 +95,6 @@ def test_a_stroke_end_stop_carries_its_load_not_the_oil(model):
     model.reset(inside)
     free = model.cylinder_loads()[1]
     model.reset(beyond)  # 3 mrad into the stop: the limit pushes back
-    limit = model._limit_forces()[model._dofs[2]]
+    limit = model.physics._limit_forces()[model._dofs[2]]
     assert abs(limit) > 0.2 * abs(free)
     assert model.cylinder_loads()[1] == pytest.approx(free, rel=0.02)

@@ -8,8 +8,9 @@ fast model does on the "real" machine, not for training.
 
 :class:`ReferenceMachine` presents the reference model with the learned model's interface
 (:class:`hexgym.model.base.LearnedModelBase`): a 25 ms control period made of ``STEPS_PER_PERIOD``
-reference steps, the joint loads as the torques the hydraulics applied, the swing's acceleration as
-its motor torque over the swing inertia.
+reference steps, the joint loads as the learned model's (the loads the machine's dynamic model computes
+from its state: :meth:`ExcavatorPhysics.holding_loads`, so the observation means the same on every model),
+the swing's acceleration as its motor torque over the swing inertia.
 """
 
 from __future__ import annotations
@@ -43,6 +44,7 @@ class ReferenceMachine(LearnedModelBase):
     def __init__(self, model: mujoco.MjModel) -> None:
         self.reference = ReferenceModel(model, timestep=CONTROL_PERIOD / STEPS_PER_PERIOD)
         self.physics = self.reference.physics
+        self.physics.tracks_constraint_load = True  # joint_loads reads it
         self.spools_m = self.reference.spools_m
 
     @property
@@ -53,12 +55,23 @@ class ReferenceMachine(LearnedModelBase):
     @property
     def swing_acceleration(self) -> float:
         """The swing motor's torque over the swing inertia, rad/s^2 (the torque the task's fuel account reads)."""
-        return float(self.joint_loads()[0]) / self.physics.swing_inertia()
+        return float(self.reference.joint_torques()[0]) / self.physics.swing_inertia()
 
     def reset(self, start: str | np.ndarray = "home", payload_kg: float = 0.0) -> None:
         """Start at rest at a keyframe or joint angles with a payload, the circuit holding the pose."""
         self.reference.reset(start, payload_kg)
         self.spools_m = self.reference.spools_m
+        self._hold_start()
+
+    def _hold_start(self) -> None:
+        """The start's constraint load with the oil holding the pose: the reset's solve had no actuator force,
+        so the links were falling in it. The warm start is kept: the trajectory stays the reference's own."""
+        d = self.physics.data
+        warm_start = d.qacc_warmstart.copy()
+        d.ctrl[:] = self.reference.joint_torques()  # at rest the affine actuators' torque is their ctrl
+        mujoco.mj_forward(self.physics.model, d)
+        self.physics.record_constraint_load()
+        d.qacc_warmstart[:] = warm_start
 
     def step(self, spools_m: np.ndarray, n: int = 1) -> None:
         """Hold the spools (m, order swing, boom, stick, bucket) for ``n`` control periods."""
@@ -66,6 +79,7 @@ class ReferenceMachine(LearnedModelBase):
         self.spools_m = self.reference.spools_m
 
     def joint_loads(self) -> np.ndarray:
-        """The torques the circuit's pressures put on the main joints now (after a reset: the holding
-        torques), N m."""
-        return self.reference.joint_torques()
+        """Torque each main joint's actuator must supply to hold the present motion (N m), from the state, as
+        on the learned model (:meth:`ExcavatorPhysics.holding_loads`), not the oil's torques: those also
+        carry the links' acceleration and the circuit's transients, which no learned model has."""
+        return self.physics.holding_loads()

@@ -127,6 +127,10 @@ class ExcavatorPhysics:
         swing_dof = self._dadr[0]
         self._swing_diag = m.M_rowadr[swing_dof] + m.M_rownnz[swing_dof] - 1
         self.payload_kg = 0.0
+        # the constraint forces less the joint limits' share, from the last step's solve (see holding_loads);
+        # kept only when a model reads holding_loads: it costs ~10 us a step
+        self.tracks_constraint_load = False
+        self.constraint_load = np.zeros(m.nv)
         self.reset()
 
     # -- pickling ------------------------------------------------------------------------
@@ -167,6 +171,8 @@ class ExcavatorPhysics:
         else:
             self.set_joint_state(np.asarray(start, dtype=float))
         self.data.time = 0.0
+        if self.tracks_constraint_load:
+            self.record_constraint_load()
 
     def set_joint_state(self, q: np.ndarray, qd: np.ndarray | None = None) -> None:
         """Place the machine at main joint angles ``q`` (rad) and velocities ``qd`` (rad/s)."""
@@ -184,9 +190,42 @@ class ExcavatorPhysics:
         Each step is ``mj_step2`` then ``mj_step1`` (as dm_control does): the same trajectory as
         ``mj_step``, but positions, sites and the mass matrix afterwards belong to the new state.
         """
+        m, d = self.model, self.data
         for _ in range(n):
-            mujoco.mj_step2(self.model, self.data)
-            mujoco.mj_step1(self.model, self.data)
+            mujoco.mj_step2(m, d)
+            if self.tracks_constraint_load:
+                self.record_constraint_load()
+            mujoco.mj_step1(m, d)
+
+    def holding_loads(self) -> np.ndarray:
+        """Torque each main joint's actuator must supply to hold the present motion (N m): gravity, the
+        velocity terms, joint damping, the tip force and the linkage's constraint forces, as the machine's
+        dynamic model computes the actuators' loads from its state (the paper's Step 1; the tables' load
+        inputs). ``tracks_constraint_load`` must be set before stepping.
+
+        Joint-limit forces are not part of it: at a stroke end the cylinder's stop carries the load, not
+        its oil. The constraint share is the last step's solve, taken between ``mj_step2`` and ``mj_step1``:
+        after ``mj_step1`` the constraint rows already belong to the next state while ``efc_force`` and
+        ``qfrc_constraint`` are the last solve's, so the share cannot be taken then (a limit row that
+        vanished would leave its force, ~1e10 N m against the stiff servos, in the load).
+        """
+        d = self.data
+        tau = d.qfrc_bias - d.qfrc_passive - d.qfrc_applied - self.constraint_load
+        return tau[self._dof_index]
+
+    def record_constraint_load(self) -> None:
+        """Keep the present solve's constraint forces less the joint limits' share for :meth:`holding_loads`
+        (after ``mj_forward`` or ``mj_step2``; :meth:`step` does it when ``tracks_constraint_load`` is set)."""
+        self.constraint_load = self.data.qfrc_constraint - self._limit_forces()
+
+    def _limit_forces(self) -> np.ndarray:
+        """The joint limits' share of ``qfrc_constraint`` (J^T f over the limit rows)."""
+        m, d = self.model, self.data
+        out = np.zeros(m.nv)
+        limit_rows = d.efc_type == mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT
+        if limit_rows.any():
+            mujoco.mj_mulJacTVec(m, d, out, np.where(limit_rows, d.efc_force, 0.0))
+        return out
 
     @property
     def time(self) -> float:

@@ -133,7 +133,7 @@ class CircuitModel(LearnedModel):
         targets[blocked], rates[blocked] = 0.0, 0.0
         self.rates = rates
         self.physics.set_actuator_targets(targets)
-        self._step_physics(self._substeps)
+        self.physics.step(self._substeps)
 
     def _substep(
         self, h: float, rates: np.ndarray, ext: np.ndarray, arms: np.ndarray, mass: np.ndarray, load: np.ndarray

@@ -85,7 +85,7 @@ class LearnedModel(LearnedModelBase):
             raise ValueError(f"control_period must be a multiple of the model step, got {control_period}")
         self._dofs = np.array([self.physics.model.joint(n).dofadr[0] for n in kinematics.JOINTS])
         self.spools_m = np.zeros(4)
-        self._constraint_load = np.zeros(self.physics.model.nv)  # see _step_physics
+        self.physics.tracks_constraint_load = True  # the loads (step 1) read it
         m = self.physics.model
         upper = m.body("upper").id  # the swinging structure and all it carries
         self._machine_body = np.array([upper in _ancestors(m, b) for b in range(m.nbody)])
@@ -110,41 +110,13 @@ class LearnedModel(LearnedModelBase):
         self._pressures = (0.0, 0.0)
         self._inertia = 0.0
         self.physics.set_actuator_targets(np.zeros(4))
-        self._constraint_load[:] = 0.0
-        self._step_physics(1)  # one step so the constraint forces (part of the loads) exist
+        self.physics.step(1)  # one step so the constraint forces (part of the loads) exist
         self.physics.data.time = 0.0
 
     def joint_loads(self) -> np.ndarray:
-        """Torque each main joint's actuator must supply to hold the present motion (N m).
-
-        Joint-limit forces are not part of it: at a stroke end the cylinder's stop carries the
-        load, not its oil.
-        """
-        d = self.physics.data
-        tau = d.qfrc_bias - d.qfrc_passive - d.qfrc_applied - self._constraint_load
-        return tau[self._dofs]
-
-    def _step_physics(self, n: int) -> None:
-        """``physics.step(n)``, keeping each step's constraint load: ``qfrc_constraint`` less its
-        joint-limit share, both from that step's solve. (After ``mj_step1`` the constraint rows
-        already belong to the next state while ``efc_force`` and ``qfrc_constraint`` are the last
-        solve's, so the share cannot be taken then: a limit row that vanished would leave its
-        force, ~1e10 N m against the stiff servos, in the load.)
-        """
-        m, d = self.physics.model, self.physics.data
-        for _ in range(n):
-            mujoco.mj_step2(m, d)
-            self._constraint_load = d.qfrc_constraint - self._limit_forces()
-            mujoco.mj_step1(m, d)
-
-    def _limit_forces(self) -> np.ndarray:
-        """The joint limits' share of ``qfrc_constraint`` (J^T f over the limit rows)."""
-        m, d = self.physics.model, self.physics.data
-        out = np.zeros(m.nv)
-        limit_rows = d.efc_type == mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT
-        if limit_rows.any():
-            mujoco.mj_mulJacTVec(m, d, out, np.where(limit_rows, d.efc_force, 0.0))
-        return out
+        """Torque each main joint's actuator must supply to hold the present motion (N m):
+        :meth:`ExcavatorPhysics.holding_loads`."""
+        return self.physics.holding_loads()
 
     def step(self, spools_m: np.ndarray, n: int = 1) -> None:
         """Advance ``n`` control periods with the spools (m; swing, boom, stick, bucket) held."""
@@ -222,7 +194,7 @@ class LearnedModel(LearnedModelBase):
         targets[self.blocked_by_contact(targets)] = 0.0
         self._swing_rate_target = targets[0]
         ph.set_actuator_targets(targets)
-        self._step_physics(self._substeps)
+        self.physics.step(self._substeps)
 
     def blocked_by_contact(self, rates: np.ndarray) -> np.ndarray:
         """Which joints' ``rates`` would drive the machine further into a contact (ground, truck).
