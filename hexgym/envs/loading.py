@@ -19,11 +19,12 @@ from hexgym.envs.sites import MachineSites
 from hexgym.envs.task import (
     CONTACT_SLOTS,
     EARTHWORK_PERIODS,
-    INFO_STORES,
+    INFO_KEYS,
     MOUTH_CENTRE,
     OBS_HIGH,
     OBS_LOW,
     REWARD_TERMS,
+    STEP_INFO_KEYS,
     STEP_PERIOD,
     LoadingTask,
     wrap,
@@ -53,8 +54,6 @@ START_NOISE = 0.1  # rad, uniform noise on the start pose's boom, stick and buck
 _HOME = np.array([0.0, 0.35, 0.85, 0.75])  # the machine's keyframe `home`: bucket curled near the ground
 _MOUTH_CENTRE = np.array(MOUTH_CENTRE)  # bucket frame, m
 _SITE = np.zeros(1, np.intp)  # the single environment is site 0 of a task of one
-_INFO_KEYS = (*(f"reward_{term}" for term in REWARD_TERMS), *INFO_STORES)
-_STEP_INFO_KEYS = (*_INFO_KEYS, "fuel_l_step", "contact_impulse_ns")
 OBSERVATION_NAMES = (
     "boom_angle", "stick_angle", "bucket_angle", "swing_to_pile", "swing_to_truck",
     "swing_rate", "boom_rate", "stick_rate", "bucket_rate",
@@ -540,8 +539,8 @@ class HexLoadingEnv(gym.Env):
         """The step's ``info``: the reward terms (0 after a reset), the stores, and the step's fuel and impulse."""
         stores = self.task.stores_of(_SITE)[0].tolist()
         if terms is None:
-            return dict(zip(_INFO_KEYS, [0.0] * len(REWARD_TERMS) + stores, strict=True))
-        return dict(zip(_STEP_INFO_KEYS, [*terms, *stores, fuel_step, impulse], strict=True))
+            return dict(zip(INFO_KEYS, [0.0] * len(REWARD_TERMS) + stores, strict=True))
+        return dict(zip(STEP_INFO_KEYS, [*terms, *stores, fuel_step, impulse], strict=True))
 
     # -- rendering ----------------------------------------------------------------------------
     def render(self) -> np.ndarray | None:

@@ -26,8 +26,6 @@ from gymnasium.vector.utils import batch_space
 
 from hexgym.envs.earthwork import jit
 from hexgym.envs.loading import (
-    _INFO_KEYS,
-    _STEP_INFO_KEYS,
     HexLoadingEnv,
     heap_for,
     make_machine,
@@ -35,7 +33,7 @@ from hexgym.envs.loading import (
     start_machine,
 )
 from hexgym.envs.sites import BatchSites, MachineSites
-from hexgym.envs.task import CONTACT_SLOTS, REWARD_TERMS, STEP_PERIOD, LoadingTask
+from hexgym.envs.task import CONTACT_SLOTS, INFO_KEYS, REWARD_TERMS, STEP_INFO_KEYS, STEP_PERIOD, LoadingTask
 from hexgym.envs.world import Layout, World
 from hexgym.machine import parameters as p
 from hexgym.mbl.schema import DEFAULT_TABLE_SET
@@ -47,7 +45,7 @@ _ACC = int(mujoco.mjtStage.mjSTAGE_ACC)
 _STATE = mujoco.mjtState.mjSTATE_INTEGRATION
 # the single environment's info keys, each followed by its mask's (SyncVectorEnv's order)
 _MASKED_INFO_KEYS, _MASKED_STEP_INFO_KEYS = (
-    tuple(name for key in keys for name in (key, f"_{key}")) for keys in (_INFO_KEYS, _STEP_INFO_KEYS)
+    tuple(name for key in keys for name in (key, f"_{key}")) for keys in (INFO_KEYS, STEP_INFO_KEYS)
 )
 _ACTION_DTYPES = (np.dtype(np.float32), np.dtype(np.float64))  # (others are converted to float64)
 _STROKE = float(p.SPOOL_STROKE)
@@ -315,7 +313,7 @@ class HexLoadingVectorEnv(VectorEnv):
         ``terms`` (num_envs, 10) and the stores of the ``reported`` sites (a mask; None: every site; 0 elsewhere), and
         the step's fuel and impulse of the sites that ``stepped`` (a mask, none after a reset; None: every site). The
         values are the rows of one array, the masks of another."""
-        n, k = self.num_envs, len(_INFO_KEYS)
+        n, k = self.num_envs, len(INFO_KEYS)
         extras = stepped is None or stepped.any()
         keys = _MASKED_STEP_INFO_KEYS if extras else _MASKED_INFO_KEYS
         values = np.empty((len(keys) // 2, n))
