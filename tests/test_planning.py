@@ -250,6 +250,29 @@ def test_the_check_replays_a_plan_on_the_circuit_model_and_finds_its_contact(env
     assert not down.collision_free and down.time_s is None and down.goal_error_m > 0.0
 
 
+def test_a_correction_trims_a_plan_to_its_point_on_the_accurate_model(env, model):
+    """Spools that bring the fast model's teeth to rest at a point leave the circuit model's elsewhere; the
+    correction's trimmed spools bring them there, and a dump goal (a region) is refused."""
+    from hexgym.planning import MachineState
+    from hexgym.planning.check import SETTLE_S, PlanCheck
+    from hexgym.planning.planner import dump_goal, tip_goal
+
+    layout = env.unwrapped.layout
+    state = MachineState(env.unwrapped.physics.joint_positions(), np.zeros(4), 0.0, layout)
+    move = np.tile(np.array([0.6, 0.5, -0.4, 0.3]) * p.SPOOL_STROKE, (80, 1))  # 2 s: swing, boom up, stick out
+    settle = np.zeros((round(SETTLE_S / model.control_period), 4))
+    fast_end = model.rollout(state, np.vstack([move, settle]), 2.0 + SETTLE_S).tip[0, -1]
+    goal = tip_goal(fast_end, layout)
+    check = PlanCheck(model)
+    before = check(move, state, goal)
+    spools, after, replays = check.correct(move, state, goal)
+    assert spools.shape == move.shape and np.abs(spools).max() <= p.SPOOL_STROKE
+    assert after.collision_free and after.goal_error_m < min(0.1, before.goal_error_m / 3)
+    assert check(spools, state, goal) == after and 1 <= replays <= 7
+    with pytest.raises(ValueError, match="point goal"):
+        check.correct(move, state, dump_goal(layout))
+
+
 def test_a_checked_plan_keeps_the_clearance_the_check_found_missing(env, model):
     """Two rounds, each plan checked; the second keeps the clearance the check found the first overstated."""
     from hexgym.planning import MachineState

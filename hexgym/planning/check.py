@@ -9,16 +9,21 @@ enough to check one plan (a 4 s move in ~30 ms). :class:`PlanCheck` replays a pl
 the plan's start state and measures it on the site's geometry as the planner does: the least clearance
 of bucket and stick to truck and ground, the goal error where the machine comes to rest, the time to
 the goal.
+
+:meth:`PlanCheck.correct` then trims a plan to a point goal on the circuit model (see there): the fast model's
+plan ends within the tolerance of the dig start on its own model, but the machine it stands for ends 1-2 m away.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from hexgym.machine import parameters as p
 from hexgym.model.backend import python_learned_model
 from hexgym.model.commandlog import CommandLog
 from hexgym.model.replay import replay
@@ -28,6 +33,11 @@ if TYPE_CHECKING:
     from hexgym.model.base import MachineModel
     from hexgym.planning.planner import Goal
 
+TRIM_S = 1.5  # s: the plan's last stretch whose spools a correction offsets
+TRIM_PROBE = 0.25  # spool fraction each joint's offset is probed with (beyond the valves' dead bands)
+TRIM_ITERATIONS = 6  # Newton steps at most after the probes (each one replay)
+TRIM_CLOSE_M = 0.1  # m: a correction ending this close to the point stops
+TRIM_MAX_STEP = 0.6  # spool fraction a Newton step changes an offset by at most
 SETTLE_S = 1.5  # s a replay runs on with the spools closed after the plan (the swing coasts to rest)
 ROW_S = 0.05  # s between a replay's rows (two control periods, and a multiple of the reference's 2 ms step)
 
@@ -84,6 +94,14 @@ class CheckResult:
         return self.min_clearance_m >= 0.0
 
 
+def _result(run: PlanReplay) -> CheckResult:
+    """A replay's check: clearance to the plan's end, goal error where it comes to rest, time to the goal."""
+    return CheckResult(
+        min_clearance_m=float(run.clearance[: run.planned + 1].min()), goal_error_m=float(run.error[-1]),
+        time_s=run.time_s,
+    )  # fmt: skip
+
+
 class PlanCheck:
     """Replays plans on the circuit model, measured on the site by ``model``'s geometry (:func:`replay_plan`)."""
 
@@ -94,9 +112,53 @@ class PlanCheck:
     def __call__(self, spools_m: np.ndarray, state: MachineState, goal: Goal) -> CheckResult:
         """The plan's spools (T, 4) per control period from ``state`` (at rest), then ``SETTLE_S`` closed, towards
         ``goal``."""
-        run = replay_plan(self.machine, spools_m, state, goal, self.model)
-        return CheckResult(
-            min_clearance_m=float(run.clearance[: run.planned + 1].min()),
-            goal_error_m=float(run.error[-1]),
-            time_s=run.time_s,
-        )
+        return _result(replay_plan(self.machine, spools_m, state, goal, self.model))
+
+    def correct(self, spools_m: np.ndarray, state: MachineState, goal: Goal) -> tuple[np.ndarray, CheckResult, int]:
+        """The plan's spools trimmed so that on the circuit model the teeth come to rest at a point goal's point:
+        one offset per joint added to the spools of the plan's last ``TRIM_S``, found by Newton's method on the
+        replays (the offsets' effect on where the teeth settle probed one joint at a time, then updated by
+        Broyden's rule; least-norm steps, as three coordinates leave one of four offsets free). Returns the best
+        spools found that stay collision-free (the plan's own when none does better), their check and the replays
+        made. ValueError for a ``dump`` goal (a region, not a point)."""
+        if goal.task == "dump":
+            raise ValueError("a correction needs a point goal (return or tip), got a dump goal")
+        base = replay_plan(self.machine, spools_m, state, goal, self.model)
+        window = min(len(spools_m), round(TRIM_S / self.model.control_period))
+
+        def trimmed(offsets: np.ndarray) -> np.ndarray:
+            out = np.array(spools_m, float)
+            out[-window:] = np.clip(out[-window:] + offsets * p.SPOOL_STROKE, -p.SPOOL_STROKE, p.SPOOL_STROKE)
+            return out
+
+        def miss(offsets: np.ndarray) -> tuple[np.ndarray, PlanReplay]:
+            run = replay_plan(self.machine, trimmed(offsets), state, goal, self.model)
+            return run.tips[-1] - goal.point, run
+
+        offsets, residual = np.zeros(4), base.tips[-1] - goal.point
+        jacobian = self._fast_jacobian(trimmed, state)
+        best, best_run, replays = np.zeros(4), base, 1
+        for _ in range(TRIM_ITERATIONS):
+            if np.linalg.norm(residual) < TRIM_CLOSE_M:
+                break
+            step = np.clip(-np.linalg.lstsq(jacobian, residual, rcond=1e-3)[0], -TRIM_MAX_STEP, TRIM_MAX_STEP)
+            new_offsets = np.clip(offsets + step, -2.0, 2.0)  # beyond +-2 every spool is at its stop either way
+            new_residual, run = miss(new_offsets)
+            replays += 1
+            moved = new_offsets - offsets
+            if moved @ moved > 0:  # Broyden's update of the offsets' effect
+                jacobian += np.outer(new_residual - residual - jacobian @ moved, moved) / (moved @ moved)
+            offsets, residual = new_offsets, new_residual
+            clear = run.clearance[: run.planned + 1].min() >= 0.0
+            if clear and run.error[-1] < best_run.error[-1]:
+                best, best_run = offsets.copy(), run
+        return trimmed(best), _result(best_run), replays
+
+    def _fast_jacobian(self, trimmed: Callable[[np.ndarray], np.ndarray], state: MachineState) -> np.ndarray:
+        """How the teeth's resting place moves per unit of each joint's offset (3, 4), on the fast model: the plan
+        and its four probes in one batch of rollouts, each run on ``SETTLE_S`` with the spools closed."""
+        probes = np.vstack([np.zeros((1, 4)), np.eye(4) * TRIM_PROBE])
+        closed = round(SETTLE_S / self.model.control_period)
+        spools = np.stack([np.vstack([trimmed(offsets), np.zeros((closed, 4))]) for offsets in probes])
+        tips = self.model.rollout(state, spools, spools.shape[1] * self.model.control_period).tip[:, -1]
+        return (tips[1:] - tips[0]).T / TRIM_PROBE

@@ -280,18 +280,26 @@ def plan_motion(
         mean = 0.3 * mean + 0.7 * top.mean(axis=0)
         std = np.maximum(0.3 * std + 0.7 * top.std(axis=0), 0.05)
     assert best is not None
-    final = model.rollout(state, _knot_spools(best[1][None], periods_per_knot, periods), horizon_s)
-    figures = evaluate(final, goal, loaded, margin_m)
+    spools = _knot_spools(best[1][None], periods_per_knot, periods)[0]
+    return _plan_of(spools, state, goal, model, margin_m, used + 1, start)
+
+
+def _plan_of(
+    spools_m: np.ndarray, state: MachineState, goal: Goal, model: RolloutModel, margin_m: float, rollouts: int,
+    start: float, truncate: bool = True,
+) -> Plan:  # fmt: skip
+    """The :class:`Plan` of spools (T, 4) per control period: their rollout's figures on the fast model, up to the
+    goal (``truncate``: the spools too; else all of them), with ``rollouts`` and the wall time since ``start``."""
+    final = model.rollout(state, spools_m[None], len(spools_m) * model.control_period)
+    figures = evaluate(final, goal, state.payload_kg > 100.0, margin_m)
     end = int(figures["end"][0])
-    figures["fuel_l"] = np.array([move_fuel_l(model, final, 0, end)])
-    spools = _knot_spools(best[1][None], periods_per_knot, periods)[0, : end + 1]
+    kept = end + 1 if truncate else len(spools_m)
     clearance = float(figures["clearance_m"][0])
     return Plan(
-        spools_m=spools, time_s=float(figures["time_s"][0]), fuel_l=float(figures["fuel_l"][0]),
+        spools_m=spools_m[:kept], time_s=float(figures["time_s"][0]), fuel_l=move_fuel_l(model, final, 0, end),
         min_clearance_m=clearance, goal_error_m=float(figures["error_m"][0]), reached=bool(figures["reached"][0]),
-        collision_free=clearance >= 0.0, spill_free=float(figures["spill"][0]) == 0.0, rollouts=used + 1,
-        wall_s=time.perf_counter() - start, tip=final.tip[0, : end + 1], mouth=final.mouth[0, : end + 1],
-        q=final.q[0, : end + 1],
+        collision_free=clearance >= 0.0, spill_free=float(figures["spill"][0]) == 0.0, rollouts=rollouts,
+        wall_s=time.perf_counter() - start, tip=final.tip[0, :kept], mouth=final.mouth[0, :kept], q=final.q[0, :kept],
     )  # fmt: skip
 
 
@@ -303,13 +311,17 @@ def plan_checked(
     budget: int = 2000,
     margin_m: float = MARGIN_M,
     initial: np.ndarray | None = None,
+    correct: Callable[[np.ndarray, MachineState, Goal], tuple[np.ndarray, CheckResult, int]] | None = None,
     **search: Any,
 ) -> tuple[Plan, CheckResult]:
     """:func:`plan_motion` in two rounds of half the ``budget``, each plan checked on the accurate model (``check``,
     e.g. :class:`hexgym.planning.check.PlanCheck`): by as much as the check finds the first plan closer to truck or
     ground than the fast model predicted, the second round keeps more clearance, starting from the first plan. The
     better checked plan is returned (collision-free first, then at the goal, then sooner) with its check; its
-    ``rollouts`` and ``wall_s`` count both rounds and the checks. ``search``: :func:`plan_motion`'s other options."""
+    ``rollouts`` and ``wall_s`` count both rounds and the checks. ``correct`` (e.g. :meth:`PlanCheck.correct`)
+    then trims that plan to a point goal on the accurate model; the trimmed plan is returned when its check ranks
+    better, its figures the fast model's for its spools (not cut at the fast model's goal: the trim acts last).
+    ``search``: :func:`plan_motion`'s other options."""
     if isinstance(budget, bool) or not isinstance(budget, int | np.integer) or budget < 2:
         raise ValueError(f"planner budget must be an integer >= 2 rollouts (two rounds), got {budget!r}")
     start = time.perf_counter()
@@ -321,8 +333,14 @@ def plan_checked(
                          initial=knot_means(first.spools_m / p.SPOOL_STROKE, per_knot), **search)  # fmt: skip
     second_check = check(second.spools_m, state, goal)
     plan, checked = min(((first, first_check), (second, second_check)), key=lambda pc: _check_rank(*pc))
-    wall = time.perf_counter() - start
-    return dataclasses.replace(plan, rollouts=first.rollouts + second.rollouts, wall_s=wall), checked
+    rollouts = first.rollouts + second.rollouts
+    if correct is not None and goal.task != "dump":
+        spools, corrected, _ = correct(plan.spools_m, state, goal)
+        if _correction_rank(corrected) < _correction_rank(checked):
+            plan = _plan_of(spools, state, goal, model, margin_m, rollouts + 1, start, truncate=False)
+            checked = corrected
+            rollouts += 1
+    return dataclasses.replace(plan, rollouts=rollouts, wall_s=time.perf_counter() - start), checked
 
 
 def knot_means(per_step: np.ndarray, steps_per_knot: int) -> np.ndarray:
@@ -332,6 +350,11 @@ def knot_means(per_step: np.ndarray, steps_per_knot: int) -> np.ndarray:
     padded = np.zeros((knots * steps_per_knot, 4))
     padded[: len(per_step)] = per_step
     return padded.reshape(knots, steps_per_knot, 4).mean(axis=1)
+
+
+def _correction_rank(checked: CheckResult) -> tuple[bool, float]:
+    """Order of a plan's checks before and after a correction: collision-free first, then closer to the goal."""
+    return (not checked.collision_free, checked.goal_error_m)
 
 
 def _check_rank(plan: Plan, checked: CheckResult) -> tuple[bool, bool, float]:

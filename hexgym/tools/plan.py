@@ -184,7 +184,8 @@ def plan_task(
                    "margin_m": margin_m}  # fmt: skip
         checked = None
         if check:
-            plan, checked = plan_checked(state, goal, model, PlanCheck(model), **options)
+            check_model = PlanCheck(model)
+            plan, checked = plan_checked(state, goal, model, check_model, correct=check_model.correct, **options)
         else:
             plan = plan_motion(state, goal, model, **options)
         reference = reference_replay(plan, state, goal, model)
@@ -242,6 +243,9 @@ def summarise(results: list[dict[str, Any]]) -> dict[str, Any]:
         "median_reference_goal_error_m": median([r["reference_goal_error_m"] for r in results]),
         "reference_contacts": sum(r["reference_min_clearance_m"] < 0 for r in results),
         "median_time_prediction_error": median([rel(r["predicted_time_s"], r["reference_time_s"]) for r in results]),
+        "median_checked_time_error": median([rel(r["checked_time_s"], r["reference_time_s"]) for r in results]),
+        "median_reference_time_vs_scripted": median([_ratio(r["reference_time_s"], r["scripted_time_s"])
+                                                     for r in results]),
         "median_fuel_prediction_error": median([rel(r["predicted_fuel_l"], r["reference_fuel_l"]) for r in results]),
         "planned_reached": sum(bool(r["predicted_reached"]) for r in results),
         "reference_reached": sum(r["reference_time_s"] is not None for r in results),
