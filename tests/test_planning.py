@@ -252,10 +252,10 @@ def test_the_check_replays_a_plan_on_the_circuit_model_and_finds_its_contact(env
 
 def test_a_correction_trims_a_plan_to_its_point_on_the_accurate_model(env, model):
     """Spools that bring the fast model's teeth to rest at a point leave the circuit model's elsewhere; the
-    correction's trimmed spools bring them there, and a dump goal (a region) is refused."""
+    correction's trimmed spools bring them there. Spools already there are returned as they are."""
     from hexgym.planning import MachineState
-    from hexgym.planning.check import SETTLE_S, PlanCheck
-    from hexgym.planning.planner import dump_goal, tip_goal
+    from hexgym.planning.check import SETTLE_S, PlanCheck, replay_plan
+    from hexgym.planning.planner import tip_goal
 
     layout = env.unwrapped.layout
     state = MachineState(env.unwrapped.physics.joint_positions(), np.zeros(4), 0.0, layout)
@@ -269,8 +269,9 @@ def test_a_correction_trims_a_plan_to_its_point_on_the_accurate_model(env, model
     assert spools.shape == move.shape and np.abs(spools).max() <= p.SPOOL_STROKE
     assert after.collision_free and after.goal_error_m < min(0.1, before.goal_error_m / 3)
     assert check(spools, state, goal) == after and 1 <= replays <= 7
-    with pytest.raises(ValueError, match="point goal"):
-        check.correct(move, state, dump_goal(layout))
+    rest = replay_plan(check.machine, move, state, goal, model).tips[-1]
+    same, result, replays = check.correct(move, state, tip_goal(rest, layout))
+    assert same is move and replays == 1 and result.goal_error_m < 1e-9
 
 
 def test_a_checked_plan_keeps_the_clearance_the_check_found_missing(env, model):

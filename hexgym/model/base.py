@@ -117,9 +117,11 @@ class LearnedModelBase:
     def observe(self) -> np.ndarray:
         """One trajectory row (``LEARNED_DTYPE``): the common columns, spools, cylinders, loads."""
         ph = self.physics
+        arms = ph.moment_arms()  # once: the cylinders' speeds and loads both need them (the costliest part)
+        rates = ph.joint_velocities()
         values = (
-            [ph.time, *ph.joint_positions(), *ph.joint_velocities(), *ph.tip_position()]
-            + [*(self.spools_m * 1e3), *ph.cylinder_extensions(), *ph.cylinder_velocities()]
-            + [*self.cylinder_loads(), ph.swing_inertia(), self.swing_acceleration]
+            [ph.time, *ph.joint_positions(), *rates, *ph.tip_position()]
+            + [*(self.spools_m * 1e3), *ph.cylinder_extensions(), *(arms * rates[1:])]
+            + [*self.cylinder_loads(arms), ph.swing_inertia(), self.swing_acceleration]
         )
         return np.array(tuple(values), dtype=LEARNED_DTYPE)

@@ -10,8 +10,8 @@ the plan's start state and measures it on the site's geometry as the planner doe
 of bucket and stick to truck and ground, the goal error where the machine comes to rest, the time to
 the goal.
 
-:meth:`PlanCheck.correct` then trims a plan to a point goal on the circuit model (see there): the fast model's
-plan ends within the tolerance of the dig start on its own model, but the machine it stands for ends 1-2 m away.
+:meth:`PlanCheck.correct` then trims a plan on the circuit model (see there): the fast model's plan ends within the
+tolerance of the dig start on its own model, but the machine it stands for ends 1-2 m away.
 """
 
 from __future__ import annotations
@@ -37,6 +37,7 @@ TRIM_S = 1.5  # s: the plan's last stretch whose spools a correction offsets
 TRIM_PROBE = 0.25  # spool fraction each joint's offset is probed with (beyond the valves' dead bands)
 TRIM_ITERATIONS = 6  # Newton steps at most after the probes (each one replay)
 TRIM_CLOSE_M = 0.1  # m: a correction ending this close to the point stops
+TRIM_INSET_M = 0.3  # m: a dump is aimed this far inside its box (the circuit-reference gap: up to ~0.3 m)
 TRIM_MAX_STEP = 0.6  # spool fraction a Newton step changes an offset by at most
 SETTLE_S = 1.5  # s a replay runs on with the spools closed after the plan (the swing coasts to rest)
 ROW_S = 0.05  # s between a replay's rows (two control periods, and a multiple of the reference's 2 ms step)
@@ -45,11 +46,12 @@ ROW_S = 0.05  # s between a replay's rows (two control periods, and a multiple o
 @dataclasses.dataclass(frozen=True)
 class PlanReplay:
     """A plan's spools replayed on a machine model: its ``rows`` (:func:`hexgym.model.replay.replay`), the teeth
-    (N, 3), the pairs' ``clearance`` (N, 4, m) and the goal ``error`` (N, m) per row, ``at`` (N,): at the goal with
-    the swing at rest, and ``planned``: the row of the plan's end."""
+    and the mouth's centre (N, 3), the pairs' ``clearance`` (N, 4, m) and the goal ``error`` (N, m) per row, ``at``
+    (N,): at the goal with the swing at rest, and ``planned``: the row of the plan's end."""
 
     rows: np.ndarray
     tips: np.ndarray
+    mouths: np.ndarray
     clearance: np.ndarray
     error: np.ndarray
     at: np.ndarray
@@ -76,13 +78,13 @@ def replay_plan(
     tips, mouths, clearance = model.at_angles(q, state.layout)
     error = goal.error_m(mouths, tips)
     at = (error <= (0.0 if goal.task == "dump" else goal.tolerance_m)) & (np.abs(rows["qd_swing"]) < 0.1)
-    return PlanReplay(rows, tips, clearance, error, at, planned)
+    return PlanReplay(rows, tips, mouths, clearance, error, at, planned)
 
 
 @dataclasses.dataclass(frozen=True)
 class CheckResult:
-    """A plan replayed on the circuit model: ``min_clearance_m`` (negative = contact) to the plan's end,
-    ``goal_error_m`` where it comes to rest, ``time_s`` to the goal with the swing at rest (None: never)."""
+    """A plan replayed on the circuit model: ``min_clearance_m`` (negative = contact) until it comes to rest,
+    ``goal_error_m`` where it does, ``time_s`` to the goal with the swing at rest (None: never)."""
 
     min_clearance_m: float
     goal_error_m: float
@@ -95,11 +97,9 @@ class CheckResult:
 
 
 def _result(run: PlanReplay) -> CheckResult:
-    """A replay's check: clearance to the plan's end, goal error where it comes to rest, time to the goal."""
-    return CheckResult(
-        min_clearance_m=float(run.clearance[: run.planned + 1].min()), goal_error_m=float(run.error[-1]),
-        time_s=run.time_s,
-    )  # fmt: skip
+    """A replay's check: clearance until it comes to rest (the swing coasts on after the plan), goal error there,
+    time to the goal."""
+    return CheckResult(min_clearance_m=float(run.clearance.min()), goal_error_m=float(run.error[-1]), time_s=run.time_s)
 
 
 class PlanCheck:
@@ -115,50 +115,55 @@ class PlanCheck:
         return _result(replay_plan(self.machine, spools_m, state, goal, self.model))
 
     def correct(self, spools_m: np.ndarray, state: MachineState, goal: Goal) -> tuple[np.ndarray, CheckResult, int]:
-        """The plan's spools trimmed so that on the circuit model the teeth come to rest at a point goal's point:
-        one offset per joint added to the spools of the plan's last ``TRIM_S``, found by Newton's method on the
-        replays (the offsets' effect on where the teeth settle probed one joint at a time, then updated by
-        Broyden's rule; least-norm steps, as three coordinates leave one of four offsets free). Returns the best
-        spools found that stay collision-free (the plan's own when none does better), their check and the replays
-        made. ValueError for a ``dump`` goal (a region, not a point)."""
-        if goal.task == "dump":
-            raise ValueError("a correction needs a point goal (return or tip), got a dump goal")
-        base = replay_plan(self.machine, spools_m, state, goal, self.model)
+        """The plan's spools trimmed so that on the circuit model the machine comes to rest at the goal: the teeth
+        at a point goal's point, the mouth ``TRIM_INSET_M`` inside a dump goal's box (so that the machine it stands
+        for, centimetres away, is inside too). One offset per joint is added to the spools of the plan's last
+        ``TRIM_S``, found by Newton's method on the replays (least-norm steps: three coordinates, four offsets;
+        the offsets' effect probed on the fast model in one batch, then updated by Broyden's rule). Returns the
+        best spools found that stay collision-free until the machine rests (``spools_m`` itself when none comes
+        closer), their check and the replays made."""
         window = min(len(spools_m), round(TRIM_S / self.model.control_period))
+        inset = TRIM_INSET_M if goal.task == "dump" else 0.0
 
         def trimmed(offsets: np.ndarray) -> np.ndarray:
             out = np.array(spools_m, float)
             out[-window:] = np.clip(out[-window:] + offsets * p.SPOOL_STROKE, -p.SPOOL_STROKE, p.SPOOL_STROKE)
             return out
 
-        def miss(offsets: np.ndarray) -> tuple[np.ndarray, PlanReplay]:
+        def replayed(offsets: np.ndarray) -> tuple[np.ndarray, PlanReplay]:
             run = replay_plan(self.machine, trimmed(offsets), state, goal, self.model)
-            return run.tips[-1] - goal.point, run
+            return goal.miss(run.mouths[-1], run.tips[-1], inset), run
 
-        offsets, residual = np.zeros(4), base.tips[-1] - goal.point
-        jacobian = self._fast_jacobian(trimmed, state)
-        best, best_run, replays = np.zeros(4), base, 1
+        offsets = np.zeros(4)
+        residual, base = replayed(offsets)
+        best, best_run, best_miss, replays = spools_m, base, float(np.linalg.norm(residual)), 1
+        jacobian = None
         for _ in range(TRIM_ITERATIONS):
             if np.linalg.norm(residual) < TRIM_CLOSE_M:
                 break
+            if jacobian is None:
+                jacobian = self._fast_jacobian(trimmed, state, goal)
             step = np.clip(-np.linalg.lstsq(jacobian, residual, rcond=1e-3)[0], -TRIM_MAX_STEP, TRIM_MAX_STEP)
             new_offsets = np.clip(offsets + step, -2.0, 2.0)  # beyond +-2 every spool is at its stop either way
-            new_residual, run = miss(new_offsets)
+            new_residual, run = replayed(new_offsets)
             replays += 1
             moved = new_offsets - offsets
             if moved @ moved > 0:  # Broyden's update of the offsets' effect
                 jacobian += np.outer(new_residual - residual - jacobian @ moved, moved) / (moved @ moved)
             offsets, residual = new_offsets, new_residual
-            clear = run.clearance[: run.planned + 1].min() >= 0.0
-            if clear and run.error[-1] < best_run.error[-1]:
-                best, best_run = offsets.copy(), run
-        return trimmed(best), _result(best_run), replays
+            if run.clearance.min() >= 0.0 and np.linalg.norm(residual) < best_miss:
+                best, best_run, best_miss = trimmed(offsets), run, float(np.linalg.norm(residual))
+        return best, _result(best_run), replays
 
-    def _fast_jacobian(self, trimmed: Callable[[np.ndarray], np.ndarray], state: MachineState) -> np.ndarray:
-        """How the teeth's resting place moves per unit of each joint's offset (3, 4), on the fast model: the plan
-        and its four probes in one batch of rollouts, each run on ``SETTLE_S`` with the spools closed."""
+    def _fast_jacobian(
+        self, trimmed: Callable[[np.ndarray], np.ndarray], state: MachineState, goal: Goal
+    ) -> np.ndarray:
+        """How the place the machine rests at (the mouth for ``dump``, else the teeth) moves per unit of each joint's
+        offset (3, 4), on the fast model: the plan and its four probes in one batch of rollouts, each run on
+        ``SETTLE_S`` with the spools closed."""
         probes = np.vstack([np.zeros((1, 4)), np.eye(4) * TRIM_PROBE])
         closed = round(SETTLE_S / self.model.control_period)
         spools = np.stack([np.vstack([trimmed(offsets), np.zeros((closed, 4))]) for offsets in probes])
-        tips = self.model.rollout(state, spools, spools.shape[1] * self.model.control_period).tip[:, -1]
-        return (tips[1:] - tips[0]).T / TRIM_PROBE
+        batch = self.model.rollout(state, spools, spools.shape[1] * self.model.control_period)
+        ends = (batch.mouth if goal.task == "dump" else batch.tip)[:, -1]
+        return (ends[1:] - ends[0]).T / TRIM_PROBE

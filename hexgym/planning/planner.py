@@ -77,19 +77,24 @@ class Goal:
 
     def error_m(self, mouth: np.ndarray, tip: np.ndarray) -> np.ndarray:
         """Distance (m) from the goal region: of the mouth to the dump box, or of the teeth to the point (...,)."""
+        return np.linalg.norm(self.miss(mouth, tip), axis=-1)
+
+    def miss(self, mouth: np.ndarray, tip: np.ndarray, inset_m: float = 0.0) -> np.ndarray:
+        """(..., 3) world vector from the goal region's nearest point to the mouth (``dump``; zero inside its box,
+        shrunk by ``inset_m`` on every side) or to the teeth (the point)."""
         if self.task != "dump":
-            return np.linalg.norm(tip - self.point, axis=-1)
+            return tip - self.point
         lay = self.layout
         c, s = math.cos(lay.truck_yaw), math.sin(lay.truck_yaw)
         along, across = bed_frame(mouth[..., 0], mouth[..., 1], lay.truck_centre[0], lay.truck_centre[1], c, s)
-        half_l, half_w = p.TRUCK_BED_LENGTH / 2 - BED_MARGIN_M, p.TRUCK_BED_WIDTH / 2 - BED_MARGIN_M
+        half_l = p.TRUCK_BED_LENGTH / 2 - BED_MARGIN_M - inset_m
+        half_w = p.TRUCK_BED_WIDTH / 2 - BED_MARGIN_M - inset_m
         height = mouth[..., 2] - self.point[2]
-        out = [
-            np.maximum(np.abs(along) - half_l, 0.0),
-            np.maximum(np.abs(across) - half_w, 0.0),
-            np.maximum(DUMP_HEIGHT_M[0] - height, 0.0) + np.maximum(height - DUMP_HEIGHT_M[1], 0.0),
-        ]
-        return np.sqrt(sum(o**2 for o in out))
+        out_along = np.sign(along) * np.maximum(np.abs(along) - half_l, 0.0)
+        out_across = np.sign(across) * np.maximum(np.abs(across) - half_w, 0.0)
+        low, high = DUMP_HEIGHT_M[0] + inset_m, DUMP_HEIGHT_M[1] - inset_m
+        out_up = np.minimum(height - low, 0.0) + np.maximum(height - high, 0.0)
+        return np.stack([c * out_along - s * out_across, s * out_along + c * out_across, out_up], axis=-1)
 
     def reached(self, batch: RolloutBatch) -> np.ndarray:
         """(B, T): at the goal with the swing at rest."""
@@ -319,8 +324,8 @@ def plan_checked(
     ground than the fast model predicted, the second round keeps more clearance, starting from the first plan. The
     better checked plan is returned (collision-free first, then at the goal, then sooner) with its check; its
     ``rollouts`` and ``wall_s`` count both rounds and the checks. ``correct`` (e.g. :meth:`PlanCheck.correct`)
-    then trims that plan to a point goal on the accurate model; the trimmed plan is returned when its check ranks
-    better, its figures the fast model's for its spools (not cut at the fast model's goal: the trim acts last).
+    then trims that plan on the accurate model; a trimmed plan (closer to the goal there, still clear) is returned
+    with its figures on the fast model (not cut at the fast model's goal: the trim acts last).
     ``search``: :func:`plan_motion`'s other options."""
     if isinstance(budget, bool) or not isinstance(budget, int | np.integer) or budget < 2:
         raise ValueError(f"planner budget must be an integer >= 2 rollouts (two rounds), got {budget!r}")
@@ -334,9 +339,9 @@ def plan_checked(
     second_check = check(second.spools_m, state, goal)
     plan, checked = min(((first, first_check), (second, second_check)), key=lambda pc: _check_rank(*pc))
     rollouts = first.rollouts + second.rollouts
-    if correct is not None and goal.task != "dump":
+    if correct is not None:
         spools, corrected, _ = correct(plan.spools_m, state, goal)
-        if _correction_rank(corrected) < _correction_rank(checked):
+        if spools is not plan.spools_m:  # trimmed closer to the goal, still clear
             plan = _plan_of(spools, state, goal, model, margin_m, rollouts + 1, start, truncate=False)
             checked = corrected
             rollouts += 1
@@ -350,11 +355,6 @@ def knot_means(per_step: np.ndarray, steps_per_knot: int) -> np.ndarray:
     padded = np.zeros((knots * steps_per_knot, 4))
     padded[: len(per_step)] = per_step
     return padded.reshape(knots, steps_per_knot, 4).mean(axis=1)
-
-
-def _correction_rank(checked: CheckResult) -> tuple[bool, float]:
-    """Order of a plan's checks before and after a correction: collision-free first, then closer to the goal."""
-    return (not checked.collision_free, checked.goal_error_m)
 
 
 def _check_rank(plan: Plan, checked: CheckResult) -> tuple[bool, bool, float]:
