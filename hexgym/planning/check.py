@@ -134,9 +134,14 @@ class PlanCheck:
             run = replay_plan(self.machine, trimmed(offsets), state, goal, self.model)
             return goal.miss(run.mouths[-1], run.tips[-1], inset), run
 
+        def rank(run: PlanReplay, residual: np.ndarray) -> tuple[bool, float]:
+            """Clear first, then closer to the aim; in contact, shallower first."""
+            clearance = float(run.clearance.min())
+            return (clearance < 0.0, float(np.linalg.norm(residual)) if clearance >= 0.0 else -clearance)
+
         offsets = np.zeros(4)
         residual, base = replayed(offsets)
-        best, best_run, best_miss, replays = spools_m, base, float(np.linalg.norm(residual)), 1
+        best, best_run, best_rank, replays = spools_m, base, rank(base, residual), 1
         jacobian = None
         for _ in range(TRIM_ITERATIONS):
             if np.linalg.norm(residual) < TRIM_CLOSE_M:
@@ -151,8 +156,8 @@ class PlanCheck:
             if moved @ moved > 0:  # Broyden's update of the offsets' effect
                 jacobian += np.outer(new_residual - residual - jacobian @ moved, moved) / (moved @ moved)
             offsets, residual = new_offsets, new_residual
-            if run.clearance.min() >= 0.0 and np.linalg.norm(residual) < best_miss:
-                best, best_run, best_miss = trimmed(offsets), run, float(np.linalg.norm(residual))
+            if rank(run, residual) < best_rank:
+                best, best_run, best_rank = trimmed(offsets), run, rank(run, residual)
         return best, _result(best_run), replays
 
     def _fast_jacobian(
