@@ -277,7 +277,7 @@ class HexLoadingEnv(gym.Env):
     | 3 | swing angle minus the pile's direction, wrapped to [-pi, pi] | rad |
     | 4 | swing angle minus the truck's direction, wrapped | rad |
     | 5-8 | swing, boom, stick, bucket joint rates | rad/s |
-    | 9-11 | boom, stick, bucket cylinder force loads (+ = the cylinder pushes) | MN |
+    | 9-11 | boom, stick, bucket cylinder force loads from the state (+ = the cylinder pushes; any model) | MN |
     | 12 | material in the bucket | t |
     | 13-14 | bucket teeth relative to the pile's centre: radial (away from the machine), lateral | m |
     | 15 | teeth height above the pile's surface below them (negative: in the pile) | m |
