@@ -129,7 +129,7 @@ def physics_bound_steps_per_second(num_envs: int = VECTOR_ENVS, vector_steps: in
 def vector_benchmark(
     env_id: str = ENV_ID,
     num_envs: int = VECTOR_ENVS,
-    vector_steps: int = 250,
+    vector_steps: int = 1000,
     seed: int = 0,
     rounds: int = 10,
     physics: bool = True,
@@ -215,7 +215,7 @@ def warm_up(steps: int = 80, seed: int = 0) -> float:
 
 
 def run_bench(steps: int = 2000, seed: int = 0, seconds: float = 2.0) -> dict:
-    """All figures (see the module docstring); ``steps`` random steps per single environment (and ``steps / 8``
+    """All figures (see the module docstring); ``steps`` random steps per single environment (and ``steps / 2``
     steps of the vector env of 64), ``seconds`` of wall time per real-time factor."""
     if not seconds > 0:
         raise ValueError(f"seconds must be > 0, got {seconds}")
@@ -225,7 +225,7 @@ def run_bench(steps: int = 2000, seed: int = 0, seconds: float = 2.0) -> dict:
         steps, seed,
     )  # fmt: skip
     loading, hopper, python = rates["loading"], rates["hopper"], rates["python"]
-    vector_rates, vector_env = vector_benchmark(vector_steps=max(1, steps // 8), seed=seed)
+    vector_rates, vector_env = vector_benchmark(vector_steps=max(1, steps // 2), seed=seed)
     vector, bound = vector_rates["vector_steps_per_s"], vector_rates.get("vector_physics_bound_steps_per_s")
     result = {
         "steps": steps,
