@@ -98,14 +98,27 @@ def test_shipped_policy_loads_and_acts():
     assert np.ptp(np.array(actions), axis=0).max() > 0.05  # it reacts to the state, not a constant
 
 
-def test_video_writes_an_mp4_with_overlay(tmp_path):
+def test_video_writes_an_mp4_with_overlay(tmp_path, monkeypatch):
     from hexgym.agents.video import overlay_text, record_video
 
     frame = np.full((60, 200, 3), 100, np.uint8)
     marked = overlay_text(frame, "t 1.0 s")
     assert marked.shape == frame.shape and not np.array_equal(marked[:20], frame[:20])
     assert np.array_equal(marked[40:], frame[40:])  # only the strip at the top changes
+    seen = []
+
+    class BudgetSpy:  # what a policy sees: the episode's time left (observation 21)
+        def reset(self) -> None:
+            pass
+
+        def act(self, obs, env):
+            seen.append(float(obs[21]))
+            return np.zeros(4, np.float32)
+
+    monkeypatch.setattr("hexgym.agents.video.load_policy", lambda spec, env_id: BudgetSpy())
     result = record_video("scripted", tmp_path / "v.mp4", seconds=1.0, width=160, height=96)
     assert result["frames"] == 11 and result["video"].stat().st_size > 1000
+    # a 1 s film of an episode that keeps its 180 s budget: the policy acts as it would in evaluation
+    assert len(seen) == 10 and seen[-1] == pytest.approx(1.0 - 0.9 / 180.0, abs=1e-6)
     with pytest.raises(ValueError, match="camera"):
         record_video("scripted", tmp_path / "v.mp4", camera="drone")

@@ -659,6 +659,7 @@ def clone_scripted(
     select_episodes: int = 0,
     rounds_dir: str | Path | None = None,
     loss: str = "mse",
+    tables: str | None = None,
     log: Any = print,
 ) -> Path:
     """Behaviour-clone the scripted loader into a PPO model saved at ``out`` (+ VecNormalize statistics).
@@ -670,7 +671,8 @@ def clone_scripted(
     ``select_episodes`` > 0 each round's clone is scored on that many further seeded episodes
     (tonnes delivered) and the best is saved at ``out``; otherwise the last round's. Each round's
     clone is kept in ``rounds_dir`` (``round<k>.zip``) when given. ``loss``: the actor's fit
-    (:func:`fit_to_demonstrations`).
+    (:func:`fit_to_demonstrations`). ``tables``: the learned model the episodes run on (``HexLoading-v0``'s
+    ``tables``; default the hyperparameters' ``env_kwargs``, else the environment's default).
     """
     _loss_power(loss)  # bad arguments fail here, before minutes of recording
     for name, value, minimum in (("episodes", episodes, 1), ("dagger_rounds", dagger_rounds, 0),
@@ -686,6 +688,8 @@ def clone_scripted(
     if rounds_dir is not None:
         check_output_dir(rounds_dir, "rounds directory")
     hp = load_hyperparams("ppo", ENV_ID, hyperparams)
+    if tables is not None:
+        hp["env_kwargs"] = {**(hp.get("env_kwargs") or {}), "tables": tables}
     check_hyperparams("ppo", hp)
     with _worker_pool() as pool, tempfile.TemporaryDirectory() as tmp:  # workers start once (torch, MuJoCo: s)
         rounds = Path(rounds_dir) if rounds_dir is not None else Path(tmp)

@@ -85,8 +85,9 @@ def record_video(
 ) -> dict[str, Any]:
     """Render ``episodes`` rollouts of a policy (``"scripted"``, ``"shipped"`` or a model path) to ``out``.
 
-    ``seconds`` shortens each episode (the env's time limit); ``snapshot`` also writes a PNG of a
-    frame from the middle of the first episode; ``model``: the machine model, ``"learned"`` or
+    ``seconds`` stops each episode's film early (the episode itself keeps the task's time budget, which the
+    observation counts down: a shorter budget would change what a trained policy does); ``snapshot`` also
+    writes a PNG of a frame from the middle of the first episode; ``model``: the machine model, ``"learned"`` or
     ``"reference"`` (the real machine's stand-in); ``env_id``: ``HexLoading-v0`` or ``HexDig-v0`` (a model
     trained on it, or ``"scripted"``). Returns the paths and each episode's figures.
     """
@@ -112,9 +113,10 @@ def record_video(
     kwargs: dict[str, Any] = {"render_mode": "rgb_array", "camera": camera, "width": width, "height": height,
                               "model": model}  # fmt: skip
     if seconds is not None:
-        kwargs["time_limit"] = seconds
+        kwargs["max_episode_steps"] = math.ceil(seconds / STEP_PERIOD - 1e-9)  # Gymnasium's TimeLimit truncates
     env = gym.make(env_id, **kwargs)
-    steps = math.ceil(env.unwrapped.time_limit / STEP_PERIOD - 1e-9) + 1
+    limit = env.unwrapped.time_limit if seconds is None else min(seconds, env.unwrapped.time_limit)
+    steps = math.ceil(limit / STEP_PERIOD - 1e-9) + 1
     check_frame_memory(int(episodes) * steps, width, height)
     frames: list[np.ndarray] = []
     summaries = []

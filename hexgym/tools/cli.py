@@ -210,7 +210,7 @@ def _cmd_clone(args: argparse.Namespace) -> int:
     path = clone_scripted(args.out, episodes=args.episodes, dagger_rounds=args.dagger_rounds,
                           dagger_episodes=args.dagger_episodes, epochs=args.epochs, seed=args.seed, noise=args.noise,
                           hyperparams=args.hyperparams, select_episodes=args.select_episodes,
-                          rounds_dir=args.rounds_dir, loss=args.loss)  # fmt: skip
+                          rounds_dir=args.rounds_dir, loss=args.loss, tables=args.tables)  # fmt: skip
     print(f"model: {path}")
     return 0
 
@@ -544,6 +544,9 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
                        "episodes and keep the best (default: 0: the last)")  # fmt: skip
     clone.add_argument("--rounds-dir", default=None, help="also keep each round's clone here (round<k>.zip)")
     clone.add_argument("--hyperparams", default=None, help="PPO YAML giving the network (default: ppo.yml)")
+    clone.add_argument("--tables", choices=tuple(TABLE_SETS), default=None,
+                       help="the learned model the episodes run on (default: the environment's, paper); the "
+                       "shipped agent was cloned on circuit")  # fmt: skip
     clone.add_argument(
         "--loss",
         choices=("mse", "l1"),
@@ -583,7 +586,12 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
     video.add_argument("--camera", choices=("chase", "cab"), default="chase", help="camera (default: chase)")
     video.add_argument("--episodes", type=int, default=1, help="episodes (default: 1)")
     video.add_argument("--seed", type=int, default=0, help="first seed (default: 0)")
-    video.add_argument("--seconds", type=float, default=None, help="episode length, s (default: the env's 180)")
+    video.add_argument(
+        "--seconds",
+        type=float,
+        default=None,
+        help="film this long, s (the episode keeps the env's 180 s budget; default: all of it)",
+    )
     video.add_argument("--width", type=int, default=640, help="frame width (default: 640)")
     video.add_argument("--height", type=int, default=384, help="frame height (default: 384)")
     video.add_argument("--snapshot", default=None, help="also write a PNG of a mid-episode frame")
