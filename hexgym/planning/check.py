@@ -134,10 +134,10 @@ class PlanCheck:
             run = replay_plan(self.machine, trimmed(offsets), state, goal, self.model)
             return goal.miss(run.mouths[-1], run.tips[-1], inset), run
 
-        def rank(run: PlanReplay, residual: np.ndarray) -> tuple[bool, float]:
-            """Clear first, then closer to the aim; in contact, shallower first."""
-            clearance = float(run.clearance.min())
-            return (clearance < 0.0, float(np.linalg.norm(residual)) if clearance >= 0.0 else -clearance)
+        def rank(run: PlanReplay, residual: np.ndarray) -> tuple[bool, float, float]:
+            """Clear first; in contact, shallower to the centimetre first; then closer to the aim."""
+            depth = max(-float(run.clearance.min()), 0.0)
+            return (depth > 0.0, round(depth, 2), float(np.linalg.norm(residual)))
 
         offsets = np.zeros(4)
         residual, base = replayed(offsets)

@@ -322,10 +322,10 @@ def plan_checked(
     """:func:`plan_motion` in two rounds of half the ``budget``, each plan checked on the accurate model (``check``,
     e.g. :class:`hexgym.planning.check.PlanCheck`): by as much as the check finds the first plan closer to truck or
     ground than the fast model predicted, the second round keeps more clearance, starting from the first plan. The
-    better checked plan is returned (collision-free first, then at the goal, then sooner) with its check; its
-    ``rollouts`` and ``wall_s`` count both rounds and the checks. ``correct`` (e.g. :meth:`PlanCheck.correct`)
-    then trims that plan on the accurate model; a trimmed plan (closer to the goal there, still clear) is returned
-    with its figures on the fast model (not cut at the fast model's goal: the trim acts last).
+    better checked plan is returned (collision-free first, then at the goal and sooner, else closer to it) with
+    its check; its ``rollouts`` and ``wall_s`` count both rounds and the checks. ``correct`` (e.g.
+    :meth:`PlanCheck.correct`) then trims that plan on the accurate model; a trimmed plan that ranks better there
+    is returned with its figures on the fast model (not cut at the fast model's goal: the trim acts last).
     ``search``: :func:`plan_motion`'s other options."""
     if isinstance(budget, bool) or not isinstance(budget, int | np.integer) or budget < 2:
         raise ValueError(f"planner budget must be an integer >= 2 rollouts (two rounds), got {budget!r}")
@@ -358,6 +358,6 @@ def knot_means(per_step: np.ndarray, steps_per_knot: int) -> np.ndarray:
 
 
 def _check_rank(plan: Plan, checked: CheckResult) -> tuple[bool, bool, float]:
-    """Order of checked plans: collision-free first, then at the goal, then sooner."""
+    """Order of checked plans: collision-free first, then at the goal and sooner, else closer to it."""
     at_goal = checked.time_s is not None
-    return (not checked.collision_free, not at_goal, checked.time_s if at_goal else plan.time_s)
+    return (not checked.collision_free, not at_goal, checked.time_s if at_goal else checked.goal_error_m)
