@@ -145,3 +145,19 @@ def test_demonstrations_are_labelled_by_the_state_derived_loader():
     obs, _ = env.reset(seed=5)
     assert np.array_equal(obs, demos.obs[0])
     assert np.array_equal(ScriptedLoader.label(env.unwrapped), demos.actions[0])
+
+
+def test_cloning_runs_its_episodes_on_the_tables_asked_for(tmp_path, tiny_yaml, monkeypatch):
+    """``tables`` reaches every recorded and scored episode's environment (through the hyperparameters'
+    env_kwargs), after the environment has accepted it."""
+    import contextlib
+
+    import hexgym.agents.training as training
+
+    seen = {}
+    monkeypatch.setattr(training, "_worker_pool", contextlib.nullcontext)
+    monkeypatch.setattr(training, "_clone_rounds", lambda out, rounds, hp, *rest: seen.setdefault("hp", hp) and out)
+    clone_scripted(tmp_path / "bc.zip", hyperparams=tiny_yaml, tables="circuit", log=lambda _: None)
+    assert seen["hp"]["env_kwargs"]["tables"] == "circuit"
+    with pytest.raises(ValueError, match="tables"):
+        clone_scripted(tmp_path / "bc2.zip", hyperparams=tiny_yaml, tables="nope", log=lambda _: None)
