@@ -120,8 +120,9 @@ class PlanCheck:
         for, centimetres away, is inside too). One offset per joint is added to the spools of the plan's last
         ``TRIM_S``, found by Newton's method on the replays (least-norm steps: three coordinates, four offsets;
         the offsets' effect probed on the fast model in one batch, then updated by Broyden's rule). Returns the
-        best spools found that stay collision-free until the machine rests (``spools_m`` itself when none comes
-        closer), their check and the replays made."""
+        best spools found (clear of truck and ground until the machine rests first; of spools in contact, the
+        shallowest to the centimetre; then the closest; ``spools_m`` itself when none ranks better), their check
+        and the replays made."""
         window = min(len(spools_m), round(TRIM_S / self.model.control_period))
         inset = TRIM_INSET_M if goal.task == "dump" else 0.0
 
