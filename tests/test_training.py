@@ -87,6 +87,19 @@ def test_short_ppo_run_saves_reloads_and_resumes(tmp_path, tiny_yaml, capsys):
     assert np.all(curve["delivered_t"] >= 0) and np.isnan(curve["success_rate"]).all()  # no success criterion
 
 
+def test_a_fine_tune_keeps_its_starting_observation_statistics(tmp_path, tiny_yaml):
+    """``init_from``: the policy goes on learning on the inputs it was fitted to (a from-scratch run updates
+    them, as the test above checks)."""
+    start = train("ppo", timesteps=128, seed=0, log_dir=tmp_path / "start", hyperparams=tiny_yaml, n_envs=2,
+                  checkpoint_every=128, progress_bar=False, report=False)  # fmt: skip
+    tuned = train("ppo", timesteps=128, seed=1, log_dir=tmp_path / "tuned", hyperparams=tiny_yaml, n_envs=2,
+                  init_from=start, checkpoint_every=128, progress_bar=False, report=False)  # fmt: skip
+    before, after = load_trained(start).normalizer, load_trained(tuned).normalizer
+    assert after.obs_count == before.obs_count
+    np.testing.assert_array_equal(after.obs_mean, before.obs_mean)
+    assert load_trained(tuned).model.num_timesteps >= 128
+
+
 def test_a_stopped_run_leaves_a_usable_model(tmp_path, tiny_yaml, monkeypatch):
     from stable_baselines3.common.callbacks import BaseCallback
 
