@@ -25,13 +25,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from hexgym.envs.earthwork import jit
-from hexgym.envs.loading import (
-    HexLoadingEnv,
-    heap_for,
-    make_machine,
-    native_world_model,
-    start_machine,
-)
+from hexgym.envs.loading import HexLoadingEnv, heap_for, make_machine, native_world_model, start_machine
 from hexgym.envs.sites import BatchSites, MachineSites
 from hexgym.envs.task import CONTACT_SLOTS, INFO_KEYS, REWARD_TERMS, STEP_INFO_KEYS, STEP_PERIOD, LoadingTask
 from hexgym.envs.world import Layout, World

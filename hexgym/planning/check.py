@@ -84,11 +84,13 @@ def replay_plan(
 @dataclasses.dataclass(frozen=True)
 class CheckResult:
     """A plan replayed on the circuit model: ``min_clearance_m`` (negative = contact) until it comes to rest,
-    ``goal_error_m`` where it does, ``time_s`` to the goal with the swing at rest (None: never)."""
+    ``goal_error_m`` where it does, ``time_s`` to the goal with the swing at rest (None: never); ``replay``: the
+    replay itself (not compared), which :meth:`PlanCheck.correct` starts from."""
 
     min_clearance_m: float
     goal_error_m: float
     time_s: float | None
+    replay: PlanReplay | None = dataclasses.field(default=None, compare=False, repr=False)
 
     @property
     def collision_free(self) -> bool:
@@ -99,7 +101,9 @@ class CheckResult:
 def _result(run: PlanReplay) -> CheckResult:
     """A replay's check: clearance until it comes to rest (the swing coasts on after the plan), goal error there,
     time to the goal."""
-    return CheckResult(min_clearance_m=float(run.clearance.min()), goal_error_m=float(run.error[-1]), time_s=run.time_s)
+    return CheckResult(
+        min_clearance_m=float(run.clearance.min()), goal_error_m=float(run.error[-1]), time_s=run.time_s, replay=run
+    )
 
 
 class PlanCheck:
@@ -114,7 +118,9 @@ class PlanCheck:
         ``goal``."""
         return _result(replay_plan(self.machine, spools_m, state, goal, self.model))
 
-    def correct(self, spools_m: np.ndarray, state: MachineState, goal: Goal) -> tuple[np.ndarray, CheckResult, int]:
+    def correct(
+        self, spools_m: np.ndarray, state: MachineState, goal: Goal, checked: CheckResult | None = None
+    ) -> tuple[np.ndarray, CheckResult, int]:
         """The plan's spools trimmed so that on the circuit model the machine comes to rest at the goal: the teeth
         at a point goal's point, the mouth ``TRIM_INSET_M`` inside a dump goal's box (so that the machine it stands
         for, centimetres away, is inside too). One offset per joint is added to the spools of the plan's last
@@ -122,7 +128,7 @@ class PlanCheck:
         the offsets' effect probed on the fast model in one batch, then updated by Broyden's rule). Returns the
         best spools found (clear of truck and ground until the machine rests first; of spools in contact, the
         shallowest to the centimetre; then the closest; ``spools_m`` itself when none ranks better), their check
-        and the replays made."""
+        and the replays made. ``checked``: the check of ``spools_m`` already made (its replay is not made again)."""
         window = min(len(spools_m), round(TRIM_S / self.model.control_period))
         inset = TRIM_INSET_M if goal.task == "dump" else 0.0
 
@@ -141,8 +147,12 @@ class PlanCheck:
             return (depth > 0.0, round(depth, 2), float(np.linalg.norm(residual)))
 
         offsets = np.zeros(4)
-        residual, base = replayed(offsets)
-        best, best_run, best_rank, replays = spools_m, base, rank(base, residual), 1
+        if checked is not None and checked.replay is not None:
+            base, replays = checked.replay, 0
+            residual = goal.miss(base.mouths[-1], base.tips[-1], inset)
+        else:
+            (residual, base), replays = replayed(offsets), 1
+        best, best_run, best_rank = spools_m, base, rank(base, residual)
         jacobian = None
         for _ in range(TRIM_ITERATIONS):
             if np.linalg.norm(residual) < TRIM_CLOSE_M:

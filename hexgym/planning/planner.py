@@ -316,7 +316,7 @@ def plan_checked(
     budget: int = 2000,
     margin_m: float = MARGIN_M,
     initial: np.ndarray | None = None,
-    correct: Callable[[np.ndarray, MachineState, Goal], tuple[np.ndarray, CheckResult, int]] | None = None,
+    correct: Callable[[np.ndarray, MachineState, Goal, CheckResult], tuple[np.ndarray, CheckResult, int]] | None = None,
     **search: Any,
 ) -> tuple[Plan, CheckResult]:
     """:func:`plan_motion` in two rounds of half the ``budget``, each plan checked on the accurate model (``check``,
@@ -340,11 +340,10 @@ def plan_checked(
     plan, checked = min(((first, first_check), (second, second_check)), key=lambda pc: _check_rank(*pc))
     rollouts = first.rollouts + second.rollouts
     if correct is not None:
-        spools, corrected, _ = correct(plan.spools_m, state, goal)
-        if spools is not plan.spools_m:  # trimmed closer to the goal, still clear
-            plan = _plan_of(spools, state, goal, model, margin_m, rollouts + 1, start, truncate=False)
-            checked = corrected
-            rollouts += 1
+        spools, corrected, _ = correct(plan.spools_m, state, goal, checked)
+        if spools is not plan.spools_m:  # trimmed: it ranks better on the accurate model
+            rollouts += 1  # the trimmed spools' figures on the fast model
+            plan, checked = _plan_of(spools, state, goal, model, margin_m, rollouts, start, truncate=False), corrected
     return dataclasses.replace(plan, rollouts=rollouts, wall_s=time.perf_counter() - start), checked
 
 
