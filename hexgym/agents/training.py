@@ -246,17 +246,56 @@ def make_env(env_id: str = ENV_ID, wrapper: str | None = None, **env_kwargs: Any
     return wrapper_class(env) if wrapper_class is not None else env
 
 
+VEC_ENVS = ("auto", "batch", "subproc")
+"""``train``'s ways of running environments: ``batch`` (the task's batched vector environment, one process, MuJoCo
+batch threads: :mod:`hexgym.agents.sb3_vector`), ``subproc`` (one process per environment), ``auto`` (batch where
+the task has a batched environment and no wrapper is asked for)."""
+
+
+def has_batched_env(env_id: str) -> bool:
+    """Whether ``env_id`` has a batched vector environment (a ``vector_entry_point``)."""
+    import gymnasium as gym
+
+    import hexgym  # noqa: F401
+
+    return gym.spec(env_id).vector_entry_point is not None
+
+
+def batched(env_id: str, vec_env: str, wrapper: str | None = None) -> bool:
+    """Whether ``train`` runs ``env_id`` on its batched vector environment (see :data:`VEC_ENVS`)."""
+    if vec_env not in VEC_ENVS:
+        raise ValueError(f"vec_env must be one of {VEC_ENVS}, got {vec_env!r}")
+    if vec_env == "subproc":
+        return False
+    available = has_batched_env(env_id) and wrapper is None
+    if vec_env == "batch" and not available:
+        why = "an env_wrapper is set" if wrapper is not None else f"{env_id} has no batched vector environment"
+        raise ValueError(f"--vec-env batch is not possible: {why} (use --vec-env subproc)")
+    return available
+
+
 def make_vec_env(
-    env_id: str, n_envs: int, seed: int, env_kwargs: dict | None = None, wrapper: str | None = None
-) -> Any:
-    """``n_envs`` Monitor-wrapped copies, one process each when more than one (SubprocVecEnv)."""
+    env_id: str, n_envs: int, seed: int, env_kwargs: dict | None = None, wrapper: str | None = None,
+    batch: bool = False,
+) -> Any:  # fmt: skip
+    """``n_envs`` environments as an SB3 ``VecEnv`` recording episode returns: with ``batch`` the task's batched
+    vector environment (one process); else Monitor-wrapped copies, one process each when more than one."""
     from functools import partial
 
     from stable_baselines3.common.env_util import make_vec_env as sb3_make_vec_env
-    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor
 
     if n_envs < 1:
         raise ValueError(f"n_envs must be >= 1, got {n_envs}")
+    if batch:
+        import gymnasium as gym
+
+        from hexgym.agents.sb3_vector import SB3VectorEnv
+
+        vector = gym.make_vec(env_id, num_envs=n_envs, vectorization_mode="vector_entry_point", **(env_kwargs or {}))
+        venv = VecMonitor(SB3VectorEnv(vector))
+        venv.seed(seed)
+        return venv
     return sb3_make_vec_env(
         partial(make_env, env_id, wrapper),
         n_envs=n_envs,
@@ -408,6 +447,7 @@ def train(
     checkpoint_every: int = 20_000,
     progress_bar: bool = True,
     report: bool = True,
+    vec_env: str = "auto",
 ) -> Path:
     """Train (or resume) ``algo`` on ``env_id`` to ``timesteps`` steps in all; the final model's path.
 
@@ -418,6 +458,9 @@ def train(
     Resumes from the newest checkpoint of the run directory when there is one; otherwise starts
     from ``init_from`` (a model saved by :func:`clone_scripted` or an earlier run), or from scratch. With
     ``init_from`` the observation statistics stay those the starting policy was fitted to.
+
+    ``vec_env`` (:data:`VEC_ENVS`): on the task's batched environment ``n_envs`` defaults to the YAML's
+    ``n_envs`` (its sites are threads of one process); on subprocesses to one per core.
     """
     from stable_baselines3 import PPO, SAC
     from stable_baselines3.common.vec_env import VecNormalize
@@ -425,7 +468,9 @@ def train(
     hp = load_hyperparams(algo, env_id, hyperparams)
     total = check_count("timesteps", timesteps if timesteps is not None else hp.get("n_timesteps", 100_000))
     check_seed("seed", seed)
-    n_envs = check_count("n_envs", n_envs if n_envs is not None else os.cpu_count() or 1)
+    batch = batched(env_id, vec_env, hp.get("env_wrapper"))
+    default_envs = int(hp.get("n_envs", os.cpu_count() or 1)) if batch else os.cpu_count() or 1
+    n_envs = check_count("n_envs", n_envs if n_envs is not None else default_envs)
     rollout = rollout_steps(algo, hp, n_envs)
     if check_count("checkpoint_every", checkpoint_every) < rollout:
         raise ValueError(f"checkpoint_every must be at least one rollout ({rollout} steps: {rollout // n_envs} "
@@ -438,7 +483,7 @@ def train(
         check_start_model(start, algo)
     check_hyperparams(algo, hp, env_id)
     tensorboard = str(run_dir / "tb") if importlib.util.find_spec("tensorboard") else None
-    venv = make_vec_env(env_id, n_envs, seed, hp.get("env_kwargs"), hp.get("env_wrapper"))
+    venv = make_vec_env(env_id, n_envs, seed, hp.get("env_kwargs"), hp.get("env_wrapper"), batch=batch)
     if start is not None:
         # a fine-tune keeps the observation statistics its policy was fitted to: updated, they shift every input
         # (a clone fine-tuned with them updating fell from 300 to 202 t/h in 20k steps, held at 296 without)

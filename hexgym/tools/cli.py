@@ -183,8 +183,8 @@ def _cmd_build_assets(args: argparse.Namespace) -> int:
 
 def _cmd_train(args: argparse.Namespace) -> int:
     if args.framework == "rllib":
-        if args.init_from is not None or args.n_envs is not None:
-            raise ValueError("--init-from and --n-envs are for --framework sb3 (RLlib: --num-env-runners)")
+        if args.init_from is not None or args.n_envs is not None or args.vec_env != "auto":
+            raise ValueError("--init-from, --n-envs and --vec-env are for --framework sb3 (RLlib: --num-env-runners)")
         from hexgym.agents.rllib import train_rllib
 
         path = train_rllib(args.algo, args.env, timesteps=args.timesteps, seed=args.seed, log_dir=args.log_dir,
@@ -199,7 +199,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
     path = train(args.algo, args.env, timesteps=args.timesteps, seed=args.seed, log_dir=args.log_dir,
                  hyperparams=args.hyperparams, n_envs=args.n_envs, init_from=args.init_from,
                  checkpoint_every=args.checkpoint_every, progress_bar=not args.no_progress,
-                 report=not args.quiet)  # fmt: skip
+                 report=not args.quiet, vec_env=args.vec_env)  # fmt: skip
     print(f"model: {path}")
     return 0
 
@@ -525,7 +525,11 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
     train.add_argument("--seed", type=int, default=0, help="seed (default: 0)")
     train.add_argument("-f", "--log-dir", default="logs", help="run directory root (default: logs)")
     train.add_argument("--hyperparams", default=None, help="rl-zoo3 YAML (default: training/hyperparams/<algo>.yml)")
-    train.add_argument("--n-envs", type=int, default=None, help="parallel environments (default: one per core)")
+    train.add_argument("--n-envs", type=int, default=None, help="parallel environments (default: the YAML's n_envs "
+                       "on the batched environment, else one per core)")  # fmt: skip
+    train.add_argument("--vec-env", choices=("auto", "batch", "subproc"), default="auto", help="batch: the task's batched environment "
+                       "(HexLoading-v0: MuJoCo batch threads in one process, several times faster); subproc: one "
+                       "process per environment; auto: batch where there is one (default: auto)")  # fmt: skip
     train.add_argument("--init-from", default=None, help="start from this model .zip, e.g. from `hexgym clone`")
     train.add_argument("--checkpoint-every", type=int, default=20000, help="steps between checkpoints")
     train.add_argument("--no-progress", action="store_true", help="no progress bar")
