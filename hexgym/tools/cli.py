@@ -527,9 +527,10 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
     train.add_argument("--hyperparams", default=None, help="rl-zoo3 YAML (default: training/hyperparams/<algo>.yml)")
     train.add_argument("--n-envs", type=int, default=None, help="parallel environments (default: the YAML's n_envs "
                        "on the batched environment, else one per core)")  # fmt: skip
-    train.add_argument("--vec-env", choices=("auto", "batch", "subproc"), default="auto", help="batch: the task's batched environment "
-                       "(HexLoading-v0: MuJoCo batch threads in one process, several times faster); subproc: one "
-                       "process per environment; auto: batch where there is one (default: auto)")  # fmt: skip
+    train.add_argument("--vec-env", choices=("auto", "batch", "subproc"), default="auto",
+                       help="batch: the task's batched environment (HexLoading-v0: MuJoCo batch threads in one "
+                       "process, several times faster); subproc: one process per environment; auto: batch where "
+                       "there is one (default: auto)")  # fmt: skip
     train.add_argument("--init-from", default=None, help="start from this model .zip, e.g. from `hexgym clone`")
     train.add_argument("--checkpoint-every", type=int, default=20000, help="steps between checkpoints")
     train.add_argument("--no-progress", action="store_true", help="no progress bar")
