@@ -10,7 +10,13 @@ from gymnasium.utils.env_checker import check_env
 import hexgym  # noqa: F401  (registers the environments)
 from hexgym.agents.scripted import ScriptedLoader
 from hexgym.envs.dig import DIG_REWARD_TERMS, HexDigEnv
-from hexgym.envs.loading import DIG_START_HEIGHT, DIG_START_RADIUS_NOISE, OBSERVATION_NAMES, HexLoadingEnv
+from hexgym.envs.loading import (
+    DIG_START_HEIGHT,
+    DIG_START_RADIUS_NOISE,
+    LOADED_START_PAYLOAD_KG,
+    OBSERVATION_NAMES,
+    HexLoadingEnv,
+)
 from hexgym.envs.world import entry_radius
 
 ABOVE_PILE = OBSERVATION_NAMES.index("tip_above_pile")
@@ -114,3 +120,34 @@ def test_the_loading_task_can_start_some_episodes_at_the_dig():
     assert 2 <= sum(over_pile) <= 10
     with pytest.raises(ValueError, match="dig_start_share must be a number from 0 to 1"):
         HexLoadingEnv(dig_start_share=1.5)
+
+
+def test_the_loading_task_can_start_some_episodes_loaded_on_the_way_to_the_truck():
+    """``loaded_start_share``: that share starts with material in the curled bucket, lifted clear of pile and truck,
+    between them; the material is the bucket's and the machine's payload, and stays in while the machine rests."""
+    env = HexLoadingEnv(loaded_start_share=0.5, dig_start_share=0.2)
+    loaded = 0
+    for seed in range(16):
+        obs, info = env.reset(seed=seed)
+        assert obs[OBSERVATION_NAMES.index("payload")] == pytest.approx(info["bucket_kg"] / 1000.0, abs=1e-6)
+        assert env.physics.payload_kg == pytest.approx(info["bucket_kg"])
+        if info["bucket_kg"] == 0.0:
+            continue
+        loaded += 1
+        assert LOADED_START_PAYLOAD_KG[0] <= info["bucket_kg"] <= LOADED_START_PAYLOAD_KG[1]
+        tilt, above_rim, swing_to_pile, swing_to_truck = (
+            obs[OBSERVATION_NAMES.index(name)]
+            for name in ("bucket_tilt", "tip_above_rim", "swing_to_pile", "swing_to_truck")
+        )
+        assert tilt < 0.35 and above_rim > 1.3
+        assert abs(swing_to_pile) + abs(swing_to_truck) == pytest.approx(abs(swing_to_pile - swing_to_truck), abs=1e-5)
+        for _ in range(5):  # at rest, spools closed: nothing spills, nothing touches
+            obs, _, _, _, info = env.step(np.zeros(4, np.float32))
+            assert info["spilled_kg"] == 0.0 and info["reward_contact"] == 0.0
+    assert 4 <= loaded <= 12
+    for shares, message in (
+        ({"loaded_start_share": -0.1}, "loaded_start_share must be a number from 0 to 1"),
+        ({"loaded_start_share": 0.7, "dig_start_share": 0.5}, r"dig_start_share \+ loaded_start_share must be at most"),
+    ):
+        with pytest.raises(ValueError, match=message):
+            HexLoadingEnv(**shares)

@@ -95,6 +95,12 @@ def test_shaping_terms_and_dig_starts_equal_single_envs():
     assert seen["bucket_kg"] > 50 and seen["resets"] >= 3
 
 
+def test_loaded_starts_equal_single_envs():
+    shares = {"dig_start_share": 0.3, "loaded_start_share": 0.5, "carry_weight": 0.3}
+    seen = _compare_with_single_envs(num_envs=3, steps=60, time_limit=2.0, **shares)
+    assert seen["bucket_kg"] >= 1000.0 and seen["resets"] >= 6
+
+
 @pytest.mark.slow
 def test_results_equal_single_envs_through_loading_the_truck():
     seen = _compare_with_single_envs(num_envs=3, steps=450, time_limit=40.0)

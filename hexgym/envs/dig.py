@@ -82,6 +82,7 @@ class HexDigEnv(HexLoadingEnv):
     ) -> None:
         for name in (
             "dig_start_share",
+            "loaded_start_share",
             "delivery_weight",
             "fill_weight",
             "fuel_weight",
@@ -117,10 +118,11 @@ class HexDigEnv(HexLoadingEnv):
         self._potentials, self._spilled_kg = self._potential(obs), 0.0
         return obs, self._dig_info(dict.fromkeys(DIG_REWARD_TERMS, 0.0), info, False)
 
-    def _draw_start(self, rng: np.random.Generator) -> tuple[Layout, np.ndarray]:
-        """A site, and joint angles with the teeth over its cut's entry, above the pile's top, pointing down."""
+    def _draw_start(self, rng: np.random.Generator) -> tuple[Layout, np.ndarray, float]:
+        """A site, joint angles with the teeth over its cut's entry, above the pile's top, pointing down, and an
+        empty bucket."""
         layout = sample_layout(rng)
-        return layout, dig_start_pose(rng, layout)
+        return layout, dig_start_pose(rng, layout), 0.0
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
         """Hold the spools for 0.1 s."""

@@ -14,7 +14,7 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
-from hexgym.envs.earthwork import Pile
+from hexgym.envs.earthwork import Pile, mouth_normal
 from hexgym.envs.sites import MachineSites
 from hexgym.envs.task import (
     CONTACT_SLOTS,
@@ -30,6 +30,7 @@ from hexgym.envs.task import (
     wrap,
 )
 from hexgym.envs.world import (
+    BED_RIM_HEIGHT,
     PILE_GRID_POINTS,
     PILE_GRID_SPACING,
     Layout,
@@ -152,6 +153,30 @@ def dig_start_pose(rng: np.random.Generator, layout: Layout) -> np.ndarray:
             return np.array([swing, *front])
 
 
+LOADED_START_PAYLOAD_KG = (1000.0, 1600.0)  # within what the curled bucket holds at the start's tilt (no spill)
+LOADED_START_RADIUS = (4.0, 5.5)  # m: the teeth from the swing axis (close in, where the curled bucket is level)
+LOADED_START_HEIGHT = (1.4, 2.0)  # m of the teeth above the bed's rim (the curled bucket hangs below them)
+LOADED_START_TILT = (-0.1, 0.3)  # rad: the mouth's normal from straight up (positive: towards the cab)
+LOADED_START_TRIES = 1000  # draws of a reachable pose (about one in two is)
+_MOUTH_ANGLE = math.atan2(mouth_normal()[1], mouth_normal()[0])  # the mouth's normal in the bucket frame
+
+
+def loaded_start_pose(rng: np.random.Generator, layout: Layout) -> tuple[np.ndarray, float]:
+    """Joint angles with a loaded bucket curled mouth up, lifted clear, anywhere on the swing from ``layout``'s
+    pile to its truck, and the payload (kg) (``HexLoading-v0``'s start with ``loaded_start_share``)."""
+    between = wrap(float(layout.truck_direction - layout.pile_direction))
+    for _ in range(LOADED_START_TRIES):
+        radius = rng.uniform(*LOADED_START_RADIUS)
+        height = BED_RIM_HEIGHT + rng.uniform(*LOADED_START_HEIGHT)
+        mouth_up = math.pi / 2.0 + rng.uniform(*LOADED_START_TILT)  # the mouth's planar world direction
+        bucket = (mouth_up - _MOUTH_ANGLE + 3.5) % (2.0 * math.pi) - 3.5  # link_angles' branch (about -4 to 0.5)
+        front, miss = kinematics.front_angles_for(radius, height, bucket, _FRONT_GUESS)
+        if miss < 0.05:  # within reach
+            swing = layout.pile_direction + rng.uniform(0.0, 1.0) * between
+            return np.array([swing, *front]), float(rng.uniform(*LOADED_START_PAYLOAD_KG))
+    raise RuntimeError(f"no reachable loaded start pose in {LOADED_START_TRIES} draws")
+
+
 def heap_for(layout: Layout) -> Pile:
     """The pile an episode on ``layout`` starts with."""
     return Pile.heap(
@@ -195,11 +220,14 @@ def _check_model(model: str, backend: str, tables: str) -> None:
         raise ValueError(f"tables={tables!r} does not apply to model='reference' (it runs no learned model)")
 
 
-def start_machine(machine: LearnedModelBase, world: World, q: np.ndarray, layout: Layout) -> None:
-    """Put ``machine`` at rest at angles ``q`` with an empty bucket on its site ``world`` laid out as ``layout``."""
+def start_machine(
+    machine: LearnedModelBase, world: World, q: np.ndarray, layout: Layout, payload_kg: float = 0.0
+) -> None:
+    """Put ``machine`` at rest at angles ``q`` with ``payload_kg`` in its bucket on its site ``world`` laid out as
+    ``layout``."""
     model, data = machine.physics.model, machine.physics.data
     mujoco.mj_resetData(model, data)  # warm starts too: same seed, same episode
-    machine.reset(q, payload_kg=0.0)
+    machine.reset(q, payload_kg=payload_kg)
     world.place(data, layout)
     data.qfrc_applied[:] = 0.0
     mujoco.mj_forward(model, data)
@@ -348,6 +376,7 @@ class HexLoadingEnv(gym.Env):
     | tables | ``"paper"`` | the learned model: ``"paper"``, ``"extended"`` or ``"circuit"`` (circuit model, Python) |
     | model | ``"learned"`` | ``"reference"``: the same task on the analytical circuit (the real machine's stand-in) |
     | dig_start_share | 0.0 | share of episodes starting with the open bucket over the pile (a curriculum) |
+    | loaded_start_share | 0.0 | share starting with 1.0-1.6 t in the curled bucket, lifted, between pile and truck |
 
     ``model="reference"`` runs the whole task on the reference model (:mod:`hexgym.envs.reference_machine`):
     a few times real time, for checking what was learned on the fast model, not for training.
@@ -385,11 +414,17 @@ class HexLoadingEnv(gym.Env):
         tables: str = DEFAULT_TABLE_SET,
         model: str = "learned",
         dig_start_share: float = 0.0,
+        loaded_start_share: float = 0.0,
     ) -> None:
         _check_model(model, backend, tables)
-        if not _is_number(dig_start_share) or not 0.0 <= dig_start_share <= 1.0:
-            raise ValueError(f"dig_start_share must be a number from 0 to 1, got {dig_start_share!r}")
-        self.dig_start_share = float(dig_start_share)
+        for name, share in (("dig_start_share", dig_start_share), ("loaded_start_share", loaded_start_share)):
+            if not _is_number(share) or not 0.0 <= share <= 1.0:
+                raise ValueError(f"{name} must be a number from 0 to 1, got {share!r}")
+        if dig_start_share + loaded_start_share > 1.0:
+            raise ValueError(
+                f"dig_start_share + loaded_start_share must be at most 1, got {dig_start_share} + {loaded_start_share}"
+            )
+        self.dig_start_share, self.loaded_start_share = float(dig_start_share), float(loaded_start_share)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             why = " ('human' needs a display: DISPLAY is unset)" if render_mode == "human" else ""
             raise ValueError(
@@ -463,9 +498,9 @@ class HexLoadingEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
         """Start an episode on a new random site (see the class docstring)."""
         super().reset(seed=seed)
-        self.layout, q = self._draw_start(self.np_random)
+        self.layout, q, payload_kg = self._draw_start(self.np_random)
         pile = heap_for(self.layout)
-        self.start_machine(q, self.layout)
+        self.start_machine(q, self.layout, payload_kg)
         self.task.start(0, self.layout, pile, self.physics.payload_kg)
         self.task.finish_starts(_SITE)
         self.earth = SiteEarth(self.task)
@@ -473,18 +508,23 @@ class HexLoadingEnv(gym.Env):
         self._pile_shown = -1
         return self.task.observe(_SITE)[0], self._info(None, 0.0, 0.0)
 
-    def _draw_start(self, rng: np.random.Generator) -> tuple[Layout, np.ndarray]:
-        """An episode's site and the machine's start angles: :func:`sample_start`, or with probability
-        ``dig_start_share`` :func:`dig_start_pose` on its site (a task with another start overrides this)."""
+    def _draw_start(self, rng: np.random.Generator) -> tuple[Layout, np.ndarray, float]:
+        """An episode's site, the machine's start angles and payload (kg): :func:`sample_start` with an empty
+        bucket, or with probability ``dig_start_share`` :func:`dig_start_pose`, with ``loaded_start_share``
+        :func:`loaded_start_pose` on its site (a task with another start overrides this)."""
         layout, q = sample_start(rng)
-        if self.dig_start_share > 0.0 and rng.uniform() < self.dig_start_share:  # no draw at the default 0
-            q = dig_start_pose(rng, layout)
-        return layout, q
+        if self.dig_start_share + self.loaded_start_share > 0.0:  # no draw at the defaults
+            draw = rng.uniform()
+            if draw < self.dig_start_share:
+                return layout, dig_start_pose(rng, layout), 0.0
+            if draw < self.dig_start_share + self.loaded_start_share:
+                return layout, *loaded_start_pose(rng, layout)
+        return layout, q, 0.0
 
-    def start_machine(self, q: np.ndarray, layout: Layout) -> None:
-        """Put the machine at rest at angles ``q`` with an empty bucket on a site laid out as ``layout``
-        (the simulation part of :meth:`reset`; the batched environment starts its machines through it)."""
-        start_machine(self.machine, self.world, q, layout)
+    def start_machine(self, q: np.ndarray, layout: Layout, payload_kg: float = 0.0) -> None:
+        """Put the machine at rest at angles ``q`` with ``payload_kg`` in the bucket on a site laid out as
+        ``layout`` (the simulation part of :meth:`reset`; the batched environment starts its machines through it)."""
+        start_machine(self.machine, self.world, q, layout, payload_kg)
 
     @property
     def fuel_l(self) -> float:

@@ -607,7 +607,8 @@ class LoadingTask:
     # -- episodes ---------------------------------------------------------------------------------
     def start(self, i: int, layout: Layout, pile: ew.Pile, payload_kg: float = 0.0) -> None:
         """Begin an episode at site ``i`` on ``layout`` with ``pile`` (copied), the machine already placed and
-        massed with ``payload_kg``; call :meth:`finish_starts` once the machines' derived quantities are current."""
+        massed with ``payload_kg``, which its bucket holds; call :meth:`finish_starts` once the machines' derived
+        quantities are current."""
         self.layouts[i] = layout
         self.heights[i] = pile.heights
         self.origin[i] = pile.origin
@@ -619,7 +620,7 @@ class LoadingTask:
         self.layout[i] = (px, py, layout.pile_direction, c, s, tx, ty, layout.truck_direction, ct, st)
         self.truck[i] = (tx, ty, ct, st)
         self.stores[i] = 0.0
-        self.payload_kg[i] = payload_kg
+        self.stores[i, 0] = self.payload_kg[i] = payload_kg
         self.tip_interval[i] = math.inf
         self.tip_velocity[i] = 0.0
         self.force_on[i] = False

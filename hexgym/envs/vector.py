@@ -279,16 +279,16 @@ class HexLoadingVectorEnv(VectorEnv):
         """Draw site ``i``'s episode as HexLoadingEnv.reset does (on the scratch environment) and load it."""
         if seed is not None or self._rngs[i] is None:
             self._rngs[i], _ = gym.utils.seeding.np_random(seed)
-        layout, q = self._scratch._draw_start(self._rngs[i])  # the single environment's start, dig starts too
+        layout, q, payload_kg = self._scratch._draw_start(self._rngs[i])  # the single environment's start
         scratch, sites = self._scratch, self.sites
         if isinstance(sites, BatchSites):
-            scratch.start_machine(q, layout)
+            scratch.start_machine(q, layout, payload_kg)
             mujoco.mj_getState(scratch.physics.model, scratch.physics.data, sites.state[i], _STATE)
             sites.body_mass[i, sites.payload_body] = scratch.physics.model.body_mass[sites.payload_body]
             sites.body_inertia[i, sites.payload_body] = scratch.physics.model.body_inertia[sites.payload_body]
             payload_kg = scratch.physics.payload_kg
         else:
-            start_machine(sites.machines[i], self._worlds[i], q, layout)
+            start_machine(sites.machines[i], self._worlds[i], q, layout, payload_kg)
             payload_kg = sites.machines[i].physics.payload_kg
         self.task.start(i, layout, heap_for(layout), payload_kg)
         self._autoreset[i] = False
