@@ -14,7 +14,7 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
-from hexgym.envs.earthwork import Pile, mouth_normal
+from hexgym.envs.earthwork import Pile, mouth_normal, retained_volume
 from hexgym.envs.sites import MachineSites
 from hexgym.envs.task import (
     CONTACT_SLOTS,
@@ -157,24 +157,40 @@ LOADED_START_PAYLOAD_KG = (1000.0, 1600.0)  # within what the curled bucket hold
 LOADED_START_RADIUS = (4.0, 5.5)  # m: the teeth from the swing axis (close in, where the curled bucket is level)
 LOADED_START_HEIGHT = (1.4, 2.0)  # m of the teeth above the bed's rim (the curled bucket hangs below them)
 LOADED_START_TILT = (-0.1, 0.3)  # rad: the mouth's normal from straight up (positive: towards the cab)
+AT_TRUCK_RADIUS = (5.8, 6.6)  # m: the teeth at the bed's near wall (the opening bucket pours over it)
+AT_TRUCK_HEIGHT = (1.2, 1.8)  # m above the rim
+AT_TRUCK_TILT = (0.4, 0.7)  # rad: reached out, the bucket cannot be level; it holds less
+AT_TRUCK_SWING = 0.1  # rad about the truck's direction
+AT_TRUCK_FILL = (0.6, 0.9)  # of what the bucket holds at its tilt
 LOADED_START_TRIES = 1000  # draws of a reachable pose (about one in two is)
 _MOUTH_ANGLE = math.atan2(mouth_normal()[1], mouth_normal()[0])  # the mouth's normal in the bucket frame
 
 
 def loaded_start_pose(rng: np.random.Generator, layout: Layout) -> tuple[np.ndarray, float]:
-    """Joint angles with a loaded bucket curled mouth up, lifted clear, anywhere on the swing from ``layout``'s
-    pile to its truck, and the payload (kg) (``HexLoading-v0``'s start with ``loaded_start_share``)."""
-    between = wrap(float(layout.truck_direction - layout.pile_direction))
+    """Joint angles and payload (kg) with a loaded bucket lifted clear (``HexLoading-v0``'s start with
+    ``loaded_start_share``): half the starts curled mouth up, close in, anywhere on the swing from ``layout``'s
+    pile to its truck (the carry to learn); half reached out to the bed's near wall, tilted, about to pour
+    (the dump to learn: where opening the bucket pays at once)."""
+    at_truck = rng.uniform() < 0.5
+    radii, heights, tilts = (AT_TRUCK_RADIUS, AT_TRUCK_HEIGHT, AT_TRUCK_TILT) if at_truck else (
+        LOADED_START_RADIUS, LOADED_START_HEIGHT, LOADED_START_TILT)  # fmt: skip
     for _ in range(LOADED_START_TRIES):
-        radius = rng.uniform(*LOADED_START_RADIUS)
-        height = BED_RIM_HEIGHT + rng.uniform(*LOADED_START_HEIGHT)
-        mouth_up = math.pi / 2.0 + rng.uniform(*LOADED_START_TILT)  # the mouth's planar world direction
-        bucket = (mouth_up - _MOUTH_ANGLE + 3.5) % (2.0 * math.pi) - 3.5  # link_angles' branch (about -4 to 0.5)
+        radius, height, tilt = rng.uniform(*radii), BED_RIM_HEIGHT + rng.uniform(*heights), rng.uniform(*tilts)
+        bucket = (math.pi / 2.0 + tilt - _MOUTH_ANGLE + 3.5) % (2.0 * math.pi) - 3.5  # link_angles' branch
         front, miss = kinematics.front_angles_for(radius, height, bucket, _FRONT_GUESS)
         if miss < 0.05:  # within reach
-            swing = layout.pile_direction + rng.uniform(0.0, 1.0) * between
-            return np.array([swing, *front]), float(rng.uniform(*LOADED_START_PAYLOAD_KG))
-    raise RuntimeError(f"no reachable loaded start pose in {LOADED_START_TRIES} draws")
+            break
+    else:
+        raise RuntimeError(f"no reachable loaded start pose in {LOADED_START_TRIES} draws")
+    if at_truck:
+        swing = layout.truck_direction + rng.uniform(-AT_TRUCK_SWING, AT_TRUCK_SWING)
+        payload = rng.uniform(*AT_TRUCK_FILL) * retained_volume(tilt) * p.MATERIAL_DENSITY
+    else:
+        swing = layout.pile_direction + rng.uniform(0.0, 1.0) * wrap(
+            float(layout.truck_direction - layout.pile_direction)
+        )
+        payload = rng.uniform(*LOADED_START_PAYLOAD_KG)
+    return np.array([swing, *front]), float(payload)
 
 
 def heap_for(layout: Layout) -> Pile:
@@ -376,7 +392,7 @@ class HexLoadingEnv(gym.Env):
     | tables | ``"paper"`` | the learned model: ``"paper"``, ``"extended"`` or ``"circuit"`` (circuit model, Python) |
     | model | ``"learned"`` | ``"reference"``: the same task on the analytical circuit (the real machine's stand-in) |
     | dig_start_share | 0.0 | share of episodes starting with the open bucket over the pile (a curriculum) |
-    | loaded_start_share | 0.0 | share starting with 1.0-1.6 t in the curled bucket, lifted, between pile and truck |
+    | loaded_start_share | 0.0 | share starting loaded: curled between pile and truck, or reached out to the truck |
 
     ``model="reference"`` runs the whole task on the reference model (:mod:`hexgym.envs.reference_machine`):
     a few times real time, for checking what was learned on the fast model, not for training.
