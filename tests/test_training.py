@@ -9,9 +9,11 @@ from hexgym.agents.evaluate import load_trained, normalizer_path
 from hexgym.agents.training import (
     HYPERPARAMS_DIR,
     algo_kwargs,
+    check_hyperparams,
     clone_scripted,
     latest_checkpoint,
     load_hyperparams,
+    make_env,
     train,
 )
 
@@ -46,6 +48,16 @@ def test_shipped_hyperparameters_are_rl_zoo_format():
         assert "n_timesteps" not in kwargs and "normalize" not in kwargs and "policy_kwargs" in kwargs
         assert (HYPERPARAMS_DIR / f"{algo}.yml").is_file()
     assert load_hyperparams("ppo")["policy_kwargs"]["net_arch"]["pi"] == [256, 256]
+
+
+def test_the_from_scratch_hyperparameters_make_their_curriculum_environment():
+    hp = load_hyperparams("ppo", path=HYPERPARAMS_DIR / "ppo_scratch.yml")
+    check_hyperparams("ppo", hp)
+    assert hp["n_envs"] == 16 and algo_kwargs(hp)["n_steps"] * hp["n_envs"] == 4096
+    env = make_env(**hp["env_kwargs"])
+    starts = [env.reset(seed=seed)[1]["bucket_kg"] > 0 for seed in range(20)]
+    assert 3 <= sum(starts) <= 14  # two fifths of the episodes start loaded
+    env.close()
 
 
 def test_hyperparameter_errors(tmp_path, tiny_yaml):
