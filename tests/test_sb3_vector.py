@@ -32,7 +32,9 @@ def test_ended_episodes_restart_in_the_same_step_as_single_envs_do():
                 if step == STEPS:  # ended: the final observation in the info, the next episode's first returned
                     assert dones[i] and infos[i]["TimeLimit.truncated"] and not terminated
                     np.testing.assert_array_equal(infos[i]["terminal_observation"], single_obs)
-                    np.testing.assert_array_equal(obs[i], env.reset()[0])
+                    first, start_info = env.reset()
+                    np.testing.assert_array_equal(obs[i], first)
+                    assert venv.reset_infos[i]["bucket_kg"] == start_info["bucket_kg"]
                 else:
                     assert "terminal_observation" not in infos[i]
                     np.testing.assert_array_equal(obs[i], single_obs)

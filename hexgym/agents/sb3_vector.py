@@ -36,7 +36,8 @@ class SB3VectorEnv(VecEnv):
         """Reset every site (the seed from :meth:`seed`, if one was set since the last reset: site ``i`` gets
         ``seed + i``)."""
         seed = self._seeds[0] if self._seeds and self._seeds[0] is not None else None
-        obs, _ = self.venv.reset(seed=seed)
+        obs, info = self.venv.reset(seed=seed)
+        self.reset_infos = site_infos(info, self.num_envs)
         self._reset_seeds()
         self._reset_options()
         return obs
@@ -59,7 +60,7 @@ class SB3VectorEnv(VecEnv):
             for i in np.flatnonzero(dones):
                 infos[i]["terminal_observation"] = obs[i]
                 infos[i]["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
-                infos[i]["reset_info"] = starts[i]
+                self.reset_infos[i] = starts[i]  # where SB3's own vector environments keep a restart's info
             obs = np.where(dones[:, None], first, obs)
         return obs, np.asarray(rewards, np.float32), dones, infos
 
