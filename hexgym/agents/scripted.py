@@ -29,15 +29,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hexgym.envs.earthwork import mouth_normal
-from hexgym.envs.loading import REWARD_TERMS, HexLoadingEnv
+from hexgym.envs.loading import REWARD_TERMS, HexLoadingEnv, bucket_angle_for
 from hexgym.envs.world import TRUCK_CAB_LENGTH, Layout, World, entry_radius, inner_radius
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.mbl.table import MBLTable
 
-# bucket frame directions (angle from the bucket frame's x axis towards z) of the teeth and mouth
-_TEETH_ANGLE = float(np.arctan2(p.BUCKET_TEETH_DIRECTION[1], p.BUCKET_TEETH_DIRECTION[0]))
-_MOUTH_ANGLE = float(np.arctan2(mouth_normal()[1], mouth_normal()[0]))
 _MOUTH_NORMAL_3D = np.array([mouth_normal()[0], 0.0, mouth_normal()[1]])  # bucket frame
 FULL_SPOOL_CYLINDER_SPEED = np.array([0.14, 0.35, 0.29])  # m/s boom, stick, bucket [README: reference model]
 SWING_BRAKE = 0.35  # rad/s^2: default planned deceleration of swing_spool (the loader plans with swing_brake)
@@ -69,16 +66,6 @@ LEAVE_HEIGHT = 0.5  # m: teeth (the open bucket's lowest point) above the rim be
 TRUCK_APPROACH = 0.8  # rad: the loaded swing waits at most this far from the truck until the teeth clear it...
 HOLD_BACK_PER_METRE = 1.0  # rad: ...this much short of it per metre they still have to rise
 DUMP_WINDOW = 0.25  # rad: the swing this close to the truck's direction: reach out and dump
-
-
-def bucket_angle_for(teeth_world_angle: float | None = None, mouth_world_angle: float | None = None) -> float:
-    """Absolute bucket-frame angle (the branch :func:`hexgym.machine.kinematics.link_angles` uses, about -4 to 0.5 rad)
-    that points the teeth (or the mouth) along a planar world angle."""
-    if teeth_world_angle is not None:
-        angle = teeth_world_angle - _TEETH_ANGLE
-    else:
-        angle = float(mouth_world_angle) - _MOUTH_ANGLE
-    return float((angle + 3.5) % (2 * np.pi) - 3.5)
 
 
 PENETRATE_ANGLE = bucket_angle_for(teeth_world_angle=np.radians(-115.0))  # teeth down, towards the machine

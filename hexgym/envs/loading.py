@@ -166,6 +166,16 @@ LOADED_START_TRIES = 1000  # draws of a reachable pose (about one in two is)
 _MOUTH_ANGLE = math.atan2(mouth_normal()[1], mouth_normal()[0])  # the mouth's normal in the bucket frame
 
 
+def bucket_angle_for(teeth_world_angle: float | None = None, mouth_world_angle: float | None = None) -> float:
+    """Absolute bucket-frame angle (the branch :func:`hexgym.machine.kinematics.link_angles` uses, about -4 to 0.5 rad)
+    that points the teeth (or the mouth) along a planar world angle."""
+    if teeth_world_angle is not None:
+        angle = teeth_world_angle - _TEETH_ANGLE
+    else:
+        angle = float(mouth_world_angle) - _MOUTH_ANGLE
+    return float((angle + 3.5) % (2 * math.pi) - 3.5)
+
+
 def loaded_start_pose(rng: np.random.Generator, layout: Layout) -> tuple[np.ndarray, float]:
     """Joint angles and payload (kg) with a loaded bucket lifted clear (``HexLoading-v0``'s start with
     ``loaded_start_share``): half the starts curled mouth up, close in, anywhere on the swing from ``layout``'s
@@ -176,7 +186,7 @@ def loaded_start_pose(rng: np.random.Generator, layout: Layout) -> tuple[np.ndar
         LOADED_START_RADIUS, LOADED_START_HEIGHT, LOADED_START_TILT)  # fmt: skip
     for _ in range(LOADED_START_TRIES):
         radius, height, tilt = rng.uniform(*radii), BED_RIM_HEIGHT + rng.uniform(*heights), rng.uniform(*tilts)
-        bucket = (math.pi / 2.0 + tilt - _MOUTH_ANGLE + 3.5) % (2.0 * math.pi) - 3.5  # link_angles' branch
+        bucket = bucket_angle_for(mouth_world_angle=math.pi / 2.0 + tilt)
         front, miss = kinematics.front_angles_for(radius, height, bucket, _FRONT_GUESS)
         if miss < 0.05:  # within reach
             break
