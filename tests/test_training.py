@@ -132,6 +132,29 @@ def test_a_stopped_run_leaves_a_usable_model(tmp_path, tiny_yaml, monkeypatch):
     assert 200 <= policy.model.num_timesteps < 300 and normalizer_path(path).is_file()
 
 
+def test_a_terminated_run_saves_its_model_too(tmp_path, tiny_yaml, monkeypatch):
+    """SIGTERM (``kill``, a scheduler's stop) stops a run as Ctrl-C does, leaving ``model.zip``."""
+    import os
+    import signal
+
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from hexgym.agents import training
+
+    class TerminateAfter(BaseCallback):
+        def _on_step(self) -> bool:
+            if self.num_timesteps >= 200:
+                os.kill(os.getpid(), signal.SIGTERM)
+            return True
+
+    monkeypatch.setattr(training, "_rollout_report_callback", lambda *_: TerminateAfter())
+    with pytest.raises(KeyboardInterrupt):
+        train("ppo", timesteps=100_000, seed=0, log_dir=tmp_path, hyperparams=tiny_yaml, n_envs=2,
+              checkpoint_every=128, progress_bar=False)  # fmt: skip
+    assert load_trained(tmp_path / "ppo_HexLoading-v0" / "model.zip").model.num_timesteps < 300
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # the handler is put back
+
+
 @pytest.mark.slow  # ~40-75 s on 2 cores: two rounds of spawned recording workers
 def test_behaviour_cloning_fits_the_scripted_loader(tmp_path, tiny_yaml):
     out = clone_scripted(tmp_path / "bc.zip", episodes=2, dagger_rounds=1, dagger_episodes=1, epochs=300,

@@ -16,14 +16,17 @@ the demonstrations' discounted returns; ``hexgym train --init-from`` then fine-t
 from __future__ import annotations
 
 import ast
+import contextlib
 import importlib.util
 import math
 import os
 import re
 import shutil
+import signal
 import tempfile
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from multiprocessing import get_context
@@ -453,7 +456,7 @@ def train(
 
     ``report``: print a line per rollout (tonnes delivered, episodes ended and their mean return, steps
     per second); every rollout's figures are appended to the run directory's ``curve.csv`` either way.
-    Interrupted (Ctrl-C), the run saves its newest state as ``model.zip`` before stopping.
+    Interrupted (Ctrl-C or SIGTERM), the run saves its newest state as ``model.zip`` before stopping.
 
     Resumes from the newest checkpoint of the run directory when there is one; otherwise starts
     from ``init_from`` (a model saved by :func:`clone_scripted` or an earlier run), or from scratch. With
@@ -501,8 +504,9 @@ def train(
     ]
     try:
         if remaining > 0:
-            model.learn(remaining, callback=callbacks, progress_bar=progress_bar and _progress_bar_available(),
-                        reset_num_timesteps=resume is None, tb_log_name=algo)  # fmt: skip
+            with _terminate_as_interrupt():
+                model.learn(remaining, callback=callbacks, progress_bar=progress_bar and _progress_bar_available(),
+                            reset_num_timesteps=resume is None, tb_log_name=algo)  # fmt: skip
     except KeyboardInterrupt:
         # a stopped run leaves its newest state as a usable model (with its normaliser), then stops
         path = save_model(model, run_dir / "model.zip")
@@ -511,6 +515,24 @@ def train(
     finally:
         venv.close()
     return save_model(model, run_dir / "model.zip")
+
+
+@contextlib.contextmanager
+def _terminate_as_interrupt() -> Iterator[None]:
+    """SIGTERM (``kill``, a batch scheduler's stop) raises KeyboardInterrupt like Ctrl-C, so a stopped run saves its
+    model either way (a background job started from a script ignores SIGINT)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _progress_bar_available() -> bool:
