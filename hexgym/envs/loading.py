@@ -368,10 +368,9 @@ class HexLoadingEnv(gym.Env):
     1999): each is the change of a function of the state (:func:`hexgym.envs.task.potentials`), and the
     episode's end counts as 0 (Ng et al.'s absorbing state), so over an episode it sums to minus the start's
     value whatever the policy does: it cannot be farmed by going back and forth, and holding what a start gave
-    (a loaded bucket) pays nothing; they lead an exploring policy from the pile to a loaded lift and on to the
-    truck long before its first delivery pays. Keep ``load_weight + lift_weight + carry_weight`` below
-    ``delivery_weight``: emptying the bucket over the bed drops those potentials, and the delivery must pay
-    more than they lose.
+    (a loaded bucket) pays nothing; they lead an exploring policy from the pile to a loaded lift and on to the truck long before
+    its first delivery pays. Keep ``load_weight + lift_weight + carry_weight`` below ``delivery_weight``:
+    emptying the bucket over the bed drops those potentials, and the delivery must pay more than they lose.
 
     ## Starting State
     A random site (seeded ``np_random``): the pile 7.0-7.8 m ahead within ±10°, 1.3-1.6 m high;

@@ -440,8 +440,7 @@ def finish(
 ) -> None:  # fmt: skip
     """End the step of each site: fuel and time, the reward terms (k, 10: ``REWARD_TERMS``, weighted; their sum
     in order is the reward; the shaping terms the change of :func:`potentials` from ``before`` to ``after``,
-    which then becomes ``before``, or to 0 at the episode's end) and whether it terminated (the truck holds
-    its capacity) or truncated (time)."""
+    which then becomes ``before``, or to 0 at the episode's end) and whether it terminated (the truck holds its capacity) or truncated (time)."""
     for k in range(len(ids)):
         i = ids[k]
         fuel_l[i] += fuel_step[i]
