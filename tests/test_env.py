@@ -93,28 +93,6 @@ def test_shaping_terms_are_potential_differences_and_off_by_default():
     assert all(info[f"reward_{term}"] == 0.0 for term in task.SHAPING_TERMS)
 
 
-def test_shaping_gives_the_start_potential_back_by_the_episode_end():
-    """The episode's end counts as potential 0: a loaded start held still to the time limit earns minus its
-    start potentials in shaping (holding what the start gave pays nothing), spread as each step's change."""
-    from hexgym.envs import task
-
-    weights = {"reach": 0.05, "load": 0.3, "lift": 0.2, "carry": 0.3}
-    env = HexLoadingEnv(time_limit=1.0, loaded_start_share=1.0, **{f"{t}_weight": w for t, w in weights.items()})
-    env.reset(seed=3)
-    start = dict(zip(task.SHAPING_TERMS, env.task._potential[0], strict=True))
-    assert start["load"] > 0.9 and start["lift"] > 0.5  # loaded and lifted clear
-    sums, truncated, steps = dict.fromkeys(weights, 0.0), False, 0
-    while not truncated:
-        _, _, terminated, truncated, info = env.step(np.zeros(4, np.float32))
-        steps, finals = steps + 1, {t: info[f"reward_{t}"] for t in weights}
-        for term in weights:
-            sums[term] += info[f"reward_{term}"]
-    assert steps == 10 and not terminated and info["spilled_kg"] == 0.0
-    for term, w in weights.items():
-        assert sums[term] == pytest.approx(-w * start[term], abs=1e-9)
-    assert finals["load"] == pytest.approx(-weights["load"] * start["load"], rel=1e-6)  # held: all at the end
-
-
 def test_reward_weights_are_constructor_arguments():
     env = HexLoadingEnv(time_weight=1.0, fuel_weight=0.0)
     env.reset(seed=0)

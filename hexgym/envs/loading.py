@@ -365,10 +365,9 @@ class HexLoadingEnv(gym.Env):
 
     The default weights make delivered tonnes the point: a full truck (13 t) is worth +13, an episode's
     time −3.6, its fuel about −0.4. The four shaping terms (0 by default) are potential-based (Ng et al.
-    1999): each is the change of a function of the state (:func:`hexgym.envs.task.potentials`), and the
-    episode's end counts as 0 (Ng et al.'s absorbing state), so over an episode it sums to minus the start's
-    value whatever the policy does: it cannot be farmed by going back and forth, and holding what a start gave
-    (a loaded bucket) pays nothing; they lead an exploring policy from the pile to a loaded lift and on to the truck long before
+    1999): each is the change of a function of the state (:func:`hexgym.envs.task.potentials`), so over an
+    episode it sums to that function's end value less its start value and cannot be farmed by going back
+    and forth; they lead an exploring policy from the pile to a loaded lift and on to the truck long before
     its first delivery pays. Keep ``load_weight + lift_weight + carry_weight`` below ``delivery_weight``:
     emptying the bucket over the bed drops those potentials, and the delivery must pay more than they lose.
 

@@ -440,7 +440,7 @@ def finish(
 ) -> None:  # fmt: skip
     """End the step of each site: fuel and time, the reward terms (k, 10: ``REWARD_TERMS``, weighted; their sum
     in order is the reward; the shaping terms the change of :func:`potentials` from ``before`` to ``after``,
-    which then becomes ``before``, or to 0 at the episode's end) and whether it terminated (the truck holds its capacity) or truncated (time)."""
+    which then becomes ``before``) and whether it terminated (the truck holds its capacity) or truncated (time)."""
     for k in range(len(ids)):
         i = ids[k]
         fuel_l[i] += fuel_step[i]
@@ -452,19 +452,15 @@ def finish(
         terms[k, 3] = -weights[3] * fuel_step[i]
         terms[k, 4] = -weights[4] * flows[i, 2] / 1000.0
         terms[k, 5] = -weights[5] * impulse[i] / 1000.0
-        ended[k, 0] = stores[i, 1] >= capacity
-        ended[k, 1] = elapsed[i] >= time_limit - 1e-9
-        last = ended[k, 0] or ended[k, 1]
         for j in range(4):
-            # the episode's end counts as potential 0: the shaping sums to minus the start's potential, whatever
-            # the policy does, so holding what the start gave (a loaded bucket) pays nothing
-            end_value = 0.0 if last else after[i, j]
-            terms[k, 6 + j] = weights[6 + j] * (end_value - before[i, j])
+            terms[k, 6 + j] = weights[6 + j] * (after[i, j] - before[i, j])
             before[i, j] = after[i, j]
         total = terms[k, 0]
         for j in range(1, 10):
             total += terms[k, j]
         rewards[k] = total
+        ended[k, 0] = stores[i, 1] >= capacity
+        ended[k, 1] = elapsed[i] >= time_limit - 1e-9
 
 
 @jit
