@@ -112,47 +112,39 @@ def test_a_fine_tune_keeps_its_starting_observation_statistics(tmp_path, tiny_ya
     assert load_trained(tuned).model.num_timesteps >= 128
 
 
-def test_a_stopped_run_leaves_a_usable_model(tmp_path, tiny_yaml, monkeypatch):
-    from stable_baselines3.common.callbacks import BaseCallback
-
-    from hexgym.agents import training
-
-    class StopAfter(BaseCallback):  # Ctrl-C after 200 steps
-        def _on_step(self) -> bool:
-            if self.num_timesteps >= 200:
-                raise KeyboardInterrupt
-            return True
-
-    monkeypatch.setattr(training, "_rollout_report_callback", lambda *_: StopAfter())
-    with pytest.raises(KeyboardInterrupt):
-        train("ppo", timesteps=100_000, seed=0, log_dir=tmp_path, hyperparams=tiny_yaml, n_envs=2,
-              checkpoint_every=128, progress_bar=False)  # fmt: skip
-    path = tmp_path / "ppo_HexLoading-v0" / "model.zip"
-    policy = load_trained(path)
-    assert 200 <= policy.model.num_timesteps < 300 and normalizer_path(path).is_file()
+def _interrupt() -> None:
+    raise KeyboardInterrupt  # Ctrl-C
 
 
-def test_a_terminated_run_saves_its_model_too(tmp_path, tiny_yaml, monkeypatch):
-    """SIGTERM (``kill``, a scheduler's stop) stops a run as Ctrl-C does, leaving ``model.zip``."""
+def _terminate() -> None:
     import os
+    import signal
+
+    os.kill(os.getpid(), signal.SIGTERM)  # ``kill``, a batch scheduler's stop
+
+
+@pytest.mark.parametrize("stop", [_interrupt, _terminate], ids=["ctrl-c", "sigterm"])
+def test_a_stopped_run_leaves_a_usable_model(tmp_path, tiny_yaml, monkeypatch, stop):
     import signal
 
     from stable_baselines3.common.callbacks import BaseCallback
 
     from hexgym.agents import training
 
-    class TerminateAfter(BaseCallback):
+    class StopAfter(BaseCallback):  # stopped after 200 steps
         def _on_step(self) -> bool:
             if self.num_timesteps >= 200:
-                os.kill(os.getpid(), signal.SIGTERM)
+                stop()
             return True
 
-    monkeypatch.setattr(training, "_rollout_report_callback", lambda *_: TerminateAfter())
+    monkeypatch.setattr(training, "_rollout_report_callback", lambda *_: StopAfter())
     before = signal.getsignal(signal.SIGTERM)  # another test's library (Ray) may have set its own
     with pytest.raises(KeyboardInterrupt):
         train("ppo", timesteps=100_000, seed=0, log_dir=tmp_path, hyperparams=tiny_yaml, n_envs=2,
               checkpoint_every=128, progress_bar=False)  # fmt: skip
-    assert load_trained(tmp_path / "ppo_HexLoading-v0" / "model.zip").model.num_timesteps < 300
+    path = tmp_path / "ppo_HexLoading-v0" / "model.zip"
+    policy = load_trained(path)
+    assert 200 <= policy.model.num_timesteps < 300 and normalizer_path(path).is_file()
     assert signal.getsignal(signal.SIGTERM) is before  # the handler is put back
 
 
