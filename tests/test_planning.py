@@ -186,6 +186,64 @@ def test_truck_clearance_is_predicted_where_the_layout_puts_the_truck(env, model
     assert batch.clearance_m[0, :, 0].min() < model.detection_m  # the truck is where the layout says
 
 
+def test_rollouts_without_contacts_are_the_same_until_a_contact_then_pass_through(env, model):
+    """``contacts=False`` leaves the collision pass out: the same motion in the air, deeper into the ground; the
+    bucket's clearances (to its mesh's convex hull) are the collision mesh's distances."""
+    import mujoco
+
+    from hexgym.planning import MachineState, RolloutModel
+
+    state = MachineState.from_env(env)
+    free = RolloutModel(contacts=False)
+    try:
+        up = np.array([0.3, 0.5, 0.0, 0.0]) * p.SPOOL_STROKE  # swing and boom up: in the air
+        a, b = model.rollout(state, up, 1.0), free.rollout(state, up, 1.0)
+        assert a.min_clearance_m[0] > 0.1
+        np.testing.assert_allclose(b.q, a.q, atol=1e-12)
+        np.testing.assert_allclose(b.clearance_m, a.clearance_m, atol=1e-12)
+        down_with, down_without = model.rollout(state, BOOM_DOWN, 2.0), free.rollout(state, BOOM_DOWN, 2.0)
+        assert down_with.bucket_clearance_m[0] < 0  # the ground stops it ...
+        assert down_without.bucket_clearance_m[0] < down_with.bucket_clearance_m[0] - 0.05  # ... or not
+    finally:
+        free.close()
+    m, d = model.model, model.physics.data
+    mesh, hull = m.geom("bucket_collision").id, m.geom("planning_bucket_hull").id
+    fromto = np.empty(6)
+    for x in a.states[0, ::8]:
+        mujoco.mj_setState(m, d, x, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        mujoco.mj_kinematics(m, d)
+        for other in ("ground", "truck_left_wall", "truck_floor"):
+            g = m.geom(other).id
+            exact = mujoco.mj_geomDistance(m, d, mesh, g, 1.0, fromto)
+            assert mujoco.mj_geomDistance(m, d, hull, g, 1.0, fromto) == pytest.approx(exact, abs=1e-6)
+
+
+def test_the_planner_simulates_no_further_than_the_best_moves_cost(env, model):
+    """Once a move reaches the goal, no batch runs past the best cost so far (a move's cost is at least its time);
+    a loaded move keeps the loaded margin."""
+    from hexgym.planning import MachineState
+    from hexgym.planning.planner import LOADED_MARGIN_M, MARGIN_M, margin_for, plan_motion, tip_goal
+
+    state = MachineState.from_env(env)
+    assert margin_for(state) == MARGIN_M
+    assert margin_for(MachineState(state.q, state.qd, 2000.0, state.layout)) == LOADED_MARGIN_M
+    goal = tip_goal(env.unwrapped.physics.tip_position() + np.array([0.0, 0.0, 0.6]), state.layout)
+    horizons: list[float] = []
+    rollout = model.rollout
+
+    def recorded(start, spools, horizon_s):
+        horizons.append(horizon_s)
+        return rollout(start, spools, horizon_s)
+
+    model.rollout = recorded
+    try:
+        plan = plan_motion(state, goal, model, budget=200, population=50, horizon_s=4.0, margin_m=0.0)
+    finally:
+        del model.rollout
+    assert plan.reached and horizons[0] == pytest.approx(4.0)
+    assert min(horizons[1:-1]) < 4.0 and min(horizons) >= plan.time_s - 1e-9
+
+
 def test_the_planner_refuses_bad_input(env, model):
     from hexgym.planning import MachineState
     from hexgym.planning.planner import Goal, dump_goal, plan_motion, tip_goal
@@ -319,8 +377,10 @@ def test_plan_command_writes_the_figures(tmp_path):
     result = json.loads(out.read_text())
     for key in ("plan_wall_s", "rollouts", "predicted_time_s", "predicted_fuel_l", "reference_time_s",
                 "reference_fuel_l", "reference_goal_error_m", "reference_min_clearance_m", "scripted_time_s",
-                "scripted_fuel_l"):  # fmt: skip
+                "scripted_fuel_l", "scripted_reference_time_s", "scripted_reference_fuel_l"):  # fmt: skip
         assert key in result, key
+    assert result["margin_m"] == 0.8  # loaded: the default margin is the loaded one
+    assert result["scripted_reference_time_s"] > 0 and result["scripted_reference_fuel_l"] > 0
 
 
 def test_plot_plan_writes_a_png(tmp_path):

@@ -44,6 +44,8 @@ APPROACH_HEIGHT_M = 0.6  # m above the pile's top: the dig start (as the scripte
 REST_RATE = 0.1  # rad/s: the swing slower than this is at rest
 FUEL_SAMPLE_S = 1.0  # s between power samples when ranking candidates by fuel (the final plan: every 0.1 s)
 MARGIN_M = 0.5  # m of clearance the plan keeps from truck and ground (the learned-reference gap: docs/planning.md)
+LOADED_MARGIN_M = 0.8  # m: the same with a load (the loaded boom rises slower on the reference: docs/planning.md)
+LOADED_KG = 100.0  # kg in the bucket: a loaded move (its margin and the spill count)
 MAX_REACH_M = 10.5  # m from the swing axis: beyond the teeth's reach (Cat 325 class: ~10.2 m at full reach)
 MAX_HEIGHT_M = 10.0  # m: above the teeth's highest point (~9.5 m)
 MAX_HORIZON_S = 30.0  # s: a longer move is no single loading motion
@@ -100,6 +102,12 @@ class Goal:
         """(B, T): at the goal with the swing at rest."""
         at = self.error_m(batch.mouth, batch.tip) <= (0.0 if self.task == "dump" else self.tolerance_m)
         return at & (np.abs(batch.qd[..., 0]) < REST_RATE)
+
+
+def margin_for(state: MachineState) -> float:
+    """The clearance (m) a plan from ``state`` keeps from truck and ground by default: ``LOADED_MARGIN_M`` with a
+    load in the bucket, else ``MARGIN_M``."""
+    return LOADED_MARGIN_M if state.payload_kg > LOADED_KG else MARGIN_M
 
 
 def dump_goal(layout: Layout) -> Goal:
@@ -223,7 +231,7 @@ def plan_motion(
     knot_s: float = 0.5,
     population: int = 100,
     seed: int = 0,
-    margin_m: float = MARGIN_M,
+    margin_m: float | None = None,
     initial: np.ndarray | None = None,
 ) -> Plan:
     """Plan a move from ``state`` to ``goal`` with at most ``budget`` rollouts (see the module docstring).
@@ -244,9 +252,10 @@ def plan_motion(
     if periods_per_knot < 1 or abs(periods_per_knot * model.control_period - knot_s) > 1e-9:
         raise ValueError(f"knot_s must be a whole number of {model.control_period} s control periods, got {knot_s}")
     start = time.perf_counter()
+    margin_m = margin_for(state) if margin_m is None else margin_m
     periods = math.ceil(horizon_s / model.control_period - 1e-9)
     knots = math.ceil(periods / periods_per_knot)
-    loaded = state.payload_kg > 100.0
+    loaded = state.payload_kg > LOADED_KG
     rng = np.random.default_rng(seed)
     if initial is not None:
         initial = np.asarray(initial, float)
@@ -262,13 +271,17 @@ def plan_motion(
     elites = max(1, population // 10)
     best: tuple[float, np.ndarray] | None = None
     used = 0
+    simulated = periods
     while used < budget:
         n = min(population, budget - used)
         params = np.clip(mean + std * rng.standard_normal((n, knots * 4)), -1.0, 1.0)
         params[0] = np.clip(mean, -1.0, 1.0)  # the mean itself
         if best is not None and n > 1:
             params[1] = best[1]  # and the best so far (elitism)
-        batch = model.rollout(state, _knot_spools(params, periods_per_knot, periods), horizon_s)
+        if best is not None:  # a move's cost is at least its time: none reaching the goal after the best's cost wins
+            simulated = min(periods, math.ceil(best[0] / model.control_period) + 1)
+        spools = _knot_spools(params, periods_per_knot, simulated)
+        batch = model.rollout(state, spools, simulated * model.control_period)
         used += n
         figures = evaluate(batch, goal, loaded, margin_m)
         scores = figures["cost"]
@@ -296,7 +309,7 @@ def _plan_of(
     """The :class:`Plan` of spools (T, 4) per control period: their rollout's figures on the fast model, up to the
     goal (``truncate``: the spools too; else all of them), with ``rollouts`` and the wall time since ``start``."""
     final = model.rollout(state, spools_m[None], len(spools_m) * model.control_period)
-    figures = evaluate(final, goal, state.payload_kg > 100.0, margin_m)
+    figures = evaluate(final, goal, state.payload_kg > LOADED_KG, margin_m)
     end = int(figures["end"][0])
     kept = end + 1 if truncate else len(spools_m)
     clearance = float(figures["clearance_m"][0])
@@ -314,7 +327,7 @@ def plan_checked(
     model: RolloutModel,
     check: Callable[[np.ndarray, MachineState, Goal], CheckResult],
     budget: int = 2000,
-    margin_m: float = MARGIN_M,
+    margin_m: float | None = None,
     initial: np.ndarray | None = None,
     correct: Callable[[np.ndarray, MachineState, Goal, CheckResult], tuple[np.ndarray, CheckResult, int]] | None = None,
     **search: Any,
@@ -330,6 +343,7 @@ def plan_checked(
     if isinstance(budget, bool) or not isinstance(budget, int | np.integer) or budget < 2:
         raise ValueError(f"planner budget must be an integer >= 2 rollouts (two rounds), got {budget!r}")
     start = time.perf_counter()
+    margin_m = margin_for(state) if margin_m is None else margin_m
     first = plan_motion(state, goal, model, budget=budget // 2, margin_m=margin_m, initial=initial, **search)
     first_check = check(first.spools_m, state, goal)
     overstated = max(first.min_clearance_m - first_check.min_clearance_m, 0.0)

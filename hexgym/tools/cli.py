@@ -498,8 +498,8 @@ def _add_planning_parsers(sub: argparse._SubParsersAction) -> None:
     plan.add_argument("--plot", metavar="PNG", default=None, help="also plot the (first) seed's plan to this PNG")
     plan.add_argument("--video", metavar="MP4", default=None, help="also film the (first) seed's planned move and "
                       "the scripted loader's (the learned model, chase camera) to this MP4")  # fmt: skip
-    plan.add_argument("--margin", type=float, default=0.5, help="clearance (m) the plan keeps from truck and ground "
-                      "(default: 0.5)")  # fmt: skip
+    plan.add_argument("--margin", type=float, default=None, help="clearance (m) the plan keeps from truck and ground "
+                      "(default: 0.8 with a load, 0.5 without)")  # fmt: skip
     plan.add_argument(
         "--no-check",
         action="store_true",

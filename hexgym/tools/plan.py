@@ -16,7 +16,9 @@ starts from rest at those angles. Then:
   ``reference_goal_error_at_plan_end_m`` at the plan's end), ``reference_min_clearance_m``;
 - the scripted loader does the same move from the same rest state on the learned model (the
   environment): ``scripted_time_s``, ``scripted_fuel_l`` (to its first step at the goal; 0.1 s steps; for
-  ``return`` its teeth within the tolerance or its ``penetrate`` phase begun, moving or not: in its favour).
+  ``return`` its teeth within the tolerance or its ``penetrate`` phase begun, moving or not: in its favour),
+  and on the reference (``HexLoading-v0`` with ``model="reference"``): ``scripted_reference_time_s``,
+  ``scripted_reference_fuel_l``, which the plan's ``reference_*`` compare with (the same machine).
 
 :func:`plan_video` films one seed's planned move and then the scripted loader's in the environment.
 """
@@ -37,11 +39,11 @@ from hexgym.machine import parameters as p
 from hexgym.parallel import executor
 from hexgym.planning.check import ROW_S, PlanCheck, replay_plan
 from hexgym.planning.planner import (
-    MARGIN_M,
     Goal,
     Plan,
     dump_goal,
     knot_means,
+    margin_for,
     plan_checked,
     plan_motion,
     return_goal,
@@ -78,10 +80,12 @@ def start_states(seed: int) -> dict[str, tuple[MachineState, Goal]]:
     return out
 
 
-def env_at(seed: int, state: MachineState, **env_kwargs: Any) -> HexLoadingEnv:
-    """The environment (native backend) on seed ``seed``'s site with the machine at rest in ``state``, its bucket
-    holding the state's payload: where a move is replayed, run by the scripted loader or filmed."""
-    env = HexLoadingEnv(backend="native", **env_kwargs)
+def env_at(seed: int, state: MachineState, machine: str = "learned", **env_kwargs: Any) -> HexLoadingEnv:
+    """The environment on seed ``seed``'s site with the machine at rest in ``state``, its bucket holding the state's
+    payload: where a move is replayed, run by the scripted loader or filmed. ``machine``: ``"learned"`` (the native
+    backend) or ``"reference"``."""
+    backend = "native" if machine == "learned" else "auto"
+    env = HexLoadingEnv(model=machine, backend=backend, **env_kwargs)
     env.reset(seed=seed)
     env.start_machine(state.q, state.layout)
     env.earth.bucket_kg = state.payload_kg
@@ -89,9 +93,12 @@ def env_at(seed: int, state: MachineState, **env_kwargs: Any) -> HexLoadingEnv:
     return env
 
 
-def scripted_move(seed: int, state: MachineState, goal: Goal, model: RolloutModel) -> dict[str, Any]:
-    """The scripted loader from ``state`` (at rest) on seed ``seed``'s site until at ``goal``: time, fuel, clearance."""
-    env = env_at(seed, state)
+def scripted_move(
+    seed: int, state: MachineState, goal: Goal, model: RolloutModel, machine: str = "learned"
+) -> dict[str, Any]:
+    """The scripted loader from ``state`` (at rest) on seed ``seed``'s site until at ``goal``: time, fuel, clearance;
+    ``machine``: on the learned model or the reference."""
+    env = env_at(seed, state, machine)
     loader = ScriptedLoader()
     qs, actions, reached_at = [], [], None
     while env.elapsed < _SCRIPTED_LIMIT_S:
@@ -162,7 +169,7 @@ def plan_task(
     nthread: int = 2,
     horizon_s: float = 8.0,
     warm_start: bool = True,
-    margin_m: float = MARGIN_M,
+    margin_m: float | None = None,
     check: bool = True,
 ) -> dict[str, Any]:
     """Plan ``task`` on seed ``seed``, replay it on the reference and in the environment, run the scripted loader:
@@ -174,9 +181,11 @@ def plan_task(
         raise ValueError(f"--task must be one of {TASKS}, got {task!r}")
     states = start_states(seed)
     state, goal = states[task]
+    margin_m = margin_for(state) if margin_m is None else margin_m
     model = RolloutModel(nthread=nthread, contacts=False)  # the plans reject every contact
     try:
         scripted = scripted_move(seed, state, goal, model)
+        scripted_reference = scripted_move(seed, state, goal, model, "reference")
         initial = scripted_knots(scripted["actions"]) if warm_start else None
         if scripted["time_s"] is not None:  # no longer than the scripted move and a margin: less to simulate
             horizon_s = min(horizon_s, max(3.0, math.ceil(2.0 * (scripted["time_s"] + 0.5)) / 2.0))
@@ -209,6 +218,9 @@ def plan_task(
         "reference_min_clearance_m": reference["min_clearance_m"],
         "scripted_time_s": scripted["time_s"], "scripted_fuel_l": scripted["fuel_l"],
         "scripted_min_clearance_m": scripted["min_clearance_m"], "payload_kg": state.payload_kg,
+        "scripted_reference_time_s": scripted_reference["time_s"],
+        "scripted_reference_fuel_l": scripted_reference["fuel_l"],
+        "scripted_reference_min_clearance_m": scripted_reference["min_clearance_m"],
         "planned_spools_mm": (plan.spools_m * 1e3).round(3).tolist(),
         "scripted_spools_mm": (scripted["actions"] * p.SPOOL_STROKE * 1e3).round(3).tolist(),
         "paths": {"planned_tip": plan.tip.round(3).tolist(), "reference_tip": reference["tip"].round(3).tolist(),
@@ -232,6 +244,8 @@ def summarise(results: list[dict[str, Any]]) -> dict[str, Any]:
 
     faster = [_ratio(r["learned_time_s"], r["scripted_time_s"]) for r in results]
     fuel = [_ratio(r["learned_fuel_l"], r["scripted_fuel_l"]) for r in results]
+    faster_ref = [_ratio(r["reference_time_s"], r["scripted_reference_time_s"]) for r in results]
+    fuel_ref = [_ratio(r["reference_fuel_l"], r["scripted_reference_fuel_l"]) for r in results]
     out = {
         "seeds": [r["seed"] for r in results],
         "median_plan_wall_s": median([r["plan_wall_s"] for r in results]),
@@ -246,6 +260,8 @@ def summarise(results: list[dict[str, Any]]) -> dict[str, Any]:
         "median_checked_time_error": median([rel(r["checked_time_s"], r["reference_time_s"]) for r in results]),
         "median_reference_time_vs_scripted": median([_ratio(r["reference_time_s"], r["scripted_time_s"])
                                                      for r in results]),
+        "median_reference_time_vs_scripted_reference": median(faster_ref),
+        "median_reference_fuel_vs_scripted_reference": median(fuel_ref),
         "median_fuel_prediction_error": median([rel(r["predicted_fuel_l"], r["reference_fuel_l"]) for r in results]),
         "planned_reached": sum(bool(r["predicted_reached"]) for r in results),
         "reference_reached": sum(r["reference_time_s"] is not None for r in results),
@@ -254,6 +270,10 @@ def summarise(results: list[dict[str, Any]]) -> dict[str, Any]:
         "plan_wall_le_2s": sum(r["plan_wall_s"] <= 2.0 for r in results),
         "faster_15pct_no_more_fuel": sum(
             (t is not None and t <= 0.85) and (f is not None and f <= 1.0) for t, f in zip(faster, fuel, strict=True)
+        ),
+        "reference_faster_15pct_no_more_fuel": sum(
+            (t is not None and t <= 0.85) and (f is not None and f <= 1.0)
+            for t, f in zip(faster_ref, fuel_ref, strict=True)
         ),
         "reference_goal_error_le_0.3m": sum(r["reference_goal_error_m"] <= 0.3 for r in results),
         "reference_no_contact": sum(r["reference_min_clearance_m"] >= 0 for r in results),
@@ -280,7 +300,7 @@ def run_plan(
     budget: int = 2000,
     nthread: int = 2,
     json_out: str | Path | None = None,
-    margin_m: float = MARGIN_M,
+    margin_m: float | None = None,
     ray: str | None = None,
     check: bool = True,
 ) -> dict[str, Any]:
@@ -294,7 +314,7 @@ def run_plan(
         raise ValueError(f"--budget must be >= {2 if check else 1} rollouts, got {budget}")
     if nthread < 1:
         raise ValueError(f"--threads must be >= 1, got {nthread}")
-    if not (math.isfinite(margin_m) and 0 <= margin_m <= 2.0):
+    if margin_m is not None and not (math.isfinite(margin_m) and 0 <= margin_m <= 2.0):
         raise ValueError(f"--margin must be within 0 and 2 m, got {margin_m}")
     start = time.perf_counter()
     jobs = [(task, s, w_fuel, budget, nthread, margin_m, check) for s in seeds]
@@ -309,7 +329,7 @@ def run_plan(
     return out
 
 
-def _plan_job(job: tuple[str, int, float, int, int, float, bool]) -> dict[str, Any]:
+def _plan_job(job: tuple[str, int, float, int, int, float | None, bool]) -> dict[str, Any]:
     task, seed, w_fuel, budget, nthread, margin_m, check = job
     return plan_task(task, seed, w_fuel, budget, nthread, margin_m=margin_m, check=check)
 
