@@ -20,6 +20,8 @@ def test_wheel_installs_with_assets(tmp_path):
     names = zipfile.ZipFile(wheel).namelist()
     for required in ("hexgym/assets/cat325.xml", "hexgym/assets/scene.xml", "hexgym/assets/meshes/bucket.stl"):
         assert required in names
+    for package in sorted((ROOT / "hexgym").glob("*/__init__.py")):  # every subpackage, e.g. hexgym.planning
+        assert package.relative_to(ROOT).as_posix() in names, package.parent.name
     subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "-t", target, wheel], check=True)
     code = "import hexgym.machine.physics as h, sys; p = h.ExcavatorPhysics(scene=True); print(h.__file__)"
     env = {**os.environ, "PYTHONPATH": str(target)}

@@ -383,6 +383,26 @@ def test_plan_command_writes_the_figures(tmp_path):
     assert result["scripted_reference_time_s"] > 0 and result["scripted_reference_fuel_l"] > 0
 
 
+def test_plan_summary_counts_the_targets_on_each_machine():
+    """Faster / less fuel counted against the scripted loader on the learned model and, for the reference replay,
+    against the scripted loader on the reference; a move that never reached the goal counts as neither."""
+    from hexgym.tools.plan import summarise
+
+    def seed(learned_t, ref_t, ref_fuel, scripted_ref_t):
+        return {"seed": 0, "plan_wall_s": 1.5, "rollouts": 2001, "learned_time_s": learned_t, "learned_fuel_l": 0.8,
+                "scripted_time_s": 4.0, "scripted_fuel_l": 1.0, "predicted_time_s": 3.0, "predicted_fuel_l": 0.8,
+                "predicted_reached": True, "reference_time_s": ref_t, "reference_fuel_l": ref_fuel,
+                "scripted_reference_time_s": scripted_ref_t, "scripted_reference_fuel_l": 1.0,
+                "reference_goal_error_m": 0.1, "reference_min_clearance_m": 0.2, "checked_time_s": ref_t}  # fmt: skip
+
+    out = summarise([seed(3.0, 4.0, 0.9, 5.0), seed(None, None, 0.8, 5.0), seed(4.0, 5.0, 0.8, 5.0)])
+    targets = out["targets"]
+    assert targets["faster_15pct_no_more_fuel"] == 1 and targets["less_fuel_15pct_no_more_time"] == 2
+    assert targets["reference_faster_15pct_no_more_fuel"] == 1  # 4.0 / 5.0 s with 0.9 of the fuel
+    assert targets["reference_less_fuel_15pct_no_more_time"] == 1  # 5.0 / 5.0 s with 0.8 of the fuel
+    assert out["median_reference_time_vs_scripted_reference"] == pytest.approx(0.9)
+
+
 def test_plot_plan_writes_a_png(tmp_path):
     from hexgym.tools.plan import plot_plan
 

@@ -275,6 +275,13 @@ def summarise(results: list[dict[str, Any]]) -> dict[str, Any]:
             (t is not None and t <= 0.85) and (f is not None and f <= 1.0)
             for t, f in zip(faster_ref, fuel_ref, strict=True)
         ),
+        "less_fuel_15pct_no_more_time": sum(
+            (t is not None and t <= 1.0) and (f is not None and f <= 0.85) for t, f in zip(faster, fuel, strict=True)
+        ),
+        "reference_less_fuel_15pct_no_more_time": sum(
+            (t is not None and t <= 1.0) and (f is not None and f <= 0.85)
+            for t, f in zip(faster_ref, fuel_ref, strict=True)
+        ),
         "reference_goal_error_le_0.3m": sum(r["reference_goal_error_m"] <= 0.3 for r in results),
         "reference_no_contact": sum(r["reference_min_clearance_m"] >= 0 for r in results),
     }
