@@ -306,6 +306,7 @@ def test_the_check_replays_a_plan_on_the_circuit_model_and_finds_its_contact(env
     assert held.collision_free and held.min_clearance_m == pytest.approx(clearance.min(), abs=0.02)
     down = check(np.tile(BOOM_DOWN, (80, 1)), state, dump_goal(layout))  # 2 s boom down: into the ground
     assert not down.collision_free and down.time_s is None and down.goal_error_m > 0.0
+    assert down.message.startswith("no collision-free motion found") and "from the goal" in held.message
 
 
 def test_a_correction_trims_a_plan_to_its_point_on_the_accurate_model(env, model):

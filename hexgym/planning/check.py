@@ -97,6 +97,16 @@ class CheckResult:
         """Whether bucket and stick stay clear of truck and ground."""
         return self.min_clearance_m >= 0.0
 
+    @property
+    def message(self) -> str:
+        """What the check found, in words (a plan that touches truck or ground on the accurate model says so)."""
+        if not self.collision_free:
+            return (f"no collision-free motion found: on the accurate model the plan's clearance is "
+                    f"{self.min_clearance_m:.3f} m")  # fmt: skip
+        if self.time_s is None:
+            return f"on the accurate model the plan comes to rest {self.goal_error_m:.2f} m from the goal"
+        return f"on the accurate model: at the goal in {self.time_s:.2f} s, clearance {self.min_clearance_m:.2f} m"
+
 
 def _result(run: PlanReplay) -> CheckResult:
     """A replay's check: clearance until it comes to rest (the swing coasts on after the plan), goal error there,

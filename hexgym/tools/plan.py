@@ -203,13 +203,14 @@ def plan_task(
         model.close()
     return {
         "task": task, "seed": seed, "w_fuel": w_fuel, "margin_m": margin_m, "horizon_s": horizon_s,
-        "plan_message": plan.message, "plan_wall_s": plan.wall_s,
+        "plan_message": checked.message if checked else plan.message, "plan_wall_s": plan.wall_s,
         "rollouts": plan.rollouts, "predicted_reached": plan.reached, "predicted_time_s": plan.time_s,
         "predicted_fuel_l": plan.fuel_l, "predicted_min_clearance_m": plan.min_clearance_m,
         "predicted_collision_free": plan.collision_free, "predicted_spill_free": plan.spill_free, "check": check,
         "checked_time_s": checked.time_s if checked else None,
         "checked_min_clearance_m": checked.min_clearance_m if checked else None,
         "checked_goal_error_m": checked.goal_error_m if checked else None,
+        "checked_collision_free": checked.collision_free if checked else None,
         "learned_time_s": learned["time_s"], "learned_fuel_l": learned["fuel_l"],
         "learned_min_clearance_m": learned["min_clearance_m"], "warm_start": warm_start,
         "reference_time_s": reference["time_s"], "reference_fuel_l": reference["fuel_l"],
