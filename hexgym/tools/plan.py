@@ -372,14 +372,18 @@ def plot_plan(result: dict[str, Any], out: str | Path) -> Path:
             ax.step(np.arange(len(spools)) * dt, spools[:, j], where="post", label=name)
         ax.set(xlabel="t (s)", ylabel="spool (mm)", title=title, ylim=(-12, 12))
         ax.legend(fontsize=8, ncol=4)
-    learned_t = result["learned_time_s"]
-    fig.suptitle(
-        f"planned: {learned_t if learned_t is not None else float('nan'):.1f} s, {result['learned_fuel_l']:.4f} L "
-        f"(learned model); reference {result['reference_fuel_l']:.4f} L, goal error "
-        f"{result['reference_goal_error_m']:.2f} m; scripted: {result['scripted_time_s']:.1f} s, "
-        f"{result['scripted_fuel_l']:.4f} L",
-        fontsize=10,
+    def seconds(key: str) -> str:
+        return "-" if result.get(key) is None else f"{result[key]:.1f} s"
+
+    title = (
+        f"learned model: planned {seconds('learned_time_s')}, {result['learned_fuel_l']:.4f} L; scripted "
+        f"{seconds('scripted_time_s')}, {result['scripted_fuel_l']:.4f} L\nreference: planned "
+        f"{seconds('reference_time_s')}, {result['reference_fuel_l']:.4f} L, goal error "
+        f"{result['reference_goal_error_m']:.2f} m"
     )
+    if result.get("scripted_reference_fuel_l") is not None:
+        title += f"; scripted {seconds('scripted_reference_time_s')}, {result['scripted_reference_fuel_l']:.4f} L"
+    fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     return save_figure(fig, out)
 
