@@ -372,6 +372,7 @@ def plot_plan(result: dict[str, Any], out: str | Path) -> Path:
             ax.step(np.arange(len(spools)) * dt, spools[:, j], where="post", label=name)
         ax.set(xlabel="t (s)", ylabel="spool (mm)", title=title, ylim=(-12, 12))
         ax.legend(fontsize=8, ncol=4)
+
     def seconds(key: str) -> str:
         return "-" if result.get(key) is None else f"{result[key]:.1f} s"
 
