@@ -12,10 +12,9 @@ by the ``hexgym.mbl`` plugin (:func:`hexgym.envs.loading.native_world_model`) wi
   same distances (MuJoCo collides a mesh's hull), found faster (its 104 corners instead of the 704
   vertices).
 
-``contacts=False`` leaves MuJoCo's collision pass out of the rollouts (a fifth of their time): the motion is
-the environment's until bucket or stick touch something, after which they pass through it, deeper
-(clearances more negative) than where the contact would have stopped them; for a planner that rejects
-every contact.
+``contacts=False`` leaves MuJoCo's collision pass out of the rollouts: the motion is the environment's until
+bucket or stick touch something, after which they pass through it, deeper (clearances more negative) than
+where the contact would have stopped them; for a planner that rejects every contact.
 
 :meth:`RolloutModel.rollout` runs a batch of spool sequences from one :class:`MachineState` with
 ``mujoco.rollout`` (``nthread`` threads, a persistent pool) and returns a :class:`RolloutBatch`: per
