@@ -38,6 +38,7 @@
 
 #include <mujoco/mujoco.h>
 
+#include "clearance_plugin.h"
 #include "linkage.h"
 #include "mbl_table.h"
 #include "plugin_interface.h"
@@ -500,6 +501,7 @@ void Register() {
   plugin.compute = +[](const mjModel* m, mjData* d, int instance, int) { Get(d, instance)->Compute(m, d); };
   plugin.advance = +[](const mjModel* m, mjData* d, int instance) { Get(d, instance)->Advance(m, d); };
   mjp_registerPlugin(&plugin);
+  RegisterClearance();
 }
 
 }  // namespace

@@ -186,6 +186,26 @@ def test_truck_clearance_is_predicted_where_the_layout_puts_the_truck(env, model
     assert batch.clearance_m[0, :, 0].min() < model.detection_m  # the truck is where the layout says
 
 
+def test_clearance_sensors_read_the_geom_pairs_distances(model):
+    """The clearance sensors (which measure only pairs whose bounding volumes are within the cutoff) read what
+    MuJoCo's distance between the geoms gives, near and far, over moves about the site."""
+    from hexgym.tools.plan import start_states
+
+    rng = np.random.default_rng(7)
+    near, far = np.zeros(4, bool), np.zeros(4, bool)
+    for task in ("dump", "return"):
+        state, _ = start_states(3)[task]
+        knots = np.clip(rng.normal(0.0, 0.7, (12, 10, 4)), -1.0, 1.0) * p.SPOOL_STROKE
+        batch = model.rollout(state, np.repeat(knots, 20, axis=1), 5.0)
+        for i in range(len(knots)):
+            _, _, exact = model.at_angles(batch.q[i], state.layout)
+            # the last period reads its own step's sensors (see RolloutModel._batch)
+            np.testing.assert_allclose(batch.clearance_m[i, :-1], exact[:-1], atol=1e-12)
+        near |= (batch.clearance_m < model.detection_m).any(axis=(0, 1))
+        far |= (batch.clearance_m == model.detection_m).any(axis=(0, 1))
+    assert near.all() and far.all()  # every pair both within the cutoff and beyond it
+
+
 def test_rollouts_without_contacts_are_the_same_until_a_contact_then_pass_through(env, model):
     """``contacts=False`` leaves the collision pass out: the same motion in the air, deeper into the ground; the
     bucket's clearances (to its mesh's convex hull) are the collision mesh's distances."""

@@ -188,7 +188,7 @@ class BatchSites:
         self.tip_site, self.bucket_body, self.payload_body = m.site("tip").id, m.body("bucket").id, m.body("payload").id
         swing = self.dadr[0]
         self._swing_diag = int(m.M_rowadr[swing] + m.M_rownnz[swing] - 1)
-        state = int(m.plugin_stateadr[0])
+        state = int(m.plugin_stateadr[m.actuator_plugin[self.ctrl_ids[0]]])  # the hexgym.mbl instance's
         self._load_slots = state + PLUGIN_STATE["load"] + np.arange(4)  # the plugin's last constraint load
         self._acceleration_slot = int(state + PLUGIN_STATE["acceleration"])  # its last swing acceleration
         self.contact_adr = int(m.sensor(TOOL_CONTACT_SENSOR).adr[0])

@@ -87,13 +87,14 @@ class NativeLearnedModel(LearnedModelBase):
         self.physics = ExcavatorPhysics(model)
         m = self.physics.model
         self._ctrl = np.array([m.actuator(n).id for n in kinematics.JOINTS])
-        if m.nplugin != 1 or not all(m.actuator_plugin[i] == 0 for i in self._ctrl):
+        instance = int(m.actuator_plugin[self._ctrl[0]])
+        if instance < 0 or not all(m.actuator_plugin[i] == instance for i in self._ctrl):
             raise ValueError("model must drive swing, boom, stick and bucket with one hexgym.mbl plugin instance")
         self._swing_act = int(m.actuator_actadr[self._ctrl[0]])
         # the full machine's servos hold position targets in their activations, the lean's swing its rate
         self._integrated = bool(m.actuator_biasprm[self._ctrl[0], 1] != 0.0)
-        self._state = slice(int(m.plugin_stateadr[0]), int(m.plugin_stateadr[0]) + STATE_SIZE)
-        configured = plugin_config_values(m)["control_period"]
+        self._state = slice(int(m.plugin_stateadr[instance]), int(m.plugin_stateadr[instance]) + STATE_SIZE)
+        configured = plugin_config_values(m, instance)["control_period"]
         period = float(configured) if configured else self.physics.timestep
         if control_period is not None and abs(period - control_period) > 1e-9:
             raise ValueError(f"control_period {control_period} s differs from the model's {period} s")

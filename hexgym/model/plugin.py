@@ -55,6 +55,13 @@ STATE_SLOTS: dict[str, int] = {
     "targets": 4,  # the joint-rate targets held until the next query (the swing's unclipped)
     "inertia": 1,  # the swing inertia at the last table query, kg m^2 (torque tables keep the momentum)
 }
+CLEARANCE_PLUGIN_NAME = "hexgym.clearance"
+# The clearance sensor plugin's config keys (native/clearance_plugin.cc: one sensor value per instance).
+CLEARANCE_CONFIG_KEYS: dict[str, str] = {
+    "tool": "the tool's geom name",
+    "obstacles": "the obstacles' geom names, space-separated",
+    "cutoff": "m, > 0: distances beyond it read as it",
+}
 _PACKAGE_DIR = Path(__file__).resolve().parents[1]  # the build puts the library into the hexgym package
 HEADER = Path("native") / "plugin_interface.h"  # relative to the repository root
 
@@ -78,6 +85,8 @@ def interface() -> dict:
         "joints": list(kinematics.JOINTS),
         "ctrl_per_spool_m": CTRL_PER_SPOOL_M,
         "config_keys": list(CONFIG_KEYS),
+        "clearance_plugin": CLEARANCE_PLUGIN_NAME,
+        "clearance_config_keys": list(CLEARANCE_CONFIG_KEYS),
         "state": {name: [STATE[name], size] for name, size in STATE_SLOTS.items()},
         "state_size": STATE_SIZE,
         "quantities": list(QUANTITIES),
@@ -131,6 +140,13 @@ def header_text() -> str:
         *[f"    {quote(key)},  // {what}" for key, what in CONFIG_KEYS.items()],
         "};",
         "constexpr int kNumAttributes = sizeof(kAttributes) / sizeof(kAttributes[0]);",
+        "",
+        "// The clearance sensor plugin: its name and config keys, in the declared order",
+        f"constexpr char kClearancePluginName[] = {quote(CLEARANCE_PLUGIN_NAME)};",
+        "constexpr const char* kClearanceAttributes[] = {",
+        *[f"    {quote(key)},  // {what}" for key, what in CLEARANCE_CONFIG_KEYS.items()],
+        "};",
+        "constexpr int kNumClearanceAttributes = sizeof(kClearanceAttributes) / sizeof(kClearanceAttributes[0]);",
         "",
         "// The quantities the tables read (the query vector's order)",
         "enum Quantity {",

@@ -5,12 +5,13 @@ by the ``hexgym.mbl`` plugin (:func:`hexgym.envs.loading.native_world_model`) wi
 
 - ``framepos`` sensors of the teeth (site ``tip``) and of the mouth's centre (a site added to the bucket);
   the bucket's x and z axes, the joints' rates and the actuators' forces (the mouth's tilt and the power);
-- a ``geomdist`` sensor (cutoff ``detection_m``) per pair of a tool collision geom (the bucket's, the
-  stick's) and an obstacle's (the ground, each solid geom of the truck): the signed distance between them
-  (negative = penetration). Sensors only: the contacts and the motion are the environment's. The bucket's
-  distances are measured to its collision mesh's convex hull given as its own mesh (no contacts): the
-  same distances (MuJoCo collides a mesh's hull), found faster (its 104 corners instead of the 704
-  vertices).
+- a clearance sensor (the ``hexgym.clearance`` plugin, cutoff ``detection_m``) per pair of a tool collision
+  geom (the bucket's, the stick's) and an obstacle (the ground; the truck: each of its solid geoms): the
+  least signed distance between them (negative = penetration), as MuJoCo's ``geomdist`` sensors of the
+  geom pairs would read it, but measuring only the pairs whose bounding volumes are within the cutoff.
+  Sensors only: the contacts and the motion are the environment's. The bucket's distances are measured
+  to its collision mesh's convex hull given as its own mesh (no contacts): the same distances (MuJoCo
+  collides a mesh's hull), found faster (its 104 corners instead of the 704 vertices).
 
 ``contacts=False`` leaves MuJoCo's collision pass out of the rollouts: the motion is the environment's until
 bucket or stick touch something, after which they pass through it, deeper (clearances more negative) than
@@ -46,7 +47,7 @@ from hexgym.machine import parameters as p
 from hexgym.machine.assets import asset_path
 from hexgym.mbl.schema import DEFAULT_TABLE_SET
 from hexgym.model.native_backend import NativeLearnedModel
-from hexgym.model.plugin import CTRL_PER_SPOOL_M
+from hexgym.model.plugin import CLEARANCE_PLUGIN_NAME, CTRL_PER_SPOOL_M
 
 _MOUTH_NORMAL = mouth_normal()  # bucket frame (x, z)
 _MOUTH_CENTRE = ((p.BUCKET_LIP[0] + p.BUCKET_EDGE[0]) / 2, 0.0, (p.BUCKET_LIP[1] + p.BUCKET_EDGE[1]) / 2)
@@ -61,6 +62,7 @@ _TRUCK_GEOMS = (
     "truck_floor", "truck_headboard", "truck_tailgate", "truck_left_wall", "truck_right_wall", "truck_chassis",
     "truck_cab",
 )  # fmt: skip
+_OBSTACLE_GEOMS = {"truck": _TRUCK_GEOMS, "ground": ("ground",)}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -191,14 +193,8 @@ class RolloutModel:
         self._bucket_x, self._bucket_z = adr["planning_bucket_x"], adr["planning_bucket_z"]
         self._qd = np.array([adr[f"planning_qd_{j}"] for j in kinematics.JOINTS])
         self._force = np.array([adr[f"planning_force_{j}"] for j in kinematics.JOINTS])
-        self._pair_adr = [
-            np.array([m.sensor(f"planning_{a}_{g}").adr[0] for g in (("ground",) if b == "ground" else _TRUCK_GEOMS)])
-            for a, b in PAIRS
-        ]
-        self._pair_geoms = [
-            (m.geom(_TOOL_GEOMS[a]).id, [m.geom(g).id for g in (("ground",) if b == "ground" else _TRUCK_GEOMS)])
-            for a, b in PAIRS
-        ]
+        self._pair_adr = np.array([m.sensor(f"planning_{a}_{b}").adr[0] for a, b in PAIRS])
+        self._pair_geoms = [(m.geom(_TOOL_GEOMS[a]).id, [m.geom(g).id for g in _OBSTACLE_GEOMS[b]]) for a, b in PAIRS]
         self._datas = [mujoco.MjData(m) for _ in range(nthread)]
         self._pool: Any = None
 
@@ -224,13 +220,14 @@ class RolloutModel:
                             objname=joint)  # fmt: skip
             spec.add_sensor(name=f"planning_force_{joint}", type=sensor.mjSENS_ACTUATORFRC,
                             objtype=mujoco.mjtObj.mjOBJ_ACTUATOR, objname=joint)  # fmt: skip
-        geom = mujoco.mjtObj.mjOBJ_GEOM
+        spec.activate_plugin(CLEARANCE_PLUGIN_NAME)
         for tool, obstacle in PAIRS:
-            for other in ("ground",) if obstacle == "ground" else _TRUCK_GEOMS:
-                spec.add_sensor(
-                    name=f"planning_{tool}_{other}", type=mujoco.mjtSensor.mjSENS_GEOMDIST, objtype=geom,
-                    objname=_TOOL_GEOMS[tool], reftype=geom, refname=other, cutoff=self.detection_m,
-                )  # fmt: skip
+            name = f"planning_{tool}_{obstacle}"
+            instance = spec.add_plugin(name=name, plugin_name=CLEARANCE_PLUGIN_NAME, active=True)
+            obstacles = " ".join(_OBSTACLE_GEOMS[obstacle])
+            instance.config = {"tool": _TOOL_GEOMS[tool], "obstacles": obstacles, "cutoff": repr(self.detection_m)}
+            clearance = spec.add_sensor(name=name, type=mujoco.mjtSensor.mjSENS_PLUGIN)
+            clearance.plugin.plugin_name, clearance.plugin.name = CLEARANCE_PLUGIN_NAME, name
 
     def initial_state(self, state: MachineState) -> np.ndarray:
         """The physics state (``mjSTATE_FULLPHYSICS``) this model starts a rollout from; sets the payload."""
@@ -318,7 +315,7 @@ class RolloutModel:
         q = states[:, ends][:, :, qadr]
         s = sensors[:, reads]
         tip = s[:, :, self._tip]
-        clearance = np.stack([s[:, :, adr].min(axis=2) for adr in self._pair_adr], axis=2)
+        clearance = s[:, :, self._pair_adr]
         times = (np.arange(len(ends)) + 1) * self.control_period
         up = s[:, :, self._bucket_x + 2] * _MOUTH_NORMAL[0] + s[:, :, self._bucket_z + 2] * _MOUTH_NORMAL[1]
         qd = s[:, :, self._qd]
