@@ -122,6 +122,10 @@ class PlanCheck:
     def __init__(self, model: RolloutModel) -> None:
         self.model = model
         self.machine = python_learned_model("circuit")
+        # one period now: its compiled steps load from numba's disk cache (or compile, ~10 s, on a fresh install)
+        # here rather than within the first plan's time
+        self.machine.reset()
+        self.machine.step(np.zeros(4))
 
     def __call__(self, spools_m: np.ndarray, state: MachineState, goal: Goal) -> CheckResult:
         """The plan's spools (T, 4) per control period from ``state`` (at rest), then ``SETTLE_S`` closed, towards
