@@ -376,6 +376,59 @@ def test_a_checked_plan_keeps_the_clearance_the_check_found_missing(env, model):
         plan_checked(state, dump_goal(layout), model, check, budget=1)
 
 
+def test_a_fitted_swing_comes_to_rest_at_its_target_on_the_circuit_model(env, model):
+    """The fast model's quickest swing (full, then full counter-spool) stops at the target there; the swing fitted
+    on the circuit model (full, then closed, switched later) stops at it on the circuit model."""
+    from hexgym.planning import MachineState
+    from hexgym.planning.check import PlanCheck, replay_plan
+    from hexgym.planning.planner import dump_goal, swing_bang_bang
+
+    layout = env.unwrapped.layout
+    state = MachineState(env.unwrapped.physics.joint_positions(), np.zeros(4), 0.0, layout)
+    target = state.q[0] - 1.2
+    swing, switch, rollouts = swing_bang_bang(model, state, target, 5.0)
+    assert rollouts == len(swing) * 2 // 3 - 1 and swing[0] == -p.SPOOL_STROKE and swing[switch] == p.SPOOL_STROKE
+    fast = model.rollout(state, np.column_stack([swing, np.zeros((len(swing), 3))]), 5.0)
+    assert abs(fast.q[0, -1, 0] - target) < 0.03
+    check = PlanCheck(model)
+    spools = check.fit_swing(np.zeros((len(swing), 4)), state, target, switch)
+    fitted = np.flatnonzero(spools[:, 0])
+    assert (spools[fitted, 0] == -p.SPOOL_STROKE).all() and fitted[-1] + 1 == len(fitted) > switch
+    assert not spools[:, 1:].any()
+    run = replay_plan(check.machine, spools, state, dump_goal(layout), model)
+    assert abs(run.rows["q_swing"][-1] - target) < 0.03 and abs(run.rows["qd_swing"][-1]) < 0.02
+
+
+def test_a_plan_with_a_fitted_swing_runs_the_fitted_spools(env, model):
+    """``fit_swing``: the search holds the swing at the fast model's quickest; each round's plan gets the fitted
+    swing before its check; the returned plan's spools are the fitted ones, its rollouts count the swing's batch."""
+    from hexgym.planning import MachineState
+    from hexgym.planning.check import CheckResult
+    from hexgym.planning.planner import plan_checked, return_goal
+
+    layout = env.unwrapped.layout
+    state = MachineState(env.unwrapped.physics.joint_positions(), np.zeros(4), 0.0, layout)
+    goal = return_goal(layout, state.q[0] + 1.0)
+    fitted, seen = [], []
+
+    def fit_swing(spools_m, start, target, switch):
+        out = np.array(spools_m)
+        out[:, 0] = 0.5e-3  # a mark
+        fitted.append((target, switch, spools_m[:, 0].copy()))
+        return out
+
+    def check(spools_m, start, goal):
+        seen.append(spools_m)
+        return CheckResult(1.0, 1.0, None)
+
+    plan, _ = plan_checked(state, goal, model, check, budget=40, population=20, horizon_s=2.0, fit_swing=fit_swing)
+    assert len(fitted) == 2 and all(np.array_equal(s[:, 0], np.full(len(s), 0.5e-3)) for s in seen)
+    assert abs(fitted[0][0] - (state.q[0] + 1.0)) < 0.3  # the goal's bearing
+    assert np.array_equal(np.unique(np.abs(fitted[0][2])), [0.0, p.SPOOL_STROKE])  # searched: full, counter, closed
+    assert np.array_equal(plan.spools_m[:, 0], np.full(len(plan.spools_m), 0.5e-3))
+    assert plan.rollouts == 42 + 2 * 80 // 3 - 1
+
+
 def test_plan_command_names_bad_input(capsys):
     from hexgym.tools.cli import main
 
@@ -385,6 +438,10 @@ def test_plan_command_names_bad_input(capsys):
     assert "--seeds must be A-B" in capsys.readouterr().err
     assert main(["plan", "--task", "dump", "--video", "plan.avi"]) == 2
     assert "--video must be an .mp4 file" in capsys.readouterr().err
+    from hexgym.tools.plan import run_plan
+
+    with pytest.raises(ValueError, match="--swing must be one of"):
+        run_plan("return", [0], swing="fast")
 
 
 @pytest.mark.slow

@@ -27,7 +27,7 @@ from hexgym.machine import parameters as p
 from hexgym.model.backend import python_learned_model
 from hexgym.model.commandlog import CommandLog
 from hexgym.model.replay import replay
-from hexgym.planning.rollouts import MachineState, RolloutModel
+from hexgym.planning.rollouts import MachineState, RolloutModel, bang_bang
 
 if TYPE_CHECKING:
     from hexgym.model.base import MachineModel
@@ -40,6 +40,9 @@ TRIM_CLOSE_M = 0.1  # m: a correction ending this close to the point stops
 TRIM_INSET_M = 0.3  # m: a dump is aimed this far inside its box (the circuit-reference gap: up to ~0.3 m)
 TRIM_MAX_STEP = 0.6  # spool fraction a Newton step changes an offset by at most
 SETTLE_S = 1.5  # s a replay runs on with the spools closed after the plan (the swing coasts to rest)
+FIT_TAIL_S = 0.5  # s a plan with a fitted swing runs on after its end (see PlanCheck.fit_swing)
+SWING_STOPPED = 0.02  # rad/s: a braking swing this slow has stopped
+SWITCH_SEARCH = 48  # control periods after the fast model's switch within which the circuit model's is sought
 ROW_S = 0.05  # s between a replay's rows (two control periods, and a multiple of the reference's 2 ms step)
 
 
@@ -131,6 +134,47 @@ class PlanCheck:
         """The plan's spools (T, 4) per control period from ``state`` (at rest), then ``SETTLE_S`` closed, towards
         ``goal``."""
         return _result(replay_plan(self.machine, spools_m, state, goal, self.model))
+
+    def fit_swing(self, spools_m: np.ndarray, state: MachineState, target_rad: float, near: int) -> np.ndarray:
+        """The plan's spools (T, 4) with the swing's replaced by the circuit model's quickest swing to ``target_rad``
+        under the plan's other spools: full spool, then closed (the crossover reliefs brake it: on the reference
+        0.05 s slower to rest than a full counter-spool, with a third less fuel); the switch (a control period)
+        found by bisection from ``near`` (the fast model's, whose swing brakes more weakly even at full
+        counter-spool: its switch comes first) to ``SWITCH_SEARCH`` periods later. It runs on
+        ``FIT_TAIL_S`` with the other spools closed after the plan's end or the swing's stop, whichever is later:
+        time for :meth:`correct` to finish a front that is slower on the circuit model than on the fast one."""
+        sign = 1.0 if target_rad >= state.q[0] else -1.0
+        period = self.model.control_period
+        spools = np.vstack([spools_m, np.zeros((round(SETTLE_S / period), 4))])
+
+        def stop(switch: int) -> tuple[float, int]:
+            """Where (rad) and when (period) the swing stops with this switch (the end: never)."""
+            trial = spools.copy()
+            trial[:, 0] = bang_bang(sign, switch, switch, len(trial))
+            log = CommandLog(np.arange(len(trial) + 1) * period, np.vstack([trial * 1e3, np.zeros((1, 4))]))
+            rows = replay(self.machine, log, start=state.q, payload_kg=state.payload_kg, dt_out=ROW_S,
+                          duration=len(trial) * period)  # fmt: skip
+            first = math.ceil(switch * period / ROW_S)
+            stopped = np.nonzero(sign * rows["qd_swing"][first:] <= SWING_STOPPED)[0]
+            if not len(stopped):
+                return math.inf * sign, len(trial)
+            row = first + stopped[0]
+            return float(rows["q_swing"][row]), round(rows["t"][row] / period)
+
+        low, high = max(1, near), min(len(spools) - 1, near + SWITCH_SEARCH)
+        ends = {k: stop(k) for k in (low, high)}
+        while high - low > 1:
+            middle = (low + high) // 2
+            ends[middle] = stop(middle)
+            if sign * (ends[middle][0] - target_rad) > 0:
+                high = middle
+            else:
+                low = middle
+        switch = min((low, high), key=lambda k: abs(ends[k][0] - target_rad))
+        end = ends[switch][1]
+        out = spools[: min(len(spools), max(len(spools_m), end + 1) + round(FIT_TAIL_S / period))].copy()
+        out[:, 0] = bang_bang(sign, switch, switch, len(out))
+        return out
 
     def correct(
         self, spools_m: np.ndarray, state: MachineState, goal: Goal, checked: CheckResult | None = None

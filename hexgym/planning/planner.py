@@ -35,7 +35,7 @@ from hexgym.envs.world import Layout, bed_frame, entry_radius
 from hexgym.hydraulics import fuel
 from hexgym.machine import parameters as p
 from hexgym.planning.check import CheckResult
-from hexgym.planning.rollouts import MachineState, RolloutBatch, RolloutModel
+from hexgym.planning.rollouts import MachineState, RolloutBatch, RolloutModel, bang_bang
 
 TASKS = ("dump", "return", "tip")
 BED_MARGIN_M = 0.5  # m: the mouth's centre this far inside the bed's walls
@@ -167,6 +167,16 @@ def _knot_spools(params: np.ndarray, periods_per_knot: int, periods: int) -> np.
     return np.repeat(knots, periods_per_knot, axis=1)[:, :periods]
 
 
+def _with_swing(spools: np.ndarray, swing_m: np.ndarray | None) -> np.ndarray:
+    """(B, T, 4) spools with the swing's replaced by ``swing_m`` (T',) per control period (closed after it)."""
+    if swing_m is None:
+        return spools
+    fixed = np.zeros(spools.shape[1])
+    fixed[: min(len(swing_m), len(fixed))] = swing_m[: len(fixed)]
+    spools[:, :, 0] = fixed
+    return spools
+
+
 def evaluate(batch: RolloutBatch, goal: Goal, loaded: bool, margin_m: float = MARGIN_M) -> dict[str, np.ndarray]:
     """Per rollout: cost without fuel (time + penalties), time (s), clearance (m), goal error (m) up to the goal
     (or the horizon), and the period it ends at."""
@@ -203,6 +213,43 @@ def move_fuel_l(model: RolloutModel, batch: RolloutBatch, index: int, end: int, 
     return float(fuel.fuel_litres_many(power, seconds).sum())
 
 
+def swing_target(state: MachineState, goal: Goal, model: RolloutModel) -> float:
+    """The swing angle (rad, unwrapped from the start's) that turns the teeth towards the goal's point: its bearing
+    less the teeth's bearing off the swing angle at the start (the arm's plane need not pass through the axis)."""
+    tips, _, _ = model.at_angles(state.q[None], state.layout)
+    off_axis = math.atan2(tips[0, 1], tips[0, 0]) - state.q[0]
+    bearing = math.atan2(goal.point[1], goal.point[0]) - off_axis
+    return float(state.q[0] + (bearing - state.q[0] + math.pi) % (2 * math.pi) - math.pi)
+
+
+def swing_bang_bang(
+    model: RolloutModel, state: MachineState, target_rad: float, horizon_s: float
+) -> tuple[np.ndarray, int, int]:
+    """The fast model's quickest swing alone to ``target_rad``: full spool, then full counter-spool until it stops,
+    the switch (each control period of the horizon's first two thirds, one batch of rollouts) the one that stops
+    it nearest the target. Returns its spools (T,) per control period over ``horizon_s``, the switch (period)
+    and the rollouts made."""
+    sign = 1.0 if target_rad >= state.q[0] else -1.0
+    periods = _periods_of(horizon_s, model)
+    switches = np.arange(1, max(2, 2 * periods // 3))
+    spools = np.zeros((len(switches), periods, 4))
+    for i, k in enumerate(switches):
+        spools[i, :, 0] = bang_bang(sign, k, periods, periods)
+    batch = model.rollout(state, spools, horizon_s)
+    best = (math.inf, periods, periods)
+    for i, k in enumerate(switches):
+        stopped = np.nonzero(sign * batch.qd[i, k:, 0] <= 0.0)[0]
+        if len(stopped):
+            end = k + stopped[0]
+            best = min(best, (abs(batch.q[i, end, 0] - target_rad), k, end + 1))
+    return bang_bang(sign, best[1], best[2], periods), best[1], len(switches)
+
+
+def _periods_of(horizon_s: float, model: RolloutModel) -> int:
+    """Control periods in ``horizon_s`` (rounded up)."""
+    return math.ceil(horizon_s / model.control_period - 1e-9)
+
+
 def _initial_mean(state: MachineState, goal: Goal, knots: int) -> np.ndarray:
     """A heuristic move: swing towards the goal (braking half way), the boom up (dump) or down (return)."""
     target = math.atan2(goal.point[1], goal.point[0])
@@ -233,11 +280,13 @@ def plan_motion(
     seed: int = 0,
     margin_m: float | None = None,
     initial: np.ndarray | None = None,
+    swing_m: np.ndarray | None = None,
 ) -> Plan:
     """Plan a move from ``state`` to ``goal`` with at most ``budget`` rollouts (see the module docstring).
 
     ``initial``: spool fractions per knot (K, 4) to start the search from (e.g. another controller's move;
-    default: a heuristic move towards the goal).
+    default: a heuristic move towards the goal). ``swing_m``: the swing's spools (m) per control period, held
+    fixed (closed after them; e.g. :func:`swing_bang_bang`'s); the search then finds the other spools.
 
     Raises ValueError for a budget < 1, a horizon <= 0 or beyond ``MAX_HORIZON_S``, a knot spacing not a
     whole number of control periods, a negative ``w_fuel``.
@@ -253,7 +302,7 @@ def plan_motion(
         raise ValueError(f"knot_s must be a whole number of {model.control_period} s control periods, got {knot_s}")
     start = time.perf_counter()
     margin_m = margin_for(state) if margin_m is None else margin_m
-    periods = math.ceil(horizon_s / model.control_period - 1e-9)
+    periods = _periods_of(horizon_s, model)
     knots = math.ceil(periods / periods_per_knot)
     loaded = state.payload_kg > LOADED_KG
     rng = np.random.default_rng(seed)
@@ -280,7 +329,7 @@ def plan_motion(
             params[1] = best[1]  # and the best so far (elitism)
         if best is not None:  # a move's cost is at least its time: none reaching the goal after the best's cost wins
             simulated = min(periods, math.ceil(best[0] / model.control_period) + 1)
-        spools = _knot_spools(params, periods_per_knot, simulated)
+        spools = _with_swing(_knot_spools(params, periods_per_knot, simulated), swing_m)
         batch = model.rollout(state, spools, simulated * model.control_period)
         used += n
         figures = evaluate(batch, goal, loaded, margin_m)
@@ -298,7 +347,7 @@ def plan_motion(
         mean = 0.3 * mean + 0.7 * top.mean(axis=0)
         std = np.maximum(0.3 * std + 0.7 * top.std(axis=0), 0.05)
     assert best is not None
-    spools = _knot_spools(best[1][None], periods_per_knot, periods)[0]
+    spools = _with_swing(_knot_spools(best[1][None], periods_per_knot, periods), swing_m)[0]
     return _plan_of(spools, state, goal, model, margin_m, used + 1, start)
 
 
@@ -330,6 +379,7 @@ def plan_checked(
     margin_m: float | None = None,
     initial: np.ndarray | None = None,
     correct: Callable[[np.ndarray, MachineState, Goal, CheckResult], tuple[np.ndarray, CheckResult, int]] | None = None,
+    fit_swing: Callable[[np.ndarray, MachineState, float, int], np.ndarray] | None = None,
     **search: Any,
 ) -> tuple[Plan, CheckResult]:
     """:func:`plan_motion` in two rounds of half the ``budget``, each plan checked on the accurate model (``check``,
@@ -339,23 +389,44 @@ def plan_checked(
     its check; its ``rollouts`` and ``wall_s`` count both rounds and the checks. ``correct`` (e.g.
     :meth:`PlanCheck.correct`) then trims that plan on the accurate model; a trimmed plan that ranks better there
     is returned with its figures on the fast model (not cut at the fast model's goal: the trim acts last).
-    ``search``: :func:`plan_motion`'s other options."""
+
+    ``fit_swing`` (e.g. :meth:`PlanCheck.fit_swing`): the swing is not searched but turns as fast as it can to the
+    goal's bearing (:func:`swing_target`): full spool, then full counter-spool until it stops. The search holds it
+    at the fast model's own such swing (:func:`swing_bang_bang`) and finds the other spools; each round's plan then
+    gets the swing the accurate model needs under them (its switch later: the fast model's swing brakes more
+    weakly, and the same switch would stop it well short) before it is checked. The plan's predicted figures are
+    the fast model's with its own switch. ``search``: :func:`plan_motion`'s other options."""
     if isinstance(budget, bool) or not isinstance(budget, int | np.integer) or budget < 2:
         raise ValueError(f"planner budget must be an integer >= 2 rollouts (two rounds), got {budget!r}")
     start = time.perf_counter()
     margin_m = margin_for(state) if margin_m is None else margin_m
-    first = plan_motion(state, goal, model, budget=budget // 2, margin_m=margin_m, initial=initial, **search)
+    swing_m, rollouts = None, 0
+    if fit_swing is not None:
+        target = swing_target(state, goal, model)
+        swing_m, switch, rollouts = swing_bang_bang(model, state, target, search.get("horizon_s", 8.0))
+
+    def for_machine(plan: Plan) -> Plan:
+        """The plan with the swing the accurate model needs (when the swing is fitted)."""
+        if fit_swing is None:
+            return plan
+        return dataclasses.replace(plan, spools_m=fit_swing(plan.spools_m, state, target, switch))
+
+    first = for_machine(plan_motion(state, goal, model, budget=budget // 2, margin_m=margin_m, initial=initial,
+                                    swing_m=swing_m, **search))  # fmt: skip
     first_check = check(first.spools_m, state, goal)
     overstated = max(first.min_clearance_m - first_check.min_clearance_m, 0.0)
     per_knot = round(search.get("knot_s", 0.5) / model.control_period)
-    second = plan_motion(state, goal, model, budget=budget - budget // 2, margin_m=margin_m + overstated,
-                         initial=knot_means(first.spools_m / p.SPOOL_STROKE, per_knot), **search)  # fmt: skip
+    second = for_machine(plan_motion(state, goal, model, budget=budget - budget // 2, margin_m=margin_m + overstated,
+                                     initial=knot_means(first.spools_m / p.SPOOL_STROKE, per_knot), swing_m=swing_m,
+                                     **search))  # fmt: skip
     second_check = check(second.spools_m, state, goal)
     plan, checked = min(((first, first_check), (second, second_check)), key=lambda pc: _check_rank(*pc))
-    rollouts = first.rollouts + second.rollouts
+    rollouts += first.rollouts + second.rollouts
     if correct is not None:
         spools, corrected, _ = correct(plan.spools_m, state, goal, checked)
-        if spools is not plan.spools_m:  # trimmed: it ranks better on the accurate model
+        if spools is not plan.spools_m and fit_swing is not None:  # trimmed; the prediction stays the fast swing's
+            plan, checked = dataclasses.replace(plan, spools_m=spools), corrected
+        elif spools is not plan.spools_m:  # trimmed: it ranks better on the accurate model
             rollouts += 1  # the trimmed spools' figures on the fast model
             plan, checked = _plan_of(spools, state, goal, model, margin_m, rollouts, start, truncate=False), corrected
     return dataclasses.replace(plan, rollouts=rollouts, wall_s=time.perf_counter() - start), checked

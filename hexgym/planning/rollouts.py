@@ -385,6 +385,14 @@ class RolloutModel:
             self._pool = None
 
 
+def bang_bang(sign: float, switch: int, stop: int, periods: int) -> np.ndarray:
+    """Swing spools (m) per control period: full towards ``sign`` to ``switch``, full against it to ``stop``, closed."""
+    swing = np.zeros(periods)
+    swing[:switch] = sign * p.SPOOL_STROKE
+    swing[switch:stop] = -sign * p.SPOOL_STROKE
+    return swing
+
+
 def _bucket_hull() -> np.ndarray:
     """The corners (N, 3) of the bucket collision mesh's convex hull, in the bucket's frame (the mesh's own)."""
     import trimesh

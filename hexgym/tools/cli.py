@@ -276,7 +276,8 @@ def _cmd_plan(args: argparse.Namespace) -> int:
         raise ValueError(f"--video must be an .mp4 file, got {args.video}")
     seeds = parse_seeds(args.seeds) if args.seeds is not None else [args.seed]
     result = run_plan(args.task, seeds, w_fuel=args.w_fuel, budget=args.budget, nthread=args.threads,
-                      json_out=args.json, margin_m=args.margin, ray=args.ray, check=not args.no_check)  # fmt: skip
+                      json_out=args.json, margin_m=args.margin, ray=args.ray, check=not args.no_check,
+                      swing=args.swing)  # fmt: skip
     shown = result.get("summary", {k: v for k, v in result.items() if not k.endswith("_mm") and k != "paths"})
     print(json.dumps(shown, indent=2))
     if args.plot:
@@ -505,6 +506,10 @@ def _add_planning_parsers(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="plan in one round on the fast model alone (default: two rounds, each plan checked on the circuit model)",
     )
+    plan.add_argument("--swing", choices=("knots", "bang-bang"), default=None, help="the swing searched per knot "
+                      "as the other spools, or turned as fast as it can (full spool, then counter-spool until it "
+                      "stops) with its switch fitted to the circuit model (default: knots for dump, bang-bang for "
+                      "return)")  # fmt: skip
     plan.add_argument("--json", metavar="OUT", default=None, help="also write the figures to this JSON file")
     add_ray_option(plan, "the seeds (each with --threads cores)")
     plan.set_defaults(func=_cmd_plan)

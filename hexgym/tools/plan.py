@@ -47,10 +47,14 @@ from hexgym.planning.planner import (
     plan_checked,
     plan_motion,
     return_goal,
+    swing_bang_bang,
+    swing_target,
 )  # fmt: skip
 from hexgym.planning.rollouts import MachineState, RolloutModel
 
 TASKS = ("dump", "return")
+SWINGS = ("knots", "bang-bang")
+DEFAULT_SWING = {"dump": "knots", "return": "bang-bang"}  # loaded, a fastest swing reaches the truck before the lift
 _SCRIPTED_LIMIT_S = 30.0  # s: the scripted move's limit
 _CYCLE_LIMIT_S = 120.0  # s: the scripted first cycle's limit (to find the start states)
 
@@ -171,14 +175,20 @@ def plan_task(
     warm_start: bool = True,
     margin_m: float | None = None,
     check: bool = True,
+    swing: str | None = None,
 ) -> dict[str, Any]:
     """Plan ``task`` on seed ``seed``, replay it on the reference and in the environment, run the scripted loader:
     the figures. ``warm_start``: start the search from the scripted loader's move (its actions averaged per knot).
     ``check``: plan in two rounds, each plan checked on the circuit model (:func:`plan_checked`; ``checked_*``);
-    else in one (:func:`plan_motion`). The horizon is ``horizon_s`` or, shorter, the scripted move's time plus
-    0.5 s (rounded up to 0.5 s, >= 3 s)."""
+    else in one (:func:`plan_motion`). ``swing``: ``knots`` (searched per knot as the other spools) or
+    ``bang-bang`` (the fastest turn to the goal's bearing, fitted to the circuit model: ``plan_checked``'s
+    ``fit_swing``; without the check, the fast model's own); default :data:`DEFAULT_SWING`. The horizon is
+    ``horizon_s`` or, shorter, the scripted move's time plus 0.5 s (rounded up to 0.5 s, >= 3 s)."""
     if task not in TASKS:
         raise ValueError(f"--task must be one of {TASKS}, got {task!r}")
+    swing = DEFAULT_SWING[task] if swing is None else swing
+    if swing not in SWINGS:
+        raise ValueError(f"--swing must be one of {SWINGS}, got {swing!r}")
     states = start_states(seed)
     state, goal = states[task]
     margin_m = margin_for(state) if margin_m is None else margin_m
@@ -194,15 +204,19 @@ def plan_task(
         checked = None
         if check:
             check_model = PlanCheck(model)
-            plan, checked = plan_checked(state, goal, model, check_model, correct=check_model.correct, **options)
+            fit_swing = check_model.fit_swing if swing == "bang-bang" else None
+            plan, checked = plan_checked(state, goal, model, check_model, correct=check_model.correct,
+                                         fit_swing=fit_swing, **options)  # fmt: skip
         else:
+            if swing == "bang-bang":
+                options["swing_m"] = swing_bang_bang(model, state, swing_target(state, goal, model), horizon_s)[0]
             plan = plan_motion(state, goal, model, **options)
         reference = reference_replay(plan, state, goal, model)
         learned = learned_replay(seed, state, goal, plan, model)
     finally:
         model.close()
     return {
-        "task": task, "seed": seed, "w_fuel": w_fuel, "margin_m": margin_m, "horizon_s": horizon_s,
+        "task": task, "seed": seed, "w_fuel": w_fuel, "margin_m": margin_m, "horizon_s": horizon_s, "swing": swing,
         "plan_message": checked.message if checked else plan.message, "plan_wall_s": plan.wall_s,
         "rollouts": plan.rollouts, "predicted_reached": plan.reached, "predicted_time_s": plan.time_s,
         "predicted_fuel_l": plan.fuel_l, "predicted_min_clearance_m": plan.min_clearance_m,
@@ -311,6 +325,7 @@ def run_plan(
     margin_m: float | None = None,
     ray: str | None = None,
     check: bool = True,
+    swing: str | None = None,
 ) -> dict[str, Any]:
     """Plan on each seed; one seed's figures, or with several a summary and the per-seed figures.
 
@@ -324,8 +339,10 @@ def run_plan(
         raise ValueError(f"--threads must be >= 1, got {nthread}")
     if margin_m is not None and not (math.isfinite(margin_m) and 0 <= margin_m <= 2.0):
         raise ValueError(f"--margin must be within 0 and 2 m, got {margin_m}")
+    if swing is not None and swing not in SWINGS:
+        raise ValueError(f"--swing must be one of {SWINGS}, got {swing!r}")
     start = time.perf_counter()
-    jobs = [(task, s, w_fuel, budget, nthread, margin_m, check) for s in seeds]
+    jobs = [(task, s, w_fuel, budget, nthread, margin_m, check, swing) for s in seeds]
     with executor(1, ray, cpus_per_task=nthread) as pool:
         results = pool.map(_plan_job, jobs)
     out: dict[str, Any] = results[0] if len(results) == 1 else {
@@ -337,9 +354,9 @@ def run_plan(
     return out
 
 
-def _plan_job(job: tuple[str, int, float, int, int, float | None, bool]) -> dict[str, Any]:
-    task, seed, w_fuel, budget, nthread, margin_m, check = job
-    return plan_task(task, seed, w_fuel, budget, nthread, margin_m=margin_m, check=check)
+def _plan_job(job: tuple[str, int, float, int, int, float | None, bool, str | None]) -> dict[str, Any]:
+    task, seed, w_fuel, budget, nthread, margin_m, check, swing = job
+    return plan_task(task, seed, w_fuel, budget, nthread, margin_m=margin_m, check=check, swing=swing)
 
 
 def plot_plan(result: dict[str, Any], out: str | Path) -> Path:
