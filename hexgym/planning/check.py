@@ -137,8 +137,8 @@ class PlanCheck:
 
     def fit_swing(self, spools_m: np.ndarray, state: MachineState, target_rad: float, near: int) -> np.ndarray:
         """The plan's spools (T, 4) with the swing's replaced by the circuit model's quickest swing to ``target_rad``
-        under the plan's other spools: full spool, then closed (the crossover reliefs brake it: on the reference
-        0.05 s slower to rest than a full counter-spool, with a third less fuel); the switch (a control period)
+        under the plan's other spools: full spool, then closed (the crossover reliefs brake it; a full counter-spool
+        stops it barely sooner, with the pump at full pressure and more fuel); the switch (a control period)
         found by bisection from ``near`` (the fast model's, whose swing brakes more weakly even at full
         counter-spool: its switch comes first) to ``SWITCH_SEARCH`` periods later. It runs on
         ``FIT_TAIL_S`` with the other spools closed after the plan's end or the swing's stop, whichever is later:

@@ -16,6 +16,10 @@ truck's bed (inside its walls by ``BED_MARGIN_M``), between 0.3 and 2.5 m above 
 rest (< 0.1 rad/s): ready to open; ``return`` / ``tip``: the teeth within ``tolerance_m`` of a point
 (``return``: above the pile's fullest cut at the scripted loader's dig start), the swing at rest.
 
+A move can instead turn the swing as fast as it can (:func:`plan_checked`'s ``fit_swing``): the fast model's
+swing table brakes far more weakly than the machine, so a switch found on it stops the machine's swing well short;
+the switch is fitted on the accurate model and the search finds the rest.
+
 A plan that found no collision-free motion says so (:attr:`Plan.collision_free` False, its clearance):
 it is never reported as safe.
 """
