@@ -239,8 +239,8 @@ def test_rollouts_without_contacts_are_the_same_until_a_contact_then_pass_throug
 
 
 def test_the_planner_simulates_no_further_than_the_best_moves_cost(env, model):
-    """Once a move reaches the goal, no batch runs past the best cost so far (a move's cost is at least its time);
-    a loaded move keeps the loaded margin."""
+    """Once a move reaches the goal, no batch runs past the best cost so far (a move's cost is at least its time and
+    w_fuel x its idle fuel), never short of the plan's time; a loaded move keeps the loaded margin."""
     from hexgym.planning import MachineState
     from hexgym.planning.planner import LOADED_MARGIN_M, MARGIN_M, margin_for, plan_motion, tip_goal
 
@@ -257,11 +257,14 @@ def test_the_planner_simulates_no_further_than_the_best_moves_cost(env, model):
 
     model.rollout = recorded
     try:
-        plan = plan_motion(state, goal, model, budget=200, population=50, horizon_s=4.0, margin_m=0.0)
+        for w_fuel in (1.0, 100.0):
+            horizons.clear()
+            plan = plan_motion(state, goal, model, w_fuel=w_fuel, budget=200, population=50, horizon_s=4.0,
+                               margin_m=0.0)  # fmt: skip
+            assert plan.reached and horizons[0] == pytest.approx(4.0)
+            assert min(horizons[1:-1]) < 4.0 and min(horizons) >= plan.time_s - 1e-9
     finally:
         del model.rollout
-    assert plan.reached and horizons[0] == pytest.approx(4.0)
-    assert min(horizons[1:-1]) < 4.0 and min(horizons) >= plan.time_s - 1e-9
 
 
 def test_the_planner_refuses_bad_input(env, model):

@@ -27,6 +27,7 @@ it is never reported as safe.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import time
 from collections.abc import Callable
@@ -169,6 +170,12 @@ def _knot_spools(params: np.ndarray, periods_per_knot: int, periods: int) -> np.
     """(B, K*4) knot fractions -> (B, T, 4) spools (m) per control period."""
     knots = np.clip(params, -1.0, 1.0).reshape(len(params), -1, 4) * p.SPOOL_STROKE
     return np.repeat(knots, periods_per_knot, axis=1)[:, :periods]
+
+
+@functools.cache
+def _idle_litres_per_second() -> float:
+    """The engine's fuel rate at no actuator power (L/s): the least any move burns per second."""
+    return float(fuel.fuel_litres_many(np.zeros(1), np.ones(1))[0])
 
 
 def _with_swing(spools: np.ndarray, swing_m: np.ndarray | None) -> np.ndarray:
@@ -331,8 +338,10 @@ def plan_motion(
         params[0] = np.clip(mean, -1.0, 1.0)  # the mean itself
         if best is not None and n > 1:
             params[1] = best[1]  # and the best so far (elitism)
-        if best is not None:  # a move's cost is at least its time: none reaching the goal after the best's cost wins
-            simulated = min(periods, math.ceil(best[0] / model.control_period) + 1)
+        if best is not None:  # a move's cost is at least its time and w_fuel x its idle fuel: none reaching the
+            # goal later than that allows wins
+            latest = best[0] / (1.0 + w_fuel * _idle_litres_per_second())
+            simulated = min(periods, math.ceil(latest / model.control_period) + 1)
         spools = _with_swing(_knot_spools(params, periods_per_knot, simulated), swing_m)
         batch = model.rollout(state, spools, simulated * model.control_period)
         used += n
