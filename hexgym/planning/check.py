@@ -42,7 +42,8 @@ TRIM_MAX_STEP = 0.6  # spool fraction a Newton step changes an offset by at most
 SETTLE_S = 1.5  # s a replay runs on with the spools closed after the plan (the swing coasts to rest)
 FIT_TAIL_S = 0.5  # s a plan with a fitted swing runs on after its end (see PlanCheck.fit_swing)
 SWING_STOPPED = 0.02  # rad/s: a braking swing this slow has stopped
-SWITCH_SEARCH = 48  # control periods after the fast model's switch within which the circuit model's is sought
+FIT_FROM = (8, 24)  # control periods after the fast model's switch: the circuit model's first two tried
+FIT_REPLAYS = 6  # circuit replays a swing's fit makes at most
 ROW_S = 0.05  # s between a replay's rows (two control periods, and a multiple of the reference's 2 ms step)
 
 
@@ -138,43 +139,57 @@ class PlanCheck:
     def fit_swing(self, spools_m: np.ndarray, state: MachineState, target_rad: float, near: int) -> np.ndarray:
         """The plan's spools (T, 4) with the swing's replaced by the circuit model's quickest swing to ``target_rad``
         under the plan's other spools: full spool, then closed (the crossover reliefs brake it; a full counter-spool
-        stops it barely sooner, with the pump at full pressure and more fuel); the switch (a control period)
-        found by bisection from ``near`` (the fast model's, whose swing brakes more weakly even at full
-        counter-spool: its switch comes first) to ``SWITCH_SEARCH`` periods later. It runs on
+        stops it barely sooner, with the pump at full pressure and more fuel). The switch (a control period) is
+        found by the secant method on where the swing stops, from two switches ``FIT_FROM`` periods after ``near``
+        (the fast model's, whose swing brakes more weakly even at full counter-spool: its switch comes first); of
+        the switches tried (at most ``FIT_REPLAYS``), the one that stops the swing nearest the target. It runs on
         ``FIT_TAIL_S`` with the other spools closed after the plan's end or the swing's stop, whichever is later:
         time for :meth:`correct` to finish a front that is slower on the circuit model than on the fast one."""
         sign = 1.0 if target_rad >= state.q[0] else -1.0
         period = self.model.control_period
         spools = np.vstack([spools_m, np.zeros((round(SETTLE_S / period), 4))])
+        tried: dict[int, tuple[float, int]] = {}
 
-        def stop(switch: int) -> tuple[float, int]:
-            """Where (rad) and when (period) the swing stops with this switch (the end: never)."""
-            trial = spools.copy()
-            trial[:, 0] = bang_bang(sign, switch, switch, len(trial))
-            log = CommandLog(np.arange(len(trial) + 1) * period, np.vstack([trial * 1e3, np.zeros((1, 4))]))
-            rows = replay(self.machine, log, start=state.q, payload_kg=state.payload_kg, dt_out=ROW_S,
-                          duration=len(trial) * period)  # fmt: skip
-            first = math.ceil(switch * period / ROW_S)
-            stopped = np.nonzero(sign * rows["qd_swing"][first:] <= SWING_STOPPED)[0]
-            if not len(stopped):
-                return math.inf * sign, len(trial)
-            row = first + stopped[0]
-            return float(rows["q_swing"][row]), round(rows["t"][row] / period)
+        def miss(switch: int) -> float:
+            """How far (rad, signed towards the turn) past the target the swing stops with this switch."""
+            if switch not in tried:
+                tried[switch] = self._swing_stop(spools, state, sign, switch)
+            return sign * (tried[switch][0] - target_rad)
 
-        low, high = max(1, near), min(len(spools) - 1, near + SWITCH_SEARCH)
-        ends = {k: stop(k) for k in (low, high)}
-        while high - low > 1:
-            middle = (low + high) // 2
-            ends[middle] = stop(middle)
-            if sign * (ends[middle][0] - target_rad) > 0:
-                high = middle
-            else:
-                low = middle
-        switch = min((low, high), key=lambda k: abs(ends[k][0] - target_rad))
-        end = ends[switch][1]
+        last = len(spools) - 1
+        a, b = (min(max(near + k, 1), last) for k in FIT_FROM)
+        for _ in range(FIT_REPLAYS - 2):
+            fa, fb = miss(a), miss(b)
+            if fa == fb or not math.isfinite(fa - fb):
+                break
+            guess = min(max(round(b - fb * (b - a) / (fb - fa)), 1), last)
+            if guess in tried:
+                break
+            a, b = b, guess
+        miss(b)
+        switch = min(tried, key=lambda k: abs(tried[k][0] - target_rad))
+        end = tried[switch][1]
         out = spools[: min(len(spools), max(len(spools_m), end + 1) + round(FIT_TAIL_S / period))].copy()
         out[:, 0] = bang_bang(sign, switch, switch, len(out))
         return out
+
+    def _swing_stop(self, spools: np.ndarray, state: MachineState, sign: float, switch: int) -> tuple[float, int]:
+        """Where (rad) and when (period) the circuit model's swing stops under ``spools`` (T, 4) with the swing full
+        towards ``sign`` until ``switch``, then closed (the swing still turning at the end: its last angle, then).
+        Replayed to twice the switch and 1 s first (a braking swing has stopped by then), to the end if not."""
+        period = self.model.control_period
+        trial = spools.copy()
+        trial[:, 0] = bang_bang(sign, switch, switch, len(trial))
+        log = CommandLog(np.arange(len(trial) + 1) * period, np.vstack([trial * 1e3, np.zeros((1, 4))]))
+        first = math.ceil(switch * period / ROW_S)
+        for rows_to in (min(2 * first + round(1.0 / ROW_S), len(trial) * period / ROW_S), len(trial) * period / ROW_S):
+            rows = replay(self.machine, log, start=state.q, payload_kg=state.payload_kg, dt_out=ROW_S,
+                          duration=math.floor(rows_to) * ROW_S)  # fmt: skip
+            stopped = np.nonzero(sign * rows["qd_swing"][first:] <= SWING_STOPPED)[0]
+            if len(stopped):
+                row = first + stopped[0]
+                return float(rows["q_swing"][row]), round(rows["t"][row] / period)
+        return float(rows["q_swing"][-1]), len(trial)
 
     def correct(
         self, spools_m: np.ndarray, state: MachineState, goal: Goal, checked: CheckResult | None = None
