@@ -404,11 +404,12 @@ def plan_checked(
     is returned with its figures on the fast model (not cut at the fast model's goal: the trim acts last).
 
     ``fit_swing`` (e.g. :meth:`PlanCheck.fit_swing`): the swing is not searched but turns as fast as it can to the
-    goal's bearing (:func:`swing_target`): full spool, then full counter-spool until it stops. The search holds it
-    at the fast model's own such swing (:func:`swing_bang_bang`) and finds the other spools; each round's plan then
-    gets the swing the accurate model needs under them (its switch later: the fast model's swing brakes more
-    weakly, and the same switch would stop it well short) before it is checked. The plan's predicted figures are
-    the fast model's with its own switch. ``search``: :func:`plan_motion`'s other options."""
+    goal's bearing (:func:`swing_target`). The search holds it at the fast model's own fastest turn (full spool,
+    then full counter-spool until it stops: :func:`swing_bang_bang`) and finds the other spools; each round's plan
+    then gets the swing ``fit_swing`` fits on the accurate model under them (its switch later: the fast model's
+    swing brakes more weakly, and the same switch would stop the machine's well short) before it is checked. The
+    plan's predicted figures are the fast model's with its own swing. ``search``: :func:`plan_motion`'s other
+    options."""
     if isinstance(budget, bool) or not isinstance(budget, int | np.integer) or budget < 2:
         raise ValueError(f"planner budget must be an integer >= 2 rollouts (two rounds), got {budget!r}")
     start = time.perf_counter()
