@@ -482,6 +482,9 @@ def test_plan_summary_counts_the_targets_on_each_machine():
     assert targets["reference_faster_15pct_no_more_fuel"] == 1  # 4.0 / 5.0 s with 0.9 of the fuel
     assert targets["reference_less_fuel_15pct_no_more_time"] == 1  # 5.0 / 5.0 s with 0.8 of the fuel
     assert out["median_reference_time_vs_scripted_reference"] == pytest.approx(0.9)
+    assert out["median_swing_switch_later_s"] is None  # no fitted swing
+    fitted = seed(3.0, 4.0, 0.9, 5.0) | {"swing_switch_s": {"fast_model": 1.5, "plan": 1.8}}
+    assert summarise([fitted, seed(3.0, 4.0, 0.9, 5.0)])["median_swing_switch_later_s"] == pytest.approx(0.3)
 
 
 def test_plot_plan_writes_a_png(tmp_path):

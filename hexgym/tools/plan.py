@@ -213,6 +213,7 @@ def plan_task(
             plan = plan_motion(state, goal, model, **options)
         reference = reference_replay(plan, state, goal, model)
         learned = learned_replay(seed, state, goal, plan, model)
+        switches = _swing_switches(plan, state, goal, model, horizon_s) if swing == "bang-bang" else None
     finally:
         model.close()
     return {
@@ -236,11 +237,22 @@ def plan_task(
         "scripted_reference_time_s": scripted_reference["time_s"],
         "scripted_reference_fuel_l": scripted_reference["fuel_l"],
         "scripted_reference_min_clearance_m": scripted_reference["min_clearance_m"],
+        "swing_switch_s": switches,
         "planned_spools_mm": (plan.spools_m * 1e3).round(3).tolist(),
         "scripted_spools_mm": (scripted["actions"] * p.SPOOL_STROKE * 1e3).round(3).tolist(),
         "paths": {"planned_tip": plan.tip.round(3).tolist(), "reference_tip": reference["tip"].round(3).tolist(),
                   "scripted_tip": scripted["tip"].round(3).tolist()},
     }  # fmt: skip
+
+
+def _swing_switches(plan: Plan, state: MachineState, goal: Goal, model: RolloutModel, horizon_s: float) -> dict:
+    """When a fastest-turn swing leaves full spool (s): the fast model's own turn's (:func:`swing_bang_bang`) and the
+    plan's (fitted on the circuit model when checked): how much more weakly the fast model brakes, per move."""
+    fast = swing_bang_bang(model, state, swing_target(state, goal, model), horizon_s)[1]
+    swing = plan.spools_m[:, 0]
+    full = np.abs(swing) >= p.SPOOL_STROKE - 1e-12
+    planned = int(np.argmin(full)) if not full.all() else len(swing)
+    return {"fast_model": fast * model.control_period, "plan": planned * model.control_period}
 
 
 def _ratio(a: float | None, b: float | None) -> float | None:
@@ -280,6 +292,8 @@ def summarise(results: list[dict[str, Any]]) -> dict[str, Any]:
         "median_fuel_prediction_error": median([rel(r["predicted_fuel_l"], r["reference_fuel_l"]) for r in results]),
         "planned_reached": sum(bool(r["predicted_reached"]) for r in results),
         "reference_reached": sum(r["reference_time_s"] is not None for r in results),
+        "median_swing_switch_later_s": median([r["swing_switch_s"]["plan"] - r["swing_switch_s"]["fast_model"]
+                                               for r in results if r.get("swing_switch_s")]),
     }  # fmt: skip
     targets = {
         "plan_wall_le_2s": sum(r["plan_wall_s"] <= 2.0 for r in results),
