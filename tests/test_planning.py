@@ -487,6 +487,23 @@ def test_plan_summary_counts_the_targets_on_each_machine():
     assert summarise([fitted, seed(3.0, 4.0, 0.9, 5.0)])["median_swing_switch_later_s"] == pytest.approx(0.3)
 
 
+def test_swing_switches_are_where_the_full_spool_towards_the_turn_ends():
+    """The plan's switch is the end of its full spool towards the turn, not of a counter-spool after it."""
+    from types import SimpleNamespace
+
+    from hexgym.planning.rollouts import bang_bang
+    from hexgym.tools.plan import _swing_switches
+
+    spools = np.zeros((100, 4))
+    spools[:, 0] = bang_bang(-1.0, 40, 70, 100)  # the fast model's own turn: full, full counter-spool, closed
+    assert _swing_switches(SimpleNamespace(spools_m=spools, fast_swing_switch=40), 0.025) == pytest.approx(
+        {"fast_model": 1.0, "plan": 1.0}
+    )
+    spools[:, 0] = bang_bang(-1.0, 52, 52, 100)  # fitted: full, then closed
+    assert _swing_switches(SimpleNamespace(spools_m=spools, fast_swing_switch=40), 0.025)["plan"] == pytest.approx(1.3)
+    assert _swing_switches(SimpleNamespace(spools_m=spools, fast_swing_switch=None), 0.025) is None
+
+
 def test_plot_plan_writes_a_png(tmp_path):
     from hexgym.tools.plan import plot_plan
 

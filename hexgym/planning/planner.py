@@ -138,7 +138,9 @@ class Plan:
     """A planned move. ``spools_m`` (T, 4): per 25 ms control period up to the goal (then closed);
     predicted ``time_s`` (to the goal; the horizon when not reached), ``fuel_l``, ``min_clearance_m``,
     ``goal_error_m`` (at the end); ``reached``, ``collision_free`` (clearance >= 0), ``spill_free``;
-    ``rollouts`` simulated, ``wall_s`` spent; the predicted ``tip``, ``mouth`` (T, 3) and ``q`` (T, 4)."""
+    ``rollouts`` simulated, ``wall_s`` spent; the predicted ``tip``, ``mouth`` (T, 3) and ``q`` (T, 4);
+    ``fast_swing_switch``: for a swing held at the fast model's fastest turn (:func:`swing_bang_bang`), the
+    control period its full spool ended at (else None)."""
 
     spools_m: np.ndarray
     time_s: float
@@ -153,6 +155,7 @@ class Plan:
     tip: np.ndarray
     mouth: np.ndarray
     q: np.ndarray
+    fast_swing_switch: int | None = None
 
     @property
     def message(self) -> str:
@@ -414,7 +417,7 @@ def plan_checked(
         raise ValueError(f"planner budget must be an integer >= 2 rollouts (two rounds), got {budget!r}")
     start = time.perf_counter()
     margin_m = margin_for(state) if margin_m is None else margin_m
-    swing_m, rollouts = None, 0
+    swing_m, switch, rollouts = None, None, 0
     if fit_swing is not None:
         target = swing_target(state, goal, model)
         swing_m, switch, rollouts = swing_bang_bang(model, state, target, search.get("horizon_s", 8.0))
@@ -443,7 +446,8 @@ def plan_checked(
         elif spools is not plan.spools_m:  # trimmed: it ranks better on the accurate model
             rollouts += 1  # the trimmed spools' figures on the fast model
             plan, checked = _plan_of(spools, state, goal, model, margin_m, rollouts, start, truncate=False), corrected
-    return dataclasses.replace(plan, rollouts=rollouts, wall_s=time.perf_counter() - start), checked
+    wall_s = time.perf_counter() - start
+    return dataclasses.replace(plan, rollouts=rollouts, wall_s=wall_s, fast_swing_switch=switch), checked
 
 
 def knot_means(per_step: np.ndarray, steps_per_knot: int) -> np.ndarray:

@@ -507,9 +507,9 @@ def _add_planning_parsers(sub: argparse._SubParsersAction) -> None:
         help="plan in one round on the fast model alone (default: two rounds, each plan checked on the circuit model)",
     )
     plan.add_argument("--swing", choices=("knots", "bang-bang"), default=None, help="the swing searched per knot "
-                      "as the other spools, or turned as fast as it can (full spool, then counter-spool until it "
-                      "stops) with its switch fitted to the circuit model (default: knots for dump, bang-bang for "
-                      "return)")  # fmt: skip
+                      "as the other spools, or turned as fast as it can (full spool, then closed: the crossover "
+                      "reliefs brake it) with its switch fitted to the circuit model (default: knots for dump, "
+                      "bang-bang for return)")  # fmt: skip
     plan.add_argument("--json", metavar="OUT", default=None, help="also write the figures to this JSON file")
     add_ray_option(plan, "the seeds (each with --threads cores)")
     plan.set_defaults(func=_cmd_plan)

@@ -25,6 +25,7 @@ starts from rest at those angles. Then:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from pathlib import Path
@@ -184,11 +185,7 @@ def plan_task(
     ``bang-bang`` (the fastest turn to the goal's bearing, fitted to the circuit model: ``plan_checked``'s
     ``fit_swing``; without the check, the fast model's own); default :data:`DEFAULT_SWING`. The horizon is
     ``horizon_s`` or, shorter, the scripted move's time plus 0.5 s (rounded up to 0.5 s, >= 3 s)."""
-    if task not in TASKS:
-        raise ValueError(f"--task must be one of {TASKS}, got {task!r}")
-    swing = DEFAULT_SWING[task] if swing is None else swing
-    if swing not in SWINGS:
-        raise ValueError(f"--swing must be one of {SWINGS}, got {swing!r}")
+    swing = _swing_of(task, swing)
     states = start_states(seed)
     state, goal = states[task]
     margin_m = margin_for(state) if margin_m is None else margin_m
@@ -207,13 +204,14 @@ def plan_task(
             fit_swing = check_model.fit_swing if swing == "bang-bang" else None
             plan, checked = plan_checked(state, goal, model, check_model, correct=check_model.correct,
                                          fit_swing=fit_swing, **options)  # fmt: skip
+        elif swing == "bang-bang":  # the fast model's own fastest turn, not fitted
+            swing_m, switch, _ = swing_bang_bang(model, state, swing_target(state, goal, model), horizon_s)
+            plan = dataclasses.replace(plan_motion(state, goal, model, swing_m=swing_m, **options),
+                                       fast_swing_switch=switch)  # fmt: skip
         else:
-            if swing == "bang-bang":
-                options["swing_m"] = swing_bang_bang(model, state, swing_target(state, goal, model), horizon_s)[0]
             plan = plan_motion(state, goal, model, **options)
         reference = reference_replay(plan, state, goal, model)
         learned = learned_replay(seed, state, goal, plan, model)
-        switches = _swing_switches(plan, state, goal, model, horizon_s) if swing == "bang-bang" else None
     finally:
         model.close()
     return {
@@ -237,7 +235,7 @@ def plan_task(
         "scripted_reference_time_s": scripted_reference["time_s"],
         "scripted_reference_fuel_l": scripted_reference["fuel_l"],
         "scripted_reference_min_clearance_m": scripted_reference["min_clearance_m"],
-        "swing_switch_s": switches,
+        "swing_switch_s": _swing_switches(plan, model.control_period),
         "planned_spools_mm": (plan.spools_m * 1e3).round(3).tolist(),
         "scripted_spools_mm": (scripted["actions"] * p.SPOOL_STROKE * 1e3).round(3).tolist(),
         "paths": {"planned_tip": plan.tip.round(3).tolist(), "reference_tip": reference["tip"].round(3).tolist(),
@@ -245,14 +243,26 @@ def plan_task(
     }  # fmt: skip
 
 
-def _swing_switches(plan: Plan, state: MachineState, goal: Goal, model: RolloutModel, horizon_s: float) -> dict:
+def _swing_of(task: str, swing: str | None) -> str:
+    """The swing planning of ``task``: ``swing``, or the task's default (:data:`DEFAULT_SWING`); checks both."""
+    if task not in TASKS:
+        raise ValueError(f"--task must be one of {TASKS}, got {task!r}")
+    swing = DEFAULT_SWING[task] if swing is None else swing
+    if swing not in SWINGS:
+        raise ValueError(f"--swing must be one of {SWINGS}, got {swing!r}")
+    return swing
+
+
+def _swing_switches(plan: Plan, period: float) -> dict | None:
     """When a fastest-turn swing leaves full spool (s): the fast model's own turn's (:func:`swing_bang_bang`) and the
-    plan's (fitted on the circuit model when checked): how much more weakly the fast model brakes, per move."""
-    fast = swing_bang_bang(model, state, swing_target(state, goal, model), horizon_s)[1]
+    plan's (fitted on the circuit model when checked): how much more weakly the fast model brakes, per move. None
+    for a swing searched per knot."""
+    if plan.fast_swing_switch is None:
+        return None
     swing = plan.spools_m[:, 0]
-    full = np.abs(swing) >= p.SPOOL_STROKE - 1e-12
-    planned = int(np.argmin(full)) if not full.all() else len(swing)
-    return {"fast_model": fast * model.control_period, "plan": planned * model.control_period}
+    full = swing * np.sign(swing[0]) >= p.SPOOL_STROKE - 1e-12  # towards the turn (not the counter-spool after it)
+    planned = int(np.argmin(full)) if not full.all() else len(full)
+    return {"fast_model": plan.fast_swing_switch * period, "plan": planned * period}
 
 
 def _ratio(a: float | None, b: float | None) -> float | None:
@@ -353,8 +363,7 @@ def run_plan(
         raise ValueError(f"--threads must be >= 1, got {nthread}")
     if margin_m is not None and not (math.isfinite(margin_m) and 0 <= margin_m <= 2.0):
         raise ValueError(f"--margin must be within 0 and 2 m, got {margin_m}")
-    if swing is not None and swing not in SWINGS:
-        raise ValueError(f"--swing must be one of {SWINGS}, got {swing!r}")
+    _swing_of(task, swing)  # before any seed runs
     start = time.perf_counter()
     jobs = [(task, s, w_fuel, budget, nthread, margin_m, check, swing) for s in seeds]
     with executor(1, ray, cpus_per_task=nthread) as pool:
