@@ -64,12 +64,9 @@ Clearance Configure(const mjModel* m, int instance) {
   return c;
 }
 
-// A lower bound of the distance between geom `tool` and geom `other` (negative: they may overlap).
-mjtNum LowerBound(const mjModel* m, const mjData* d, int tool, int other) {
-  const mjtNum* aabb = m->geom_aabb + 6 * tool;  // centre and half-sizes in the geom's frame
-  mjtNum centre[3], radius = mju_norm3(aabb + 3);
-  mju_mulMatVec3(centre, d->geom_xmat + 9 * tool, aabb);
-  mju_addTo3(centre, d->geom_xpos + 3 * tool);
+// A lower bound of the distance between a sphere (world centre, radius) around the tool and geom `other`
+// (negative: they may overlap): to the obstacle's local bounding box, or its plane.
+mjtNum LowerBound(const mjModel* m, const mjData* d, const mjtNum centre[3], mjtNum radius, int other) {
   mjtNum offset[3], local[3];
   mju_sub3(offset, centre, d->geom_xpos + 3 * other);
   mju_mulMatTVec3(local, d->geom_xmat + 9 * other, offset);
@@ -85,9 +82,13 @@ mjtNum LowerBound(const mjModel* m, const mjData* d, int tool, int other) {
 
 void Compute(const mjModel* m, mjData* d, int instance) {
   const Clearance& c = *Get(d, instance);
+  const mjtNum* aabb = m->geom_aabb + 6 * c.tool;  // the tool's box: centre and half-sizes in its frame
+  mjtNum centre[3], radius = mju_norm3(aabb + 3);  // the sphere around it
+  mju_mulMatVec3(centre, d->geom_xmat + 9 * c.tool, aabb);
+  mju_addTo3(centre, d->geom_xpos + 3 * c.tool);
   mjtNum least = c.cutoff;
   for (int other : c.obstacles) {
-    if (LowerBound(m, d, c.tool, other) > least) continue;  // farther than the cutoff or a nearer pair
+    if (LowerBound(m, d, centre, radius, other) > least) continue;  // farther than the cutoff or a nearer pair
     least = mju_min(least, mj_geomDistance(m, d, c.tool, other, least, nullptr));
   }
   d->sensordata[c.sensor_adr] = least;
