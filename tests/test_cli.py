@@ -68,3 +68,14 @@ def test_simulate_refuses_a_malformed_log(tmp_path, capsys, body, message):
     assert main(["simulate", "--commands", str(log), "--out", str(out)]) == 2
     assert message in capsys.readouterr().err
     assert not out.exists() and list(tmp_path.iterdir()) == [log]
+
+
+def test_loader_settings_are_checked_before_any_episode(tmp_path, capsys):
+    bad = tmp_path / "loader.json"
+    bad.write_text('{"full_fraction": 2.0}')
+    assert main(["scripted", "--loader-settings", str(bad)]) == 2
+    assert f"{bad}: loader setting full_fraction=2.0 must be a number" in capsys.readouterr().err
+    good = tmp_path / "good.json"
+    good.write_text('{"full_fraction": 0.7}')
+    assert main(["evaluate", "--policy", "shipped", "--loader-settings", str(good), "--episodes", "1"]) == 2
+    assert "only for the scripted policy" in capsys.readouterr().err

@@ -384,7 +384,7 @@ def test_bad_earthwork_periods_are_refused(periods):
 
 
 def test_digging_once_per_step_fills_and_curls_like_digging_every_period():
-    from hexgym.agents.scripted import FULL_FRACTION, ScriptedLoader
+    from hexgym.agents.scripted import DEFAULT_SETTINGS, ScriptedLoader
 
     phases = {}
     for periods in (1, 4):
@@ -395,7 +395,8 @@ def test_digging_once_per_step_fills_and_curls_like_digging_every_period():
             _, _, _, _, info = env.step(controller.act(env))
             if controller.phase == "drag":
                 dragged_kg = info["bucket_kg"]
-        assert dragged_kg >= FULL_FRACTION * p.BUCKET_HEAPED_CAPACITY * p.MATERIAL_DENSITY  # dragged it full
+        full_kg = DEFAULT_SETTINGS.full_fraction * p.BUCKET_HEAPED_CAPACITY * p.MATERIAL_DENSITY
+        assert dragged_kg >= full_kg  # dragged it full
         phases[periods] = dict((phase, t) for t, phase in controller.log)
     # the drag fills in about the same time (measured 8.8 s and 8.9 s to the curl), and the curl, which
     # the pile's resistance stalls, lasts as long (4.0 s both; 2.0 s with the force held over whole steps)

@@ -8,6 +8,7 @@ import pytest
 from hexgym.agents.scripted import (
     CARRY_ANGLE,
     DUMP_ANGLE,
+    LoaderSettings,
     LoaderState,
     ScriptedLoader,
     entry_radius,
@@ -65,7 +66,7 @@ def test_the_label_is_a_function_of_the_state_alone():
         if step % 40 == 0:  # a copy of the simulation, labelled by a loader that never saw this episode
             dropped_in = pickle.loads(pickle.dumps(env))
             assert np.array_equal(ScriptedLoader().act(dropped_in), action)
-            assert np.array_equal(ScriptedLoader.label(dropped_in), action)
+            assert np.array_equal(ScriptedLoader().label(dropped_in), action)
         if 100 <= step < 130:
             action = rng.uniform(-1, 1, 4).astype(np.float32)  # a learner's detour: the labels stay consistent
         env.step(action)
@@ -114,3 +115,66 @@ def test_native_backend_loads_the_truck_too():
 def test_unknown_backend_is_refused():
     with pytest.raises(ValueError, match="backend"):
         HexLoadingEnv(backend="fortran")
+
+
+def test_settings_change_the_phase_rules():
+    env = HexLoadingEnv()
+    env.reset(seed=0)
+    heaped = p.BUCKET_HEAPED_CAPACITY * p.MATERIAL_DENSITY
+    in_pile = replace(LoaderState.of(env), radius=entry_radius(env.layout) - 1.0, surface=1.2, above_pile=-0.4,
+                      tilt=1.4, payload_kg=0.7 * heaped)  # fmt: skip
+    assert infer_phase(in_pile, env.layout) == "drag"  # the default drags on to 85 % of heaped
+    assert infer_phase(in_pile, env.layout, LoaderSettings(full_fraction=0.65)) == "curl"
+    near_truck = replace(in_pile, above_pile=1.0, tilt=0.2, swing_to_truck=0.3)
+    assert infer_phase(near_truck, env.layout) == "to_truck"
+    assert infer_phase(near_truck, env.layout, LoaderSettings(dump_window=0.35)) == "dump"
+    assert swing_brake(3e5, LoaderSettings(brake_margin=1.2)) == pytest.approx(1.2 * swing_brake(3e5))
+
+
+def test_settings_files_round_trip_and_bad_ones_are_refused_by_name(tmp_path):
+    settings = LoaderSettings(full_fraction=0.7, drag_speed=0.8)
+    settings.save(tmp_path / "s.json")
+    assert LoaderSettings.load(tmp_path / "s.json") == settings
+    (tmp_path / "partial.json").write_text('{"full_fraction": 0.6}')
+    assert LoaderSettings.load(tmp_path / "partial.json") == LoaderSettings(full_fraction=0.6)
+    bad = {
+        "unknown.json": ('{"full_fraction": 0.6, "speed": 2}', "unknown loader settings ['speed']"),
+        "range.json": ('{"full_fraction": 1.5}', "full_fraction=1.5 must be a number in [0.5, 0.95]"),
+        "nan.json": ('{"dig_depth": NaN}', "dig_depth=nan must be a number"),
+        "text.json": ('{"dig_depth": "0.4"}', "dig_depth='0.4' must be a number"),
+        "bool.json": ('{"dig_depth": true}', "dig_depth=True must be a number"),
+        "list.json": ("[0.6]", "expected a JSON object of loader settings, got list"),
+        "broken.json": ('{"full_fraction": ', "not a readable JSON file"),
+    }
+    for name, (text, message) in bad.items():
+        (tmp_path / name).write_text(text)
+        with pytest.raises(ValueError) as error:
+            LoaderSettings.load(tmp_path / name)
+        assert str(error.value).startswith(str(tmp_path / name)) and message in str(error.value), name
+    with pytest.raises(ValueError, match="not a readable JSON file"):
+        LoaderSettings.load(tmp_path / "missing.json")
+
+
+def test_a_loader_with_other_settings_loads_differently():
+    default = run_scripted(HexLoadingEnv(), seed=3, seconds=40.0)
+    lighter = run_scripted(HexLoadingEnv(), seed=3, seconds=40.0, settings=LoaderSettings(full_fraction=0.6))
+    assert default["dumps"] >= 1 and lighter["dumps"] >= 1
+    assert lighter["spilled_t"] < default["spilled_t"]  # a bucket filled less deep spills less of its heap
+
+
+def test_the_settings_search_keeps_the_best_candidate_it_met(tmp_path):
+    from hexgym.agents.loader_search import episode_figures, tune_loader
+
+    lines = []
+    settings, score = tune_loader(tmp_path / "tuned.json", seeds=[3], generations=1, population=2, log=lines.append)
+    assert LoaderSettings.load(tmp_path / "tuned.json") == settings
+    assert lines[0].startswith("defaults: objective") and lines[1].startswith("generation 0: best so far")
+    delivered, spilled, seconds, contact = episode_figures(settings, 3)  # the score is the episode's figures
+    assert score.tonnes_per_hour == pytest.approx(delivered / seconds * 3600.0)
+    assert score.spilled_fraction == pytest.approx(spilled / (spilled + delivered)) and contact <= 0.0
+    defaults = float(lines[0].split()[2].rstrip(","))
+    assert score.objective >= defaults  # the defaults are a candidate too
+    with pytest.raises(ValueError, match="seeds"):
+        tune_loader(tmp_path / "none.json", seeds=[])
+    with pytest.raises(ValueError, match="population"):
+        tune_loader(tmp_path / "none.json", seeds=[3], population=1)

@@ -112,6 +112,23 @@ def test_a_fine_tune_keeps_its_starting_observation_statistics(tmp_path, tiny_ya
     assert load_trained(tuned).model.num_timesteps >= 128
 
 
+def test_a_fine_tune_learns_and_explores_with_its_own_hyperparameters(tmp_path, tiny_yaml):
+    """``init_from`` with another YAML: its learning rate, rollout and exploration noise, not the start's."""
+    start = train("ppo", timesteps=128, seed=0, log_dir=tmp_path / "start", hyperparams=tiny_yaml, n_envs=2,
+                  checkpoint_every=128, progress_bar=False, report=False)  # fmt: skip
+    careful = yaml.safe_load(tiny_yaml.read_text())
+    entry = careful["HexLoading-v0"]
+    entry.update(learning_rate=1e-6, n_steps=32, policy_kwargs=entry["policy_kwargs"].replace("log_std_init=-1.0",
+                 "log_std_init=-2.5"))  # fmt: skip
+    (tmp_path / "careful.yml").write_text(yaml.safe_dump(careful))
+    tuned = train("ppo", timesteps=64, seed=1, log_dir=tmp_path / "tuned", hyperparams=tmp_path / "careful.yml",
+                  n_envs=2, init_from=start, checkpoint_every=64, progress_bar=False, report=False)  # fmt: skip
+    model = load_trained(tuned).model
+    assert model.learning_rate == 1e-6 and model.n_steps == 32
+    assert load_trained(start).model.learning_rate != 1e-6
+    np.testing.assert_allclose(model.policy.log_std.detach().numpy(), -2.5, atol=1e-3)  # barely moved at 1e-6
+
+
 def _interrupt() -> None:
     raise KeyboardInterrupt  # Ctrl-C
 
@@ -185,7 +202,7 @@ def test_demonstrations_are_labelled_by_the_state_derived_loader():
     env = make_env("HexLoading-v0", time_limit=3.0)
     obs, _ = env.reset(seed=5)
     assert np.array_equal(obs, demos.obs[0])
-    assert np.array_equal(ScriptedLoader.label(env.unwrapped), demos.actions[0])
+    assert np.array_equal(ScriptedLoader().label(env.unwrapped), demos.actions[0])
 
 
 def test_cloning_runs_its_episodes_on_the_tables_asked_for(tmp_path, tiny_yaml, monkeypatch):

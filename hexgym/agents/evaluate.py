@@ -58,10 +58,11 @@ class Policy(Protocol):
 class ScriptedPolicy:
     """The scripted loader (reads the simulation's state, not the observation)."""
 
-    def __init__(self) -> None:
-        from hexgym.agents.scripted import ScriptedLoader
+    def __init__(self, settings_path: str | Path | None = None) -> None:
+        from hexgym.agents.scripted import DEFAULT_SETTINGS, LoaderSettings, ScriptedLoader
 
-        self.controller = ScriptedLoader()
+        settings = LoaderSettings.load(settings_path) if settings_path is not None else DEFAULT_SETTINGS
+        self.controller = ScriptedLoader(settings)
 
     def reset(self) -> None:
         """Start the state machine over."""
@@ -138,11 +139,14 @@ def load_trained(model_path: str | Path, env_id: str = ENV_ID) -> TrainedPolicy:
     return TrainedPolicy(model, normalizer if normalizer.norm_obs else None)
 
 
-def load_policy(spec: str | Path, env_id: str = ENV_ID) -> Policy:
+def load_policy(spec: str | Path, env_id: str = ENV_ID, loader_settings: str | Path | None = None) -> Policy:
     """``"scripted"``, ``"shipped"``, a model path or an RLlib checkpoint directory -> a policy for ``env_id``
-    (another task than HexLoading-v0: ``"scripted"`` or a model trained on it)."""
+    (another task than HexLoading-v0: ``"scripted"`` or a model trained on it). ``loader_settings``: a JSON
+    file of the scripted loader's settings (``"scripted"`` only)."""
     if spec == "scripted":
-        return ScriptedPolicy()
+        return ScriptedPolicy(loader_settings)
+    if loader_settings is not None:
+        raise ValueError(f"--loader-settings {loader_settings}: only for the scripted policy, not {spec}")
     if env_id != ENV_ID:
         return load_trained(spec, env_id)
     if spec == "shipped":
@@ -256,6 +260,7 @@ def evaluate(
     json_out: str | None = None,
     workers: int = 1,
     ray: str | None = None,
+    loader_settings: str | Path | None = None,
 ) -> dict[str, Any]:
     """Run ``episodes`` episodes (seeds ``seed``..``seed+episodes-1``) of a policy; the figures of :func:`aggregate`.
 
@@ -264,13 +269,14 @@ def evaluate(
     ``spilled_fraction``: spilled / (spilled + delivered), of the material that left the bucket.
     ``workers`` > 1 processes or ``ray`` ("local" or a cluster's address, :mod:`hexgym.parallel`) run the
     episodes in parallel, each worker with the loaded policy and its own environment: the same figures.
+    ``loader_settings``: the scripted loader's settings file (``policy_spec`` ``"scripted"``).
     """
     check_count("episodes", episodes)
     check_seed("seed", seed)
     check_count("workers", workers)
     if json_out:
         check_output_file(json_out, "JSON output", inputs=(policy_spec,))
-    policy = load_policy(policy_spec)
+    policy = load_policy(policy_spec, loader_settings=loader_settings)
     seeds = [seed + i for i in range(int(episodes))]
     with executor(min(workers, len(seeds)), ray, initializer=_init_worker, initargs=(policy, env_kwargs)) as pool:
         try:
@@ -279,6 +285,8 @@ def evaluate(
             _close_worker()  # the environment of a run in this process
     model = (env_kwargs or {}).get("model", "learned")
     result = {"policy": policy_spec, "env_id": ENV_ID, "model": model, "seed": seed, **aggregate(runs)}
+    if loader_settings is not None:
+        result["loader_settings"] = str(loader_settings)
     if json_out:
         write_json(json_out, result)
     return result

@@ -24,13 +24,17 @@ overlaps only what the pumps allow: boom raise with swing, stick reach-out after
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass, field
+import json
+import math
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
 
 import numpy as np
 
 from hexgym.envs.earthwork import mouth_normal
 from hexgym.envs.loading import REWARD_TERMS, HexLoadingEnv, bucket_angle_for
 from hexgym.envs.world import TRUCK_CAB_LENGTH, Layout, World, entry_radius, inner_radius
+from hexgym.files import write_json
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.mbl.table import MBLTable
@@ -38,34 +42,83 @@ from hexgym.mbl.table import MBLTable
 _MOUTH_NORMAL_3D = np.array([mouth_normal()[0], 0.0, mouth_normal()[1]])  # bucket frame
 FULL_SPOOL_CYLINDER_SPEED = np.array([0.14, 0.35, 0.29])  # m/s boom, stick, bucket [README: reference model]
 SWING_BRAKE = 0.35  # rad/s^2: default planned deceleration of swing_spool (the loader plans with swing_brake)
-BRAKE_MARGIN = 1.0  # of the crossover reliefs' deceleration, planned for the swing's stop
 SWING_GAIN = 4.0  # spool per rad/s of swing-rate error (the valve's dead zone swallows small spools)
 POSITION_GAIN = 1.5  # 1/s: planar velocity per metre (or rad) of error
 MAX_TIP_SPEED = 2.0  # m/s planned (beyond the boom's full-spool speed: it sets the pace)
-DIG_DEPTH = 0.45  # m below the surface during the drag
 DRAG_FLOOR = 0.3  # m: lowest teeth height in the drag (teeth along it: the bucket's body rides above them)
-DRAG_SPEED = 0.6  # m/s towards the machine
 GROUND_CLEARANCE = 0.5  # m: lowest teeth height while digging (the bucket's heel hangs below the teeth)
 DRAG_LEAD = 0.3  # m: the drag's radius target runs this far ahead of the teeth
-FULL_FRACTION = 0.85  # of the heaped capacity: stop dragging (a fuller bucket spills its heap on the way)
-CLEARANCE = 1.5  # m: teeth above the bed's rim when swinging over it (the curled bucket hangs below them)
 PILE_CLEARANCE = 0.5  # m: teeth above the pile's surface before the loaded swing starts
-APPROACH_HEIGHT = 0.6  # m above the pile's top: where the empty bucket arrives before it goes in
 REACH_PER_METRE = 2.0  # m: the empty bucket reaches out over the pile this far per metre above its top
-OPEN_WITHIN = 2.0  # m: the empty bucket opens for the dig over this distance to the entry radius
 ENTRY_TOLERANCE = 0.4  # m: radius error within which the teeth are at the entry point
 IN_PILE = 0.05  # m: teeth lower than this above the surface are in the pile...
 MATERIAL_DEPTH = 0.1  # m: ...where it is at least this high (elsewhere the teeth are at the ground)
 EMPTY_KG = 100.0  # kg: less left in the bucket counts as empty (the open bucket drops the rest on its way)
 WORTH_CARRYING_KG = 500.0  # kg: out of the pile with this much, curl and carry it; with less, dig on
 CARRIED_TILT = 0.6  # rad: the mouth this close to facing up holds its load (repose 0.59): carry it
-DUMP_PIN_HEIGHT = 1.5  # m: bucket pin above the rim to dump from (the opened bucket's teeth swing down and out)
 DUMP_PIN_BEYOND = 0.0  # m: bucket pin radius beyond the bed's centre line
-ARRIVE_HEIGHT = 1.2  # m: teeth above the rim before the loaded bucket swings over the truck
-LEAVE_HEIGHT = 0.5  # m: teeth (the open bucket's lowest point) above the rim before it swings away
-TRUCK_APPROACH = 0.8  # rad: the loaded swing waits at most this far from the truck until the teeth clear it...
-HOLD_BACK_PER_METRE = 1.0  # rad: ...this much short of it per metre they still have to rise
-DUMP_WINDOW = 0.25  # rad: the swing this close to the truck's direction: reach out and dump
+
+
+@dataclass(frozen=True)
+class LoaderSettings:
+    """The loader's tunable targets and thresholds; the defaults are hand-set (``hexgym tune-loader`` searches them).
+
+    Files: JSON of the fields to change (:meth:`load`); the rest keep their defaults.
+    """
+
+    full_fraction: float = 0.85  # of the heaped capacity: stop dragging (a fuller bucket spills on the way)
+    dig_depth: float = 0.45  # m below the surface during the drag
+    drag_speed: float = 0.6  # m/s towards the machine
+    approach_height: float = 0.6  # m above the pile's top: where the empty bucket arrives before it goes in
+    open_within: float = 2.0  # m: the empty bucket opens for the dig over this distance to the entry radius
+    clearance: float = 1.5  # m: teeth above the rim when swinging over it (the curled bucket hangs below them)
+    arrive_height: float = 1.2  # m: teeth above the rim before the loaded bucket swings over the truck
+    truck_approach: float = 0.8  # rad: the loaded swing waits at most this far short of the truck until...
+
+    hold_back_per_metre: float = 1.0  # rad: ...the teeth clear its rim: this far per metre they still have to rise
+    dump_window: float = 0.25  # rad: the swing this close to the truck's direction: reach out and dump
+    dump_pin_height: float = 1.5  # m: bucket pin above the rim to dump from (the opened teeth swing down, out)
+    leave_height: float = 0.5  # m: teeth (the open bucket's lowest point) above the rim before it swings away
+    brake_margin: float = 1.0  # of the crossover reliefs' deceleration, planned for the swing's stop
+
+    def __post_init__(self) -> None:
+        for f in fields(self):  # bool is an int: refused too
+            low, high = SETTING_RANGES[f.name]
+            value = getattr(self, f.name)
+            if isinstance(value, bool) or not (
+                isinstance(value, (int, float)) and math.isfinite(value) and low <= value <= high
+            ):
+                raise ValueError(f"loader setting {f.name}={value!r} must be a number in [{low}, {high}]")
+
+    @classmethod
+    def load(cls, path: str | Path) -> LoaderSettings:
+        """Settings from a JSON file of field values; unknown fields and out-of-range values are refused."""
+        try:
+            values = json.loads(Path(path).read_text())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+            raise ValueError(f"{path}: not a readable JSON file of loader settings ({error})") from None
+        if not isinstance(values, dict):
+            raise ValueError(f"{path}: expected a JSON object of loader settings, got {type(values).__name__}")
+        unknown = sorted(set(values) - {f.name for f in fields(cls)})
+        if unknown:
+            raise ValueError(f"{path}: unknown loader settings {unknown} (known: {sorted(SETTING_RANGES)})")
+        try:
+            return cls(**values)
+        except ValueError as error:
+            raise ValueError(f"{path}: {error}") from None
+
+    def save(self, path: str | Path) -> None:
+        """Write the settings as JSON (atomically)."""
+        write_json(path, asdict(self))
+
+
+SETTING_RANGES = {  # the values a setting may take (the search's bounds; the defaults inside)
+    "full_fraction": (0.5, 0.95), "dig_depth": (0.2, 0.8), "drag_speed": (0.3, 1.5), "approach_height": (0.2, 1.2),
+    "open_within": (0.5, 3.5), "clearance": (0.8, 2.5), "arrive_height": (0.4, 2.0), "truck_approach": (0.3, 1.5),
+    "hold_back_per_metre": (0.3, 2.5), "dump_window": (0.1, 0.6), "dump_pin_height": (0.8, 2.5),
+    "leave_height": (0.1, 1.2), "brake_margin": (0.7, 1.6),
+}  # fmt: skip
+DEFAULT_SETTINGS = LoaderSettings()
 
 
 PENETRATE_ANGLE = bucket_angle_for(teeth_world_angle=np.radians(-115.0))  # teeth down, towards the machine
@@ -170,9 +223,9 @@ def front_spools(env: HexLoadingEnv, target: np.ndarray, feed: np.ndarray | None
     )
 
 
-def swing_brake(inertia_kgm2: float) -> float:
+def swing_brake(inertia_kgm2: float, settings: LoaderSettings = DEFAULT_SETTINGS) -> float:
     """Planned swing deceleration (rad/s^2) at a swing inertia: the crossover reliefs' torque, with a margin."""
-    return BRAKE_MARGIN * p.SWING_TORQUE_AT_RELIEF / inertia_kgm2
+    return settings.brake_margin * p.SWING_TORQUE_AT_RELIEF / inertia_kgm2
 
 
 def swing_spool(error: float, rate: float, brake: float = SWING_BRAKE) -> float:
@@ -231,7 +284,7 @@ class LoaderState:
         )  # fmt: skip
 
 
-def infer_phase(s: LoaderState, layout: Layout) -> str:
+def infer_phase(s: LoaderState, layout: Layout, settings: LoaderSettings = DEFAULT_SETTINGS) -> str:
     """The loading phase the state calls for: a function of the state alone (no timers, no memory).
 
     The same state always gets the same phase, so the loader can label any state a learner
@@ -239,11 +292,11 @@ def infer_phase(s: LoaderState, layout: Layout) -> str:
     material is left, a curl until the mouth faces up, a drag until the bucket is full.
     """
     loaded = s.payload_kg > EMPTY_KG
-    if loaded and abs(s.swing_to_truck) < DUMP_WINDOW:
+    if loaded and abs(s.swing_to_truck) < settings.dump_window:
         return "dump"
     if loaded and s.tilt < CARRIED_TILT:
         return "to_truck"
-    full = s.payload_kg >= FULL_FRACTION * p.BUCKET_HEAPED_CAPACITY * p.MATERIAL_DENSITY
+    full = s.payload_kg >= settings.full_fraction * p.BUCKET_HEAPED_CAPACITY * p.MATERIAL_DENSITY
     if s.above_pile < IN_PILE and s.surface > MATERIAL_DEPTH:
         if full:
             return "curl"
@@ -251,13 +304,13 @@ def infer_phase(s: LoaderState, layout: Layout) -> str:
             return "curl" if s.payload_kg >= WORTH_CARRYING_KG else "to_pile"
         depth = -s.above_pile
         at_entry = s.radius > entry_radius(layout) - ENTRY_TOLERANCE
-        if at_entry and depth < DIG_DEPTH - 0.15 and s.tip[2] > GROUND_CLEARANCE + 0.15:
+        if at_entry and depth < settings.dig_depth - 0.15 and s.tip[2] > GROUND_CLEARANCE + 0.15:
             return "penetrate"
         return "drag"
     if s.payload_kg >= WORTH_CARRYING_KG:
         return "curl"  # out of the pile with a load and the bucket open: close it
     aligned = abs(s.swing_to_dig) < 0.08 and abs(s.qd[0]) < 0.2
-    low = s.tip[2] < layout.pile_height + APPROACH_HEIGHT + 0.3
+    low = s.tip[2] < layout.pile_height + settings.approach_height + 0.3
     if aligned and abs(s.radius - entry_radius(layout)) < ENTRY_TOLERANCE and low:
         return "penetrate"
     return "to_pile"
@@ -271,6 +324,7 @@ class ScriptedLoader:
     function of the state: :meth:`label` gives the same action for any state, however it was reached.
     """
 
+    settings: LoaderSettings = DEFAULT_SETTINGS
     phase: str = "to_pile"
     log: list[tuple[float, str]] = field(default_factory=list)
 
@@ -281,71 +335,74 @@ class ScriptedLoader:
     def act(self, env: HexLoadingEnv) -> np.ndarray:
         """The action (4 spool fractions) for the environment's present state; logs phase changes."""
         state = LoaderState.of(env)
-        phase = infer_phase(state, env.layout)
+        phase = infer_phase(state, env.layout, self.settings)
         if phase != self.phase:
             self.phase = phase
             self.log.append((env.elapsed, phase))
-        return action_for(env, state, phase)
+        return action_for(env, state, phase, self.settings)
 
-    @staticmethod
-    def label(env: HexLoadingEnv) -> np.ndarray:
-        """The action for the present state, without touching any loader's log (the DAgger expert's label)."""
+    def label(self, env: HexLoadingEnv) -> np.ndarray:
+        """The action for the present state, without touching the phase log (the DAgger expert's label)."""
         state = LoaderState.of(env)
-        return action_for(env, state, infer_phase(state, env.layout))
+        return action_for(env, state, infer_phase(state, env.layout, self.settings), self.settings)
 
 
 Targets = tuple[np.ndarray, float, np.ndarray | None]  # teeth (radius, height, angle), swing angle, planar feed
 
 
-def _to_pile(env: HexLoadingEnv, s: LoaderState) -> Targets:
+def _to_pile(env: HexLoadingEnv, s: LoaderState, settings: LoaderSettings) -> Targets:
     lay = env.layout
     entry = entry_radius(lay)
     if _over_truck(s.tip, lay):  # above the truck: up to the carry height, swing once above the rim
-        swing = s.dig_direction if s.tip[2] > RIM + LEAVE_HEIGHT else s.q[0]
-        return np.array([s.radius, RIM + CLEARANCE, _planar_state(s.q)[2]]), swing, None
+        swing = s.dig_direction if s.tip[2] > RIM + settings.leave_height else s.q[0]
+        return np.array([s.radius, RIM + settings.clearance, _planar_state(s.q)[2]]), swing, None
     # reach out only as far as the height over the pile's top allows (reaching out sags the teeth)
     reach = REACH_PER_METRE * max(s.tip[2] - lay.pile_height - 0.1, 0.0)
     radius = entry if s.radius > entry - ENTRY_TOLERANCE else min(entry, s.radius + reach)
     # open the bucket (teeth down) near the entry; until then carry it mouth up, clear of its stops
-    opened = float(np.clip((s.radius - entry + OPEN_WITHIN) / OPEN_WITHIN, 0.0, 1.0))  # smoothly: no chatter
+    opened = float(
+        np.clip((s.radius - entry + settings.open_within) / settings.open_within, 0.0, 1.0)
+    )  # smoothly: no chatter
     angle = CARRY_ANGLE + opened * (PENETRATE_ANGLE - CARRY_ANGLE)
-    return np.array([radius, lay.pile_height + APPROACH_HEIGHT, angle]), s.dig_direction, None
+    return np.array([radius, lay.pile_height + settings.approach_height, angle]), s.dig_direction, None
 
 
-def _penetrate(env: HexLoadingEnv, s: LoaderState) -> Targets:
+def _penetrate(env: HexLoadingEnv, s: LoaderState, settings: LoaderSettings) -> Targets:
     surface = float(env.earth.pile.height_at(s.tip[:2]))
-    target = [entry_radius(env.layout), max(surface - DIG_DEPTH - 0.2, GROUND_CLEARANCE), PENETRATE_ANGLE]
+    target = [entry_radius(env.layout), max(surface - settings.dig_depth - 0.2, GROUND_CLEARANCE), PENETRATE_ANGLE]
     return np.array(target), s.q[0], None  # in the pile the swing holds (the cut's direction moves as it digs)
 
 
-def _drag(env: HexLoadingEnv, s: LoaderState) -> Targets:
+def _drag(env: HexLoadingEnv, s: LoaderState, settings: LoaderSettings) -> Targets:
     ahead_radius = max(s.radius - DRAG_LEAD, 1.0)
     surface = float(env.earth.pile.height_at(s.tip[:2] * ahead_radius / max(s.radius, 1e-6)))
-    target = [ahead_radius, max(surface - DIG_DEPTH, DRAG_FLOOR), DRAG_ANGLE]
-    return np.array(target), s.q[0], np.array([-DRAG_SPEED, 0.0, 0.0])
+    target = [ahead_radius, max(surface - settings.dig_depth, DRAG_FLOOR), DRAG_ANGLE]
+    return np.array(target), s.q[0], np.array([-settings.drag_speed, 0.0, 0.0])
 
 
-def _curl(env: HexLoadingEnv, s: LoaderState) -> Targets:  # close the bucket while the pile still holds the contents
+def _curl(
+    env: HexLoadingEnv, s: LoaderState, settings: LoaderSettings
+) -> Targets:  # close the bucket while the pile still holds the contents
     surface = float(env.earth.pile.height_at(s.tip[:2]))
     radius = s.radius if s.above_pile < IN_PILE else min(s.radius, CARRY_RADIUS)  # out: level it close in
     return np.array([radius, max(surface - 0.1, s.tip[2], 2 * GROUND_CLEARANCE), CARRY_ANGLE]), s.q[0], None
 
 
-def _to_truck(env: HexLoadingEnv, s: LoaderState) -> Targets:
-    target = np.array([CARRY_RADIUS, RIM + CLEARANCE, CARRY_ANGLE])
+def _to_truck(env: HexLoadingEnv, s: LoaderState, settings: LoaderSettings) -> Targets:
+    target = np.array([CARRY_RADIUS, RIM + settings.clearance, CARRY_ANGLE])
     if s.radius > CARRY_RADIUS + 0.5:  # pull in low first: only close in can the curled bucket be level
         target[1] = min(target[1], s.tip[2] + 0.3)
     # the boom keeps rising while it swings: clear of the pile, swing to short of the truck until above its rim
     swing = s.q[0]
     if s.above_pile > PILE_CLEARANCE:  # the curled bucket hangs ~1 m below the teeth: clear the cab and rim
-        deficit = max(RIM + ARRIVE_HEIGHT - s.tip[2], 0.0)
-        swing = env.layout.truck_direction + min(TRUCK_APPROACH, HOLD_BACK_PER_METRE * deficit) * np.sign(
-            s.swing_to_truck
-        )
+        deficit = max(RIM + settings.arrive_height - s.tip[2], 0.0)
+        swing = env.layout.truck_direction + min(
+            settings.truck_approach, settings.hold_back_per_metre * deficit
+        ) * np.sign(s.swing_to_truck)
     return target, swing, None
 
 
-def _dump(env: HexLoadingEnv, s: LoaderState) -> Targets:
+def _dump(env: HexLoadingEnv, s: LoaderState, settings: LoaderSettings) -> Targets:
     lay = env.layout
     mouth = env.mouth_position()
     # open with the mouth over the bed: the pin is over the bed's centre line, so the teeth swing out over it
@@ -354,7 +411,11 @@ def _dump(env: HexLoadingEnv, s: LoaderState) -> Targets:
     # bed and until then holds (never curls back): the labels either side of the bed's edge then agree on
     # boom and stick, and a clone averaging them does not stall there
     angle = DUMP_ANGLE if over_bed else _planar_state(s.q)[2]
-    return _teeth_for_pin(lay.truck_distance + DUMP_PIN_BEYOND, RIM + DUMP_PIN_HEIGHT, angle), lay.truck_direction, None
+    return (
+        _teeth_for_pin(lay.truck_distance + DUMP_PIN_BEYOND, RIM + settings.dump_pin_height, angle),
+        lay.truck_direction,
+        None,
+    )
 
 
 _PHASES = {
@@ -362,11 +423,11 @@ _PHASES = {
 }  # fmt: skip
 
 
-def _phase_targets(env: HexLoadingEnv, s: LoaderState, phase: str) -> Targets:
+def _phase_targets(env: HexLoadingEnv, s: LoaderState, phase: str, settings: LoaderSettings) -> Targets:
     """(teeth target: radius, height, bucket angle; swing target, rad; planar feed velocity or None) of a phase."""
     if phase not in _PHASES:
         raise ValueError(f"unknown phase {phase!r} (one of {sorted(_PHASES)})")
-    return _PHASES[phase](env, s)
+    return _PHASES[phase](env, s, settings)
 
 
 def _teeth_for_pin(radius: float, height: float, angle: float) -> np.ndarray:
@@ -375,23 +436,31 @@ def _teeth_for_pin(radius: float, height: float, angle: float) -> np.ndarray:
     return np.array([radius + teeth[0], height + teeth[1], angle])
 
 
-def action_for(env: HexLoadingEnv, s: LoaderState, phase: str) -> np.ndarray:
+def action_for(
+    env: HexLoadingEnv, s: LoaderState, phase: str, settings: LoaderSettings = DEFAULT_SETTINGS
+) -> np.ndarray:
     """The four spool fractions that carry out ``phase`` from state ``s``."""
-    target, swing_target, feed = _phase_targets(env, s, phase)
+    target, swing_target, feed = _phase_targets(env, s, phase, settings)
     action = np.zeros(4)
-    brake = swing_brake(env.physics.swing_inertia())
+    brake = swing_brake(env.physics.swing_inertia(), settings)
     action[0] = swing_spool(_wrap(swing_target - s.q[0]), s.qd[0], brake)
     action[1:] = front_spools(env, target, feed)
     return action.astype(np.float32)
 
 
-def run_scripted(env: HexLoadingEnv, seed: int = 0, seconds: float | None = None, frames: list | None = None) -> dict:
+def run_scripted(
+    env: HexLoadingEnv,
+    seed: int = 0,
+    seconds: float | None = None,
+    frames: list | None = None,
+    settings: LoaderSettings = DEFAULT_SETTINGS,
+) -> dict:
     """Run the scripted loader for an episode (or ``seconds``); return its measured figures.
 
     ``frames``: if given, a rendered frame is appended every step (the env needs a render_mode).
     A cycle is counted at each start of a dump; the cycle time is the mean time between them.
     """
-    controller = ScriptedLoader()
+    controller = ScriptedLoader(settings)
     env.reset(seed=seed)
     controller.reset()
     terms = dict.fromkeys(REWARD_TERMS, 0.0)

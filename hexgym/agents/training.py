@@ -31,7 +31,7 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from multiprocessing import get_context
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -48,6 +48,9 @@ from hexgym.agents.policy_files import (
 from hexgym.checks import check_count, check_range, check_seed
 from hexgym.envs import ENV_ID
 from hexgym.files import atomic_path, check_input_file, check_output_dir, check_output_file
+
+if TYPE_CHECKING:
+    from hexgym.agents.scripted import LoaderSettings
 
 HYPERPARAMS_DIR = Path(__file__).resolve().parents[2] / "training" / "hyperparams"
 ALGOS = ("ppo", "sac")
@@ -490,8 +493,14 @@ def train(
     if start is not None:
         # a fine-tune keeps the observation statistics its policy was fitted to: updated, they shift every input
         # (a clone fine-tuned with them updating fell from 300 to 202 t/h in 20k steps, held at 296 without)
+        # a fine-tune learns with the YAML's settings (the saved model's would apply otherwise) and explores with its
+        # log_std_init (a clone's log_std is never fitted); a resumed run goes on as it was saved
+        tune = {} if resume else {k: v for k, v in algo_kwargs(hp).items() if k != "policy_kwargs"}
         model = _load_into(start, algo_class, venv, update_statistics=init_from is None, tensorboard_log=tensorboard,
-                           seed=seed)  # fmt: skip
+                           seed=seed, **tune)  # fmt: skip
+        log_std = (hp.get("policy_kwargs") or {}).get("log_std_init")
+        if not resume and log_std is not None and hasattr(model.policy, "log_std"):
+            model.policy.log_std.data.fill_(float(log_std))
         print(f"{'resuming' if resume else 'starting'} from {start} ({model.num_timesteps} steps done)")
     else:
         if hp["normalize"]:
@@ -562,6 +571,7 @@ def record_episode(
     env_kwargs: dict | None = None,
     wrapper: str | None = None,
     noise: float = 0.0,
+    loader_settings: LoaderSettings | None = None,
 ) -> Demonstrations:
     """One episode labelled by the scripted loader; each step the learner drives with probability ``1 - beta``.
 
@@ -569,11 +579,12 @@ def record_episode(
     every step, so a state gets the same label however it was reached, by the loader or by the
     learner (DAgger: the learner's own mistakes lead to the states that teach recovery).
     ``noise`` (DART): the loader's executed action gets Gaussian noise of this standard deviation,
-    held for a second at a time, so even the loader's own episodes show recoveries.
+    held for a second at a time, so even the loader's own episodes show recoveries. ``loader_settings``:
+    the loader's (default: its hand-set ones).
     """
     import torch
 
-    from hexgym.agents.scripted import ScriptedLoader
+    from hexgym.agents.scripted import DEFAULT_SETTINGS, ScriptedLoader
 
     torch.set_num_threads(1)
     env = make_env(ENV_ID, wrapper, **(env_kwargs or {}))
@@ -583,9 +594,9 @@ def record_episode(
     if learner is not None:
         learner.reset()
     observations, labels, rewards = [], [], []
-    done = False
+    loader, done = ScriptedLoader(loader_settings or DEFAULT_SETTINGS), False
     while not done:
-        label = ScriptedLoader.label(env.unwrapped)
+        label = loader.label(env.unwrapped)
         if env.unwrapped.steps % NOISE_HOLD_STEPS == 0:
             disturbance = rng.normal(0.0, noise, label.shape) if noise > 0 else np.zeros_like(label)
         learner_action = learner.act(obs, env.unwrapped) if learner is not None else None  # keeps its state
@@ -614,11 +625,12 @@ def record_demonstrations(
     noise: float = 0.0,
     workers: int | None = None,
     pool: ProcessPoolExecutor | None = None,
+    loader_settings: LoaderSettings | None = None,
 ) -> Demonstrations:
     """:func:`record_episode` for each seed, in parallel worker processes (``pool``, or new ones)."""
     n = len(seeds)
     parts = _in_workers(pool, workers, record_episode, seeds, [gamma] * n, [learner_path] * n, [beta] * n,
-                        [env_kwargs] * n, [wrapper] * n, [noise] * n)  # fmt: skip
+                        [env_kwargs] * n, [wrapper] * n, [noise] * n, [loader_settings] * n)  # fmt: skip
     return Demonstrations.concatenate(parts)
 
 
@@ -732,6 +744,7 @@ def clone_scripted(
     rounds_dir: str | Path | None = None,
     loss: str = "mse",
     tables: str | None = None,
+    loader_settings: str | Path | None = None,
     log: Any = print,
 ) -> Path:
     """Behaviour-clone the scripted loader into a PPO model saved at ``out`` (+ VecNormalize statistics).
@@ -745,6 +758,7 @@ def clone_scripted(
     clone is kept in ``rounds_dir`` (``round<k>.zip``) when given. ``loss``: the actor's fit
     (:func:`fit_to_demonstrations`). ``tables``: the learned model the episodes run on (``HexLoading-v0``'s
     ``tables``; default the hyperparameters' ``env_kwargs``, else the environment's default).
+    ``loader_settings``: a JSON file of the teaching loader's settings (``hexgym tune-loader``).
     """
     _loss_power(loss)  # bad arguments fail here, before minutes of recording
     for name, value, minimum in (("episodes", episodes, 1), ("dagger_rounds", dagger_rounds, 0),
@@ -753,6 +767,10 @@ def clone_scripted(
         check_count(name, value, minimum)
     check_seed("seed", seed)
     check_range("noise", noise, 0.0, 1.0, "(spool fraction)")
+    if loader_settings is not None:
+        from hexgym.agents.scripted import LoaderSettings
+
+    teacher = LoaderSettings.load(loader_settings) if loader_settings is not None else None
     if not str(out).endswith(".zip"):
         raise ValueError(f"the model must be a .zip file, got {out}")
     check_output_file(out, "model", inputs=(hyperparams,))
@@ -766,12 +784,13 @@ def clone_scripted(
     with _worker_pool() as pool, tempfile.TemporaryDirectory() as tmp:  # workers start once (torch, MuJoCo: s)
         rounds = Path(rounds_dir) if rounds_dir is not None else Path(tmp)
         return _clone_rounds(Path(out), rounds, hp, pool, episodes, dagger_rounds, dagger_episodes, noise, epochs,
-                             seed, select_episodes, loss, log)  # fmt: skip
+                             seed, select_episodes, loss, teacher, log)  # fmt: skip
 
 
 def _clone_rounds(
     out: Path, rounds: Path, hp: dict[str, Any], pool: ProcessPoolExecutor, episodes: int, dagger_rounds: int,
-    dagger_episodes: int, noise: float, epochs: int, seed: int, select_episodes: int, loss: str, log: Any,
+    dagger_episodes: int, noise: float, epochs: int, seed: int, select_episodes: int, loss: str,
+    teacher: LoaderSettings | None, log: Any,
 ) -> Path:  # fmt: skip
     """:func:`clone_scripted`'s rounds, recording and scoring in ``pool``."""
     gamma = float(hp.get("gamma", 0.99))
@@ -779,7 +798,7 @@ def _clone_rounds(
     env_kwargs, wrapper = hp.get("env_kwargs"), hp.get("env_wrapper")
     next_seed = seed + episodes
     demos = record_demonstrations(list(range(seed, next_seed)), gamma, env_kwargs=env_kwargs, wrapper=wrapper,
-                                  noise=noise, pool=pool)  # fmt: skip
+                                  noise=noise, pool=pool, loader_settings=teacher)  # fmt: skip
     select_seeds = list(range(seed + 100_000, seed + 100_000 + select_episodes))  # never trained on
     best: tuple[float, Path] | None = None
     for round_ in range(dagger_rounds + 1):
@@ -802,7 +821,12 @@ def _clone_rounds(
         seeds = list(range(next_seed, next_seed + dagger_episodes))
         beta = 0.5 ** (round_ + 1)
         demos = Demonstrations.concatenate(
-            [demos, record_demonstrations(seeds, gamma, str(path), beta, env_kwargs, wrapper, noise, pool=pool)]
+            [
+                demos,
+                record_demonstrations(
+                    seeds, gamma, str(path), beta, env_kwargs, wrapper, noise, pool=pool, loader_settings=teacher
+                ),
+            ]
         )
         next_seed += dagger_episodes
     if best is None:

@@ -42,16 +42,31 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _cmd_scripted(args: argparse.Namespace) -> int:
-    from hexgym.agents.scripted import run_scripted
+    from hexgym.agents.scripted import DEFAULT_SETTINGS, LoaderSettings, run_scripted
     from hexgym.envs.loading import HexLoadingEnv
     from hexgym.files import write_json
 
+    settings = LoaderSettings.load(args.loader_settings) if args.loader_settings else DEFAULT_SETTINGS
     env = HexLoadingEnv(time_limit=args.seconds)
-    runs = [run_scripted(env, seed=args.seed + i) for i in range(args.episodes)]
+    runs = [run_scripted(env, seed=args.seed + i, settings=settings) for i in range(args.episodes)]
     for run in runs:
         print(json.dumps({k: v for k, v in run.items() if k != "return_terms"}))
     if args.json:
         print(f"wrote {write_json(args.json, runs)}")
+    return 0
+
+
+def _cmd_tune_loader(args: argparse.Namespace) -> int:
+    from dataclasses import asdict
+
+    from hexgym.agents.loader_search import tune_loader
+    from hexgym.tools.plan import parse_seeds
+
+    settings, score = tune_loader(args.out, parse_seeds(args.seeds), generations=args.generations,
+                                  population=args.population, spill_target=args.spill_target,
+                                  seed=args.seed)  # fmt: skip
+    print(json.dumps({"settings": asdict(settings), "score": asdict(score)}, indent=2))
+    print(f"wrote {args.out}")
     return 0
 
 
@@ -210,7 +225,8 @@ def _cmd_clone(args: argparse.Namespace) -> int:
     path = clone_scripted(args.out, episodes=args.episodes, dagger_rounds=args.dagger_rounds,
                           dagger_episodes=args.dagger_episodes, epochs=args.epochs, seed=args.seed, noise=args.noise,
                           hyperparams=args.hyperparams, select_episodes=args.select_episodes,
-                          rounds_dir=args.rounds_dir, loss=args.loss, tables=args.tables)  # fmt: skip
+                          rounds_dir=args.rounds_dir, loss=args.loss, tables=args.tables,
+                          loader_settings=args.loader_settings)  # fmt: skip
     print(f"model: {path}")
     return 0
 
@@ -221,7 +237,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     from hexgym.files import write_json
 
     if args.env != ENV_ID:
-        if args.policy == "shipped" or args.model != "learned" or args.ray or args.workers != 1:
+        if args.policy == "shipped" or args.model != "learned" or args.ray or args.workers != 1 or args.loader_settings:
             raise ValueError(f"--env {args.env}: give a model .zip trained on it (--policy PATH; 'scripted' on "
                              "HexDig-v0); --model, --ray and --workers are for HexLoading-v0")  # fmt: skip
         env_kwargs = {"time_limit": args.seconds} if args.seconds is not None else None
@@ -235,7 +251,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     if args.tables != DEFAULT_TABLE_SET:  # with --model reference, the environment refuses it in one line
         env_kwargs["tables"] = args.tables
     result = evaluate(args.policy, episodes=args.episodes, seed=args.seed, env_kwargs=env_kwargs, json_out=args.json,
-                      workers=args.workers, ray=args.ray)  # fmt: skip
+                      workers=args.workers, ray=args.ray, loader_settings=args.loader_settings)  # fmt: skip
     print(json.dumps({k: v for k, v in result.items() if k != "per_episode"}, indent=2))
     if args.json:
         print(f"wrote {args.json}")
@@ -357,6 +373,13 @@ _TABLES_OPTION = {  # --tables of the commands that use the learned model's tabl
     f"(default: {DEFAULT_TABLE_SET})",
 }
 
+_LOADER_SETTINGS_OPTION = {  # --loader-settings of the commands that run the scripted loader
+    "dest": "loader_settings",
+    "default": None,
+    "metavar": "FILE",
+    "help": "the scripted loader's settings (JSON, e.g. from hexgym tune-loader; default: its hand-set ones)",
+}
+
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser with all subcommands."""
@@ -388,7 +411,18 @@ def build_parser() -> argparse.ArgumentParser:
     scripted.add_argument("--seed", type=int, default=0, help="first seed (default: 0)")
     scripted.add_argument("--seconds", type=float, default=180.0, help="episode time budget, s (default: 180)")
     scripted.add_argument("--json", metavar="OUT", default=None, help="also write the runs to this JSON file")
+    scripted.add_argument("--loader-settings", **_LOADER_SETTINGS_OPTION)
     scripted.set_defaults(func=_cmd_scripted)
+
+    tune = sub.add_parser("tune-loader", help="search the scripted loader's settings (CMA-ES) for t/h at low spill")
+    tune.add_argument("--out", required=True, help="JSON file of the best settings found")
+    tune.add_argument("--seeds", default="100-105", metavar="A-B", help="episode seeds scored (default: 100-105)")
+    tune.add_argument("--generations", type=int, default=14, help="CMA-ES generations (default: 14)")
+    tune.add_argument("--population", type=int, default=10, help="candidates per generation (default: 10)")
+    tune.add_argument("--spill-target", type=float, default=0.05, help="spilled fraction above which the score "
+                      "is penalised (default: 0.05)")  # fmt: skip
+    tune.add_argument("--seed", type=int, default=1, help="the search's own seed (default: 1)")
+    tune.set_defaults(func=_cmd_tune_loader)
 
     model = sub.add_parser("model", help="print the machine model's masses, joint ranges and cylinders")
     model.add_argument("--json", action="store_true", help="print JSON")
@@ -564,6 +598,7 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
         help="the actor's fit to the labels: mse "
         "(their mean) or l1 (their median: one side of a phase change, not the average)",
     )
+    clone.add_argument("--loader-settings", **_LOADER_SETTINGS_OPTION)
     clone.set_defaults(func=_cmd_clone)
 
     curves = sub.add_parser("curves", help="learning curves of hexgym train runs (seeds): figure and summary")
@@ -587,6 +622,7 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
     evaluate.add_argument("--tables", **_TABLES_OPTION)
     evaluate.add_argument("--env", default="HexLoading-v0", help="environment id (default: HexLoading-v0; others, "
                           "e.g. HexReach-v0: success rate, mean return, time to success of a model .zip)")  # fmt: skip
+    evaluate.add_argument("--loader-settings", **_LOADER_SETTINGS_OPTION)
     add_ray_option(evaluate, "the episodes")
     evaluate.set_defaults(func=_cmd_evaluate)
 
