@@ -166,7 +166,7 @@ def test_the_settings_search_keeps_the_best_candidate_it_met(tmp_path):
     from hexgym.agents.loader_search import episode_figures, tune_loader
 
     lines = []
-    settings, score = tune_loader(tmp_path / "tuned.json", seeds=[3], generations=1, population=2, log=lines.append)
+    settings, score = tune_loader(tmp_path / "tuned.json", seeds=[3], generations=1, population=4, log=lines.append)
     assert LoaderSettings.load(tmp_path / "tuned.json") == settings
     assert lines[0].startswith("defaults: objective") and lines[1].startswith("generation 0: best so far")
     delivered, spilled, seconds, contact = episode_figures(settings, 3)  # the score is the episode's figures
@@ -177,4 +177,4 @@ def test_the_settings_search_keeps_the_best_candidate_it_met(tmp_path):
     with pytest.raises(ValueError, match="seeds"):
         tune_loader(tmp_path / "none.json", seeds=[])
     with pytest.raises(ValueError, match="population"):
-        tune_loader(tmp_path / "none.json", seeds=[3], population=1)
+        tune_loader(tmp_path / "none.json", seeds=[3], population=3)

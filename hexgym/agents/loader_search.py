@@ -96,10 +96,12 @@ def tune_loader(
     log: Any = print,
 ) -> tuple[LoaderSettings, Score]:
     """CMA-ES over the loader's settings from the defaults; the best met is written to ``out`` (JSON) and returned."""
-    from cmaes import CMA
-
+    try:
+        from cmaes import CMA
+    except ImportError:
+        raise ImportError("the loader search needs the cmaes package: pip install 'hexgym[train]'") from None
     check_count("generations", generations)
-    check_count("population", population, 2)
+    check_count("population", population, 4)  # fewer: CMA-ES has no covariance to learn from
     check_range("spill_target", spill_target, 0.0, 1.0, "(fraction)")
     if not seeds:
         raise ValueError("seeds: give at least one episode seed")
