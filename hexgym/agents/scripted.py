@@ -9,7 +9,8 @@ is not remembered: :func:`infer_phase` derives it every step from the state (pay
 relative to pile and truck, mouth tilt, swing angles), so the loader's action is a function of
 the state and it can label any state a learner reaches (DAgger, :mod:`hexgym.agents.training`). It
 proves the task can be done and drives the demo; :func:`run_scripted` measures cycle time,
-tonnes per hour and fuel.
+tonnes per hour and fuel. Its targets and thresholds are :class:`LoaderSettings` (hand-set defaults;
+:mod:`hexgym.agents.loader_search` searches them).
 
 Control: the front linkage is planar, so a target is the teeth's radius and height and the
 bucket's absolute angle. Boom and stick steer the bucket pin (its error gives a saturated
@@ -74,7 +75,6 @@ class LoaderSettings:
     clearance: float = 1.5  # m: teeth above the rim when swinging over it (the curled bucket hangs below them)
     arrive_height: float = 1.2  # m: teeth above the rim before the loaded bucket swings over the truck
     truck_approach: float = 0.8  # rad: the loaded swing waits at most this far short of the truck until...
-
     hold_back_per_metre: float = 1.0  # rad: ...the teeth clear its rim: this far per metre they still have to rise
     dump_window: float = 0.25  # rad: the swing this close to the truck's direction: reach out and dump
     dump_pin_height: float = 1.5  # m: bucket pin above the rim to dump from (the opened teeth swing down, out)
@@ -360,9 +360,8 @@ def _to_pile(env: HexLoadingEnv, s: LoaderState, settings: LoaderSettings) -> Ta
     reach = REACH_PER_METRE * max(s.tip[2] - lay.pile_height - 0.1, 0.0)
     radius = entry if s.radius > entry - ENTRY_TOLERANCE else min(entry, s.radius + reach)
     # open the bucket (teeth down) near the entry; until then carry it mouth up, clear of its stops
-    opened = float(
-        np.clip((s.radius - entry + settings.open_within) / settings.open_within, 0.0, 1.0)
-    )  # smoothly: no chatter
+    within = settings.open_within
+    opened = float(np.clip((s.radius - entry + within) / within, 0.0, 1.0))  # smoothly: no chatter
     angle = CARRY_ANGLE + opened * (PENETRATE_ANGLE - CARRY_ANGLE)
     return np.array([radius, lay.pile_height + settings.approach_height, angle]), s.dig_direction, None
 
@@ -380,9 +379,8 @@ def _drag(env: HexLoadingEnv, s: LoaderState, settings: LoaderSettings) -> Targe
     return np.array(target), s.q[0], np.array([-settings.drag_speed, 0.0, 0.0])
 
 
-def _curl(
-    env: HexLoadingEnv, s: LoaderState, settings: LoaderSettings
-) -> Targets:  # close the bucket while the pile still holds the contents
+def _curl(env: HexLoadingEnv, s: LoaderState, settings: LoaderSettings) -> Targets:
+    """Close the bucket while the pile still holds the contents."""
     surface = float(env.earth.pile.height_at(s.tip[:2]))
     radius = s.radius if s.above_pile < IN_PILE else min(s.radius, CARRY_RADIUS)  # out: level it close in
     return np.array([radius, max(surface - 0.1, s.tip[2], 2 * GROUND_CLEARANCE), CARRY_ANGLE]), s.q[0], None
