@@ -44,3 +44,15 @@ def check_range(name: str, value: Any, lo: float, hi: float, unit: str = "") -> 
         raise ValueError(f"{name} must be a finite number from {lo:g} to {hi:g}{' ' + unit if unit else ''}, "
                          f"got {value!r}")  # fmt: skip
     return float(value)
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``"A-B"`` (inclusive) or ``"A"`` -> seeds (``--seeds`` of the commands that run many)."""
+    try:
+        first, _, last = text.partition("-")
+        a, b = int(first), int(last or first)
+    except ValueError:
+        raise ValueError(f"--seeds must be A-B (integers, A <= B), got {text!r}") from None
+    if a < 0 or b < a:
+        raise ValueError(f"--seeds must be A-B with 0 <= A <= B, got {text!r}")
+    return list(range(a, b + 1))

@@ -79,3 +79,6 @@ def test_loader_settings_are_checked_before_any_episode(tmp_path, capsys):
     good.write_text('{"full_fraction": 0.7}')
     assert main(["evaluate", "--policy", "shipped", "--loader-settings", str(good), "--episodes", "1"]) == 2
     assert "only for the scripted policy" in capsys.readouterr().err
+    assert main(["tune-loader", "--out", str(tmp_path / "t.json"), "--seeds", "5-2"]) == 2
+    assert "--seeds must be A-B with 0 <= A <= B, got '5-2'" in capsys.readouterr().err
+    assert not (tmp_path / "t.json").exists()

@@ -60,7 +60,7 @@ def _cmd_tune_loader(args: argparse.Namespace) -> int:
     from dataclasses import asdict
 
     from hexgym.agents.loader_search import tune_loader
-    from hexgym.tools.plan import parse_seeds
+    from hexgym.checks import parse_seeds
 
     settings, score = tune_loader(args.out, parse_seeds(args.seeds), generations=args.generations,
                                   population=args.population, spill_target=args.spill_target,
@@ -286,7 +286,8 @@ def _cmd_shield(args: argparse.Namespace) -> int:
 
 
 def _cmd_plan(args: argparse.Namespace) -> int:
-    from hexgym.tools.plan import parse_seeds, run_plan
+    from hexgym.checks import parse_seeds
+    from hexgym.tools.plan import run_plan
 
     if args.video is not None and not args.video.endswith(".mp4"):
         raise ValueError(f"--video must be an .mp4 file, got {args.video}")

@@ -327,18 +327,6 @@ def summarise(results: list[dict[str, Any]]) -> dict[str, Any]:
     return out | {"targets_met_of": len(results), "targets": targets}
 
 
-def parse_seeds(text: str) -> list[int]:
-    """``"A-B"`` (inclusive) or ``"A"`` -> seeds."""
-    try:
-        first, _, last = text.partition("-")
-        a, b = int(first), int(last or first)
-    except ValueError:
-        raise ValueError(f"--seeds must be A-B (integers, A <= B), got {text!r}") from None
-    if a < 0 or b < a:
-        raise ValueError(f"--seeds must be A-B with 0 <= A <= B, got {text!r}")
-    return list(range(a, b + 1))
-
-
 def run_plan(
     task: str,
     seeds: list[int],
