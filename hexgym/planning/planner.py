@@ -54,6 +54,8 @@ LOADED_KG = 100.0  # kg in the bucket: a loaded move (its margin and the spill c
 MAX_REACH_M = 10.5  # m from the swing axis: beyond the teeth's reach (Cat 325 class: ~10.2 m at full reach)
 MAX_HEIGHT_M = 10.0  # m: above the teeth's highest point (~9.5 m)
 MAX_HORIZON_S = 30.0  # s: a longer move is no single loading motion
+HORIZON_S = 8.0  # s: the default horizon of a plan
+KNOT_S = 0.5  # s: the default spacing of a plan's spool knots
 _UNREACHED_S = 10.0  # s added to the cost of a rollout that does not reach the goal, plus 5 s per metre short
 _SHORTFALL_COST = 20.0  # s per metre-second of clearance short of the margin
 _CONTACT_COST = 100.0  # s per metre of penetration
@@ -288,8 +290,8 @@ def plan_motion(
     model: RolloutModel,
     w_fuel: float = 1.0,
     budget: int = 2000,
-    horizon_s: float = 8.0,
-    knot_s: float = 0.5,
+    horizon_s: float = HORIZON_S,
+    knot_s: float = KNOT_S,
     population: int = 100,
     seed: int = 0,
     margin_m: float | None = None,
@@ -420,7 +422,7 @@ def plan_checked(
     swing_m, switch, rollouts = None, None, 0
     if fit_swing is not None:
         target = swing_target(state, goal, model)
-        swing_m, switch, rollouts = swing_bang_bang(model, state, target, search.get("horizon_s", 8.0))
+        swing_m, switch, rollouts = swing_bang_bang(model, state, target, search.get("horizon_s", HORIZON_S))
 
     def for_machine(plan: Plan) -> Plan:
         """The plan with the swing the accurate model needs (when the swing is fitted)."""
@@ -432,7 +434,7 @@ def plan_checked(
                                     swing_m=swing_m, **search))  # fmt: skip
     first_check = check(first.spools_m, state, goal)
     overstated = max(first.min_clearance_m - first_check.min_clearance_m, 0.0)
-    per_knot = round(search.get("knot_s", 0.5) / model.control_period)
+    per_knot = round(search.get("knot_s", KNOT_S) / model.control_period)
     second = for_machine(plan_motion(state, goal, model, budget=budget - budget // 2, margin_m=margin_m + overstated,
                                      initial=knot_means(first.spools_m / p.SPOOL_STROKE, per_knot), swing_m=swing_m,
                                      **search))  # fmt: skip
@@ -441,11 +443,13 @@ def plan_checked(
     rollouts += first.rollouts + second.rollouts
     if correct is not None:
         spools, corrected, _ = correct(plan.spools_m, state, goal, checked)
-        if spools is not plan.spools_m and fit_swing is not None:  # trimmed; the prediction stays the fast swing's
-            plan, checked = dataclasses.replace(plan, spools_m=spools), corrected
-        elif spools is not plan.spools_m:  # trimmed: it ranks better on the accurate model
-            rollouts += 1  # the trimmed spools' figures on the fast model
-            plan, checked = _plan_of(spools, state, goal, model, margin_m, rollouts, start, truncate=False), corrected
+        if spools is not plan.spools_m:  # trimmed: it ranks better on the accurate model
+            if fit_swing is not None:  # the prediction stays the fast model's with its own swing
+                plan = dataclasses.replace(plan, spools_m=spools)
+            else:  # the trimmed spools' figures on the fast model
+                rollouts += 1
+                plan = _plan_of(spools, state, goal, model, margin_m, rollouts, start, truncate=False)
+            checked = corrected
     wall_s = time.perf_counter() - start
     return dataclasses.replace(plan, rollouts=rollouts, wall_s=wall_s, fast_swing_switch=switch), checked
 

@@ -40,6 +40,8 @@ from hexgym.machine import parameters as p
 from hexgym.parallel import executor
 from hexgym.planning.check import ROW_S, PlanCheck, replay_plan
 from hexgym.planning.planner import (
+    HORIZON_S,
+    KNOT_S,
     Goal,
     Plan,
     dump_goal,
@@ -146,7 +148,7 @@ def learned_replay(seed: int, state: MachineState, goal: Goal, plan: Plan, model
     return {"time_s": reached_at, "fuel_l": fuel_l, "min_clearance_m": float(clearance.min())}
 
 
-def scripted_knots(actions: np.ndarray, knot_s: float = 0.5) -> np.ndarray:
+def scripted_knots(actions: np.ndarray, knot_s: float = KNOT_S) -> np.ndarray:
     """The scripted move's actions (one per 0.1 s step) as knots every ``knot_s``: their means."""
     return knot_means(actions, max(1, round(knot_s / STEP_PERIOD)))
 
@@ -172,7 +174,7 @@ def plan_task(
     w_fuel: float = 1.0,
     budget: int = 2000,
     nthread: int = 2,
-    horizon_s: float = 8.0,
+    horizon_s: float = HORIZON_S,
     warm_start: bool = True,
     margin_m: float | None = None,
     check: bool = True,
