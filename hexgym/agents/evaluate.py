@@ -59,10 +59,9 @@ class ScriptedPolicy:
     """The scripted loader (reads the simulation's state, not the observation)."""
 
     def __init__(self, settings_path: str | Path | None = None) -> None:
-        from hexgym.agents.scripted import DEFAULT_SETTINGS, LoaderSettings, ScriptedLoader
+        from hexgym.agents.scripted import ScriptedLoader, load_settings
 
-        settings = LoaderSettings.load(settings_path) if settings_path is not None else DEFAULT_SETTINGS
-        self.controller = ScriptedLoader(settings)
+        self.controller = ScriptedLoader(load_settings(settings_path))
 
     def reset(self) -> None:
         """Start the state machine over."""

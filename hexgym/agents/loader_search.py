@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from hexgym.agents.scripted import SETTING_RANGES, LoaderSettings, ScriptedLoader
+from hexgym.agents.scripted import SETTING_RANGES, LoaderSettings, run_scripted
 from hexgym.checks import check_count, check_range
 from hexgym.files import check_output_file
 
@@ -44,15 +44,9 @@ def episode_figures(settings: LoaderSettings, seed: int) -> tuple[float, float, 
     from hexgym.envs.loading import HexLoadingEnv
 
     env = HexLoadingEnv()
-    loader = ScriptedLoader(settings)
-    env.reset(seed=seed)
-    contact, done = 0.0, False
-    while not done:
-        _, _, terminated, truncated, info = env.step(loader.act(env))
-        contact += info["reward_contact"]
-        done = terminated or truncated
+    run = run_scripted(env, seed=seed, settings=settings)
     env.close()
-    return info["truck_kg"] / 1000.0, info["spilled_kg"] / 1000.0, env.elapsed, contact
+    return run["delivered_t"], run["spilled_t"], run["sim_seconds"], run["return_terms"]["contact"]
 
 
 def score(settings: LoaderSettings, seeds: list[int], pool: ProcessPoolExecutor, spill_target: float) -> Score:

@@ -121,6 +121,11 @@ SETTING_RANGES = {  # the values a setting may take (the search's bounds; the de
 DEFAULT_SETTINGS = LoaderSettings()
 
 
+def load_settings(path: str | Path | None) -> LoaderSettings:
+    """The settings in the JSON file ``path`` (:meth:`LoaderSettings.load`), or the hand-set ones for None."""
+    return DEFAULT_SETTINGS if path is None else LoaderSettings.load(path)
+
+
 PENETRATE_ANGLE = bucket_angle_for(teeth_world_angle=np.radians(-115.0))  # teeth down, towards the machine
 DRAG_ANGLE = bucket_angle_for(teeth_world_angle=np.radians(-165.0))  # teeth along the drag
 CARRY_ANGLE = bucket_angle_for(mouth_world_angle=np.radians(100.0))  # mouth up, a little towards the cab

@@ -767,10 +767,9 @@ def clone_scripted(
         check_count(name, value, minimum)
     check_seed("seed", seed)
     check_range("noise", noise, 0.0, 1.0, "(spool fraction)")
-    if loader_settings is not None:
-        from hexgym.agents.scripted import LoaderSettings
+    from hexgym.agents.scripted import load_settings
 
-    teacher = LoaderSettings.load(loader_settings) if loader_settings is not None else None
+    teacher = load_settings(loader_settings)
     if not str(out).endswith(".zip"):
         raise ValueError(f"the model must be a .zip file, got {out}")
     check_output_file(out, "model", inputs=(hyperparams,))
@@ -790,7 +789,7 @@ def clone_scripted(
 def _clone_rounds(
     out: Path, rounds: Path, hp: dict[str, Any], pool: ProcessPoolExecutor, episodes: int, dagger_rounds: int,
     dagger_episodes: int, noise: float, epochs: int, seed: int, select_episodes: int, loss: str,
-    teacher: LoaderSettings | None, log: Any,
+    teacher: LoaderSettings, log: Any,
 ) -> Path:  # fmt: skip
     """:func:`clone_scripted`'s rounds, recording and scoring in ``pool``."""
     gamma = float(hp.get("gamma", 0.99))

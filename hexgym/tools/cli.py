@@ -42,11 +42,11 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _cmd_scripted(args: argparse.Namespace) -> int:
-    from hexgym.agents.scripted import DEFAULT_SETTINGS, LoaderSettings, run_scripted
+    from hexgym.agents.scripted import load_settings, run_scripted
     from hexgym.envs.loading import HexLoadingEnv
     from hexgym.files import write_json
 
-    settings = LoaderSettings.load(args.loader_settings) if args.loader_settings else DEFAULT_SETTINGS
+    settings = load_settings(args.loader_settings)
     env = HexLoadingEnv(time_limit=args.seconds)
     runs = [run_scripted(env, seed=args.seed + i, settings=settings) for i in range(args.episodes)]
     for run in runs:
@@ -239,7 +239,8 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     if args.env != ENV_ID:
         if args.policy == "shipped" or args.model != "learned" or args.ray or args.workers != 1 or args.loader_settings:
             raise ValueError(f"--env {args.env}: give a model .zip trained on it (--policy PATH; 'scripted' on "
-                             "HexDig-v0); --model, --ray and --workers are for HexLoading-v0")  # fmt: skip
+                             "HexDig-v0); --model, --ray, --workers and --loader-settings are for "
+                             "HexLoading-v0")  # fmt: skip
         env_kwargs = {"time_limit": args.seconds} if args.seconds is not None else None
         result = evaluate_success(args.policy, args.env, args.episodes, args.seed, env_kwargs)
         print(json.dumps(result, indent=2))
