@@ -1,16 +1,19 @@
 """The scripted loader completes loading cycles: the task is achievable."""
 
-from dataclasses import replace
+from dataclasses import asdict, replace
 
 import numpy as np
 import pytest
 
 from hexgym.agents.scripted import (
+    CARRIED_TILT,
     CARRY_ANGLE,
     DUMP_ANGLE,
+    SETTING_RANGES,
     LoaderSettings,
     LoaderState,
     ScriptedLoader,
+    action_for,
     entry_radius,
     infer_phase,
     run_scripted,
@@ -131,6 +134,19 @@ def test_settings_change_the_phase_rules():
     assert swing_brake(3e5, LoaderSettings(brake_margin=1.2)) == pytest.approx(1.2 * swing_brake(3e5))
 
 
+def test_the_carry_blend_makes_curl_and_carry_agree_at_their_boundary():
+    """Labels either side of the carried tilt agree, so a clone averaging them does not stall in the pile."""
+    env = HexLoadingEnv()
+    env.reset(seed=0)
+    in_pile = replace(LoaderState.of(env), above_pile=-0.3, surface=1.2, payload_kg=1800.0, tilt=CARRIED_TILT)
+    blended = LoaderSettings(carry_blend=0.3)
+    curl, carry = (action_for(env, in_pile, phase, blended) for phase in ("curl", "to_truck"))
+    np.testing.assert_allclose(curl, carry)
+    assert not np.allclose(action_for(env, in_pile, "curl"), carry)  # without the blend they differ
+    opening = replace(in_pile, tilt=CARRIED_TILT + 0.3)  # where the blend starts the curl holds the teeth
+    np.testing.assert_allclose(action_for(env, opening, "curl", blended), action_for(env, opening, "curl"))
+
+
 def test_settings_files_round_trip_and_bad_ones_are_refused_by_name(tmp_path):
     settings = LoaderSettings(full_fraction=0.7, drag_speed=0.8)
     settings.save(tmp_path / "s.json")
@@ -178,3 +194,14 @@ def test_the_settings_search_keeps_the_best_candidate_it_met(tmp_path):
         tune_loader(tmp_path / "none.json", seeds=[])
     with pytest.raises(ValueError, match="population"):
         tune_loader(tmp_path / "none.json", seeds=[3], population=3)
+
+
+def test_the_search_leaves_the_carry_blend_alone():
+    """carry_blend shapes a clone's labels, not the deliveries: the search keeps the start's."""
+    from hexgym.agents.loader_search import SEARCHED, _to_settings, _to_unit
+
+    start = LoaderSettings(carry_blend=0.3, drag_speed=0.9)
+    assert "carry_blend" not in SEARCHED and len(SEARCHED) == len(SETTING_RANGES) - 1
+    assert asdict(_to_settings(_to_unit(start), start)) == pytest.approx(asdict(start))
+    moved = _to_settings(np.ones(len(SEARCHED)), start)
+    assert moved.carry_blend == 0.3 and moved.drag_speed == SETTING_RANGES["drag_speed"][1]

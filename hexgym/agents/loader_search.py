@@ -1,9 +1,9 @@
 """Search the scripted loader's settings for more tonnes per hour with little spill (CMA-ES).
 
 The loader's targets and thresholds (:class:`hexgym.agents.scripted.LoaderSettings`) were set by
-hand. :func:`tune_loader` searches all of them at once with CMA-ES (the ``cmaes`` package) within
-their ranges (``SETTING_RANGES``), scoring each candidate on whole seeded episodes of
-``HexLoading-v0``: the tonnes per hour pooled over the episodes, less a penalty for every
+hand. :func:`tune_loader` searches them at once with CMA-ES (the ``cmaes`` package) within their
+ranges (``SETTING_RANGES``; all but ``carry_blend``, which is for clones), scoring each candidate
+on whole seeded episodes of ``HexLoading-v0``: the tonnes per hour pooled over the episodes, less a penalty for every
 percentage point of spill above ``spill_target`` and for contacts (the task's contact reward). The
 search starts from the defaults; the best candidate met is saved. Select on one seed set here and
 measure the result on others (``hexgym scripted --loader-settings`` / ``hexgym evaluate``).
@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import os
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass, replace
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
@@ -27,6 +27,8 @@ from hexgym.files import check_output_file
 SPILL_PENALTY = 15.0  # t/h per percentage point of spill above the target
 CONTACT_PENALTY = 20.0  # t/h per unit of the task's contact reward per episode (-1: 100 kN s of hard contact)
 START_SIGMA = 0.15  # of each setting's range: the search's first step
+# every setting but carry_blend, which shapes the labels a clone learns from, not what the loader delivers
+SEARCHED = tuple(name for name in SETTING_RANGES if name != "carry_blend")
 
 
 @dataclass(frozen=True)
@@ -60,22 +62,22 @@ def score(settings: LoaderSettings, seeds: list[int], pool: ProcessPoolExecutor,
     return Score(objective, tph, spill, contact)
 
 
-def _to_settings(z: np.ndarray) -> LoaderSettings:
-    """Settings from the search's unit cube."""
+def _to_settings(z: np.ndarray, start: LoaderSettings) -> LoaderSettings:
+    """``start`` with the searched settings taken from the search's unit cube."""
     low, high = _bounds()
     values = low + np.clip(z, 0.0, 1.0) * (high - low)
-    return LoaderSettings(**{f.name: float(v) for f, v in zip(fields(LoaderSettings), values, strict=True)})
+    return replace(start, **{name: float(v) for name, v in zip(SEARCHED, values, strict=True)})
 
 
 def _to_unit(settings: LoaderSettings) -> np.ndarray:
     """The search's unit-cube point of ``settings``."""
     low, high = _bounds()
-    return (np.array(list(asdict(settings).values())) - low) / (high - low)
+    return (np.array([getattr(settings, name) for name in SEARCHED]) - low) / (high - low)
 
 
 def _bounds() -> tuple[np.ndarray, np.ndarray]:
-    """Each setting's (low, high), in the order of LoaderSettings' fields."""
-    ranges = np.array([SETTING_RANGES[f.name] for f in fields(LoaderSettings)])
+    """Each searched setting's (low, high)."""
+    ranges = np.array([SETTING_RANGES[name] for name in SEARCHED])
     return ranges[:, 0], ranges[:, 1]
 
 
@@ -101,7 +103,7 @@ def tune_loader(
         raise ValueError("seeds: give at least one episode seed")
     check_output_file(out, "loader settings")
     start = LoaderSettings()
-    optimiser = CMA(mean=_to_unit(start), sigma=START_SIGMA, bounds=np.array([[0.0, 1.0]] * len(SETTING_RANGES)),
+    optimiser = CMA(mean=_to_unit(start), sigma=START_SIGMA, bounds=np.array([[0.0, 1.0]] * len(SEARCHED)),
                     seed=seed, population_size=population)  # fmt: skip
     workers = max(1, min(workers or os.cpu_count() or 1, len(seeds)))
     with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
@@ -111,7 +113,7 @@ def tune_loader(
             told = []
             for _ in range(population):
                 z = optimiser.ask()
-                candidate = _to_settings(z)
+                candidate = _to_settings(z, start)
                 result = score(candidate, seeds, pool, spill_target)
                 told.append((z, -result.objective))
                 if result.objective > best[1].objective:

@@ -80,6 +80,7 @@ class LoaderSettings:
     dump_pin_height: float = 1.5  # m: bucket pin above the rim to dump from (the opened teeth swing down, out)
     leave_height: float = 0.5  # m: teeth (the open bucket's lowest point) above the rim before it swings away
     brake_margin: float = 1.0  # of the crossover reliefs' deceleration, planned for the swing's stop
+    carry_blend: float = 0.0  # rad of tilt before the carried tilt over which the curl moves on to the carry's targets
 
     def __post_init__(self) -> None:
         for f in fields(self):  # bool is an int: refused too
@@ -116,7 +117,7 @@ SETTING_RANGES = {  # the values a setting may take (the search's bounds; the de
     "full_fraction": (0.5, 0.95), "dig_depth": (0.2, 0.8), "drag_speed": (0.3, 1.5), "approach_height": (0.2, 1.2),
     "open_within": (0.5, 3.5), "clearance": (0.8, 2.5), "arrive_height": (0.4, 2.0), "truck_approach": (0.3, 1.5),
     "hold_back_per_metre": (0.3, 2.5), "dump_window": (0.1, 0.6), "dump_pin_height": (0.8, 2.5),
-    "leave_height": (0.1, 1.2), "brake_margin": (0.7, 1.6),
+    "leave_height": (0.1, 1.2), "brake_margin": (0.7, 1.6), "carry_blend": (0.0, 1.0),
 }  # fmt: skip
 DEFAULT_SETTINGS = LoaderSettings()
 
@@ -385,10 +386,20 @@ def _drag(env: HexLoadingEnv, s: LoaderState, settings: LoaderSettings) -> Targe
 
 
 def _curl(env: HexLoadingEnv, s: LoaderState, settings: LoaderSettings) -> Targets:
-    """Close the bucket while the pile still holds the contents."""
+    """Close the bucket while the pile still holds the contents.
+
+    Over the last ``carry_blend`` rad of tilt the teeth's target moves on to the carry's (``to_truck``'s),
+    so that at the carried tilt both phases ask for the same motion: a clone averaging the labels either
+    side of that boundary would otherwise ask for neither, and the loaded bucket would stall in the pile.
+    """
     surface = float(env.earth.pile.height_at(s.tip[:2]))
     radius = s.radius if s.above_pile < IN_PILE else min(s.radius, CARRY_RADIUS)  # out: level it close in
-    return np.array([radius, max(surface - 0.1, s.tip[2], 2 * GROUND_CLEARANCE), CARRY_ANGLE]), s.q[0], None
+    hold = np.array([radius, max(surface - 0.1, s.tip[2], 2 * GROUND_CLEARANCE), CARRY_ANGLE])
+    if settings.carry_blend <= 0.0:
+        return hold, s.q[0], None
+    carry = _to_truck(env, s, settings)[0]
+    weight = float(np.clip((CARRIED_TILT + settings.carry_blend - s.tilt) / settings.carry_blend, 0.0, 1.0))
+    return hold + weight * (carry - hold), s.q[0], None
 
 
 def _to_truck(env: HexLoadingEnv, s: LoaderState, settings: LoaderSettings) -> Targets:
