@@ -14,6 +14,7 @@ from hexgym.agents.evaluate import (
     evaluate,
     load_policy,
     normalizer_path,
+    tonnes_per_hour_interval,
 )
 from hexgym.tools import cli
 
@@ -49,6 +50,17 @@ def test_aggregate_pools_the_episodes():
     assert result["mean_cycle_time_s"] == pytest.approx(20.0)
     assert result["fuel_l_per_tonne"] == pytest.approx(2.0 / delivered_t)
     assert result["spilled_fraction"] == pytest.approx(0.2 / (0.2 + delivered_t))
+
+
+def test_the_t_per_h_interval_covers_the_pooled_figure_and_narrows_with_episodes():
+    rng = np.random.default_rng(0)
+    delivered, seconds = rng.uniform(9.0, 13.0, 80), rng.uniform(120.0, 180.0, 80)
+    wide, narrow = tonnes_per_hour_interval(delivered[:8], seconds[:8]), tonnes_per_hour_interval(delivered, seconds)
+    assert wide[0] < delivered[:8].sum() / seconds[:8].sum() * 3600 < wide[1]
+    assert narrow[1] - narrow[0] < 0.6 * (wide[1] - wide[0])  # ~1/sqrt(n): a tenth as many episodes, ~3x as wide
+    assert tonnes_per_hour_interval(delivered[:1], seconds[:1]) is None  # one episode: no spread to resample
+    assert tonnes_per_hour_interval(delivered, seconds) == narrow  # reproducible
+    assert aggregate([_episode({10.0: 2000.0})])["tonnes_per_hour_ci95"] is None
 
 
 def test_scripted_evaluation_json_has_the_keys(tmp_path):
