@@ -9,6 +9,7 @@ from hexgym.agents.scripted import (
     CARRIED_TILT,
     CARRY_ANGLE,
     DUMP_ANGLE,
+    EMPTY_KG,
     SETTING_RANGES,
     LoaderSettings,
     LoaderState,
@@ -147,6 +148,21 @@ def test_the_carry_blend_makes_curl_and_carry_agree_at_their_boundary():
     np.testing.assert_allclose(action_for(env, opening, "curl", blended), action_for(env, opening, "curl"))
 
 
+def test_the_return_blend_and_the_penetrate_aim_make_their_phase_changes_agree():
+    env = HexLoadingEnv()
+    env.reset(seed=0)
+    state = replace(LoaderState.of(env), above_pile=3.0, swing_to_dig=0.5, dig_direction=LoaderState.of(env).q[0] + 0.5)
+    teaching = LoaderSettings(return_blend=100.0, penetrate_aim=1.0)
+    nearly_empty, emptying = replace(state, payload_kg=EMPTY_KG + 1.0), replace(state, payload_kg=EMPTY_KG + 100.0)
+    back = action_for(env, nearly_empty, "to_pile", teaching)
+    np.testing.assert_allclose(action_for(env, nearly_empty, "dump", teaching), back, atol=0.02)  # 1 kg from empty
+    np.testing.assert_allclose(action_for(env, emptying, "dump", teaching), action_for(env, emptying, "dump"))
+    assert not np.allclose(action_for(env, nearly_empty, "dump"), back)  # without the blend: the step
+    # entering the pile: the swing lines up with the cut as to_pile's does (without the aim it holds)
+    assert action_for(env, state, "penetrate", teaching)[0] == pytest.approx(action_for(env, state, "to_pile")[0])
+    assert action_for(env, state, "penetrate")[0] == 0.0 and action_for(env, state, "to_pile")[0] > 0.5
+
+
 def test_settings_files_round_trip_and_bad_ones_are_refused_by_name(tmp_path):
     settings = LoaderSettings(full_fraction=0.7, drag_speed=0.8)
     settings.save(tmp_path / "s.json")
@@ -196,12 +212,12 @@ def test_the_settings_search_keeps_the_best_candidate_it_met(tmp_path):
         tune_loader(tmp_path / "none.json", seeds=[3], population=3)
 
 
-def test_the_search_leaves_the_carry_blend_alone():
-    """carry_blend shapes a clone's labels, not the deliveries: the search keeps the start's."""
-    from hexgym.agents.loader_search import SEARCHED, _to_settings, _to_unit
+def test_the_search_leaves_the_settings_for_teaching_alone():
+    """carry_blend and the like shape a clone's labels, not the deliveries: the search keeps the start's."""
+    from hexgym.agents.loader_search import SEARCHED, TEACHING, _to_settings, _to_unit
 
     start = LoaderSettings(carry_blend=0.3, drag_speed=0.9)
-    assert "carry_blend" not in SEARCHED and len(SEARCHED) == len(SETTING_RANGES) - 1
+    assert "carry_blend" in TEACHING and len(SEARCHED) == len(SETTING_RANGES) - len(TEACHING)
     assert asdict(_to_settings(_to_unit(start), start)) == pytest.approx(asdict(start))
     moved = _to_settings(np.ones(len(SEARCHED)), start)
     assert moved.carry_blend == 0.3 and moved.drag_speed == SETTING_RANGES["drag_speed"][1]

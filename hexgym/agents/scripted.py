@@ -80,7 +80,12 @@ class LoaderSettings:
     dump_pin_height: float = 1.5  # m: bucket pin above the rim to dump from (the opened teeth swing down, out)
     leave_height: float = 0.5  # m: teeth (the open bucket's lowest point) above the rim before it swings away
     brake_margin: float = 1.0  # of the crossover reliefs' deceleration, planned for the swing's stop
+    # for teaching (0: the hand-set loader's step changes): labels that agree either side of a phase change
     carry_blend: float = 0.0  # rad of tilt before the carried tilt over which the curl moves on to the carry's targets
+    return_blend: float = 0.0  # kg above empty over which the dump's spools move on to the return's
+    penetrate_aim: float = (
+        0.0  # 1: the entering bucket lines up with the cut until in the pile, as to_pile does; 0: holds
+    )
 
     def __post_init__(self) -> None:
         for f in fields(self):  # bool is an int: refused too
@@ -118,6 +123,7 @@ SETTING_RANGES = {  # the values a setting may take (the search's bounds; the de
     "open_within": (0.5, 3.5), "clearance": (0.8, 2.5), "arrive_height": (0.4, 2.0), "truck_approach": (0.3, 1.5),
     "hold_back_per_metre": (0.3, 2.5), "dump_window": (0.1, 0.6), "dump_pin_height": (0.8, 2.5),
     "leave_height": (0.1, 1.2), "brake_margin": (0.7, 1.6), "carry_blend": (0.0, 1.0),
+    "return_blend": (0.0, 500.0), "penetrate_aim": (0.0, 1.0),
 }  # fmt: skip
 DEFAULT_SETTINGS = LoaderSettings()
 
@@ -375,7 +381,9 @@ def _to_pile(env: HexLoadingEnv, s: LoaderState, settings: LoaderSettings) -> Ta
 def _penetrate(env: HexLoadingEnv, s: LoaderState, settings: LoaderSettings) -> Targets:
     surface = float(env.earth.pile.height_at(s.tip[:2]))
     target = [entry_radius(env.layout), max(surface - settings.dig_depth - 0.2, GROUND_CLEARANCE), PENETRATE_ANGLE]
-    return np.array(target), s.q[0], None  # in the pile the swing holds (the cut's direction moves as it digs)
+    # in the pile the swing holds (the cut's direction moves as it digs)
+    swing = s.q[0] + settings.penetrate_aim * _wrap(s.dig_direction - s.q[0]) if s.above_pile > 0.0 else s.q[0]
+    return np.array(target), swing, None
 
 
 def _drag(env: HexLoadingEnv, s: LoaderState, settings: LoaderSettings) -> Targets:
@@ -454,6 +462,16 @@ def action_for(
     env: HexLoadingEnv, s: LoaderState, phase: str, settings: LoaderSettings = DEFAULT_SETTINGS
 ) -> np.ndarray:
     """The four spool fractions that carry out ``phase`` from state ``s``."""
+    left = s.payload_kg - EMPTY_KG  # a nearly empty dump moves on to the return over return_blend kg
+    if phase == "dump" and left < settings.return_blend:
+        weight = 1.0 - left / settings.return_blend
+        dump, back = (_phase_action(env, s, name, settings) for name in ("dump", "to_pile"))
+        return (dump + weight * (back - dump)).astype(np.float32)
+    return _phase_action(env, s, phase, settings)
+
+
+def _phase_action(env: HexLoadingEnv, s: LoaderState, phase: str, settings: LoaderSettings) -> np.ndarray:
+    """The spools of one phase's targets."""
     target, swing_target, feed = _phase_targets(env, s, phase, settings)
     action = np.zeros(4)
     brake = swing_brake(env.physics.swing_inertia(), settings)
