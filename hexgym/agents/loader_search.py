@@ -3,9 +3,9 @@
 The loader's targets and thresholds (:class:`hexgym.agents.scripted.LoaderSettings`) were set by
 hand. :func:`tune_loader` searches them at once with CMA-ES (the ``cmaes`` package) within their
 ranges (``SETTING_RANGES``; all but those for teaching clones, ``TEACHING``), scoring each candidate
-on whole seeded episodes of ``HexLoading-v0``: the tonnes per hour pooled over the episodes, less a penalty for every
-percentage point of spill above ``spill_target`` and for contacts (the task's contact reward). The
-search starts from the defaults; the best candidate met is saved. Select on one seed set here and
+on whole seeded episodes of ``HexLoading-v0``: the tonnes per hour pooled over the episodes, less a
+penalty for every percentage point of spill above ``spill_target`` and for contacts (the task's
+contact reward). The search starts from the defaults; the best candidate met is saved. Select on one seed set here and
 measure the result on others (``hexgym scripted --loader-settings`` / ``hexgym evaluate``).
 """
 

@@ -83,9 +83,7 @@ class LoaderSettings:
     # for teaching (0: the hand-set loader's step changes): labels that agree either side of a phase change
     carry_blend: float = 0.0  # rad of tilt before the carried tilt over which the curl moves on to the carry's targets
     return_blend: float = 0.0  # kg above empty over which the dump's spools move on to the return's
-    penetrate_aim: float = (
-        0.0  # 1: the entering bucket lines up with the cut until in the pile, as to_pile does; 0: holds
-    )
+    penetrate_aim: float = 0.0  # 1: the entering bucket lines up with the cut until it is in the pile (0: holds)
 
     def __post_init__(self) -> None:
         for f in fields(self):  # bool is an int: refused too
