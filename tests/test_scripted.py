@@ -11,6 +11,7 @@ from hexgym.agents.scripted import (
     DUMP_ANGLE,
     EMPTY_KG,
     SETTING_RANGES,
+    TEACHING_SETTINGS,
     LoaderSettings,
     LoaderState,
     ScriptedLoader,
@@ -214,10 +215,10 @@ def test_the_settings_search_keeps_the_best_candidate_it_met(tmp_path):
 
 def test_the_search_leaves_the_settings_for_teaching_alone():
     """carry_blend and the like shape a clone's labels, not the deliveries: the search keeps the start's."""
-    from hexgym.agents.loader_search import SEARCHED, TEACHING, _to_settings, _to_unit
+    from hexgym.agents.loader_search import SEARCHED, _to_settings, _to_unit
 
     start = LoaderSettings(carry_blend=0.3, drag_speed=0.9)
-    assert "carry_blend" in TEACHING and len(SEARCHED) == len(SETTING_RANGES) - len(TEACHING)
+    assert "carry_blend" in TEACHING_SETTINGS and len(SEARCHED) == len(SETTING_RANGES) - len(TEACHING_SETTINGS)
     assert asdict(_to_settings(_to_unit(start), start)) == pytest.approx(asdict(start))
     moved = _to_settings(np.ones(len(SEARCHED)), start)
     assert moved.carry_blend == 0.3 and moved.drag_speed == SETTING_RANGES["drag_speed"][1]

@@ -2,7 +2,7 @@
 
 The loader's targets and thresholds (:class:`hexgym.agents.scripted.LoaderSettings`) were set by
 hand. :func:`tune_loader` searches them at once with CMA-ES (the ``cmaes`` package) within their
-ranges (``SETTING_RANGES``; all but those for teaching clones, ``TEACHING``), scoring each candidate
+ranges (``SETTING_RANGES``; all but those for teaching clones, ``TEACHING_SETTINGS``), scoring each candidate
 on whole seeded episodes of ``HexLoading-v0``: the tonnes per hour pooled over the episodes, less a
 penalty for every percentage point of spill above ``spill_target`` and for contacts (the task's
 contact reward). The search starts from the defaults; the best candidate met is saved. Select on one seed set here and
@@ -20,16 +20,14 @@ from typing import Any
 
 import numpy as np
 
-from hexgym.agents.scripted import SETTING_RANGES, LoaderSettings, run_scripted
+from hexgym.agents.scripted import SETTING_RANGES, TEACHING_SETTINGS, LoaderSettings, run_scripted
 from hexgym.checks import check_count, check_range
 from hexgym.files import check_output_file
 
 SPILL_PENALTY = 15.0  # t/h per percentage point of spill above the target
 CONTACT_PENALTY = 20.0  # t/h per unit of the task's contact reward per episode (-1: 100 kN s of hard contact)
 START_SIGMA = 0.15  # of each setting's range: the search's first step
-# every setting but those for teaching, which shape the labels a clone learns from, not what the loader delivers
-TEACHING = ("carry_blend", "return_blend", "penetrate_aim")
-SEARCHED = tuple(name for name in SETTING_RANGES if name not in TEACHING)
+SEARCHED = tuple(name for name in SETTING_RANGES if name not in TEACHING_SETTINGS)
 
 
 @dataclass(frozen=True)

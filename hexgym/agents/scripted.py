@@ -123,6 +123,8 @@ SETTING_RANGES = {  # the values a setting may take (the search's bounds; the de
     "leave_height": (0.1, 1.2), "brake_margin": (0.7, 1.6), "carry_blend": (0.0, 1.0),
     "return_blend": (0.0, 500.0), "penetrate_aim": (0.0, 1.0),
 }  # fmt: skip
+# shape the labels a clone learns from, not what the loader delivers: hexgym tune-loader leaves them alone
+TEACHING_SETTINGS = ("carry_blend", "return_blend", "penetrate_aim")
 DEFAULT_SETTINGS = LoaderSettings()
 
 
