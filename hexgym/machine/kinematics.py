@@ -13,6 +13,7 @@ from :mod:`hexgym.machine.parameters`; ``assets/cat325.xml`` is generated from t
 from __future__ import annotations
 
 import functools
+import math
 from functools import cache
 
 import numpy as np
@@ -42,18 +43,6 @@ def _perp(v: np.ndarray) -> np.ndarray:
     return np.array([-v[1], v[0]])
 
 
-def _circle_intersection(c1: np.ndarray, r1: float, c2: np.ndarray, r2: float, side: float) -> np.ndarray:
-    """The intersection of two circles on the ``side`` (+1 left, -1 right) of c1 -> c2."""
-    d_vec = c2 - c1
-    d = float(np.hypot(*d_vec))
-    a = (r1**2 - r2**2 + d**2) / (2.0 * d)
-    h2 = r1**2 - a**2
-    if h2 < 0.0:
-        raise ValueError(f"linkage cannot close: circles r={r1:.3f}, r={r2:.3f} at distance {d:.3f}")
-    u = d_vec / d
-    return c1 + a * u + side * np.sqrt(h2) * _perp(u)
-
-
 # --------------------------------------------------------------------------------------------
 # The bucket four-bar (stick frame). The guide link pivots on the stick at G, the power link
 # joins the bucket at K; the bucket cylinder's rod end is the joint J of the two links.
@@ -63,24 +52,41 @@ _K_BUCKET = np.array(p.BUCKET_LINK_PIN)
 _C_BUCKET = np.array(p.BUCKET_CYLINDER_BASE)
 # J lies on the stick's outer side of the line G -> K (the H-link's assembly mode).
 _J_SIDE = 1.0
+# the same points as plain floats, for _four_bar's scalar arithmetic
+_G_XZ, _P_XZ, _K_XZ, _C_XZ = (tuple(v.tolist()) for v in (_G, _P_BUCKET, _K_BUCKET, _C_BUCKET))
+
+
+def _four_bar(q_bucket: float) -> tuple[float, float, float, float, float, float]:
+    """The bucket four-bar at ``q_bucket`` in the stick frame: J, K and dJ/dq as (jx, jz, kx, kz, djx, djz).
+    Plain floats (no small numpy arrays): the Python models solve it twice per control period."""
+    (gx, gz), (px, pz), (kx0, kz0) = _G_XZ, _P_XZ, _K_XZ
+    c, s = math.cos(q_bucket), math.sin(q_bucket)
+    kx = px + c * kx0 + s * kz0  # P + rotation(-q) K
+    kz = pz - s * kx0 + c * kz0
+    # J: where the guide link's circle about G meets the power link's about K, on the _J_SIDE of G -> K
+    r1, r2 = p.GUIDE_LINK_LENGTH, p.POWER_LINK_LENGTH
+    dx, dz = kx - gx, kz - gz
+    d = math.hypot(dx, dz)
+    a = (r1 * r1 - r2 * r2 + d * d) / (2.0 * d)
+    h2 = r1 * r1 - a * a
+    if h2 < 0.0:
+        raise ValueError(f"linkage cannot close: circles r={r1:.3f}, r={r2:.3f} at distance {d:.3f}")
+    ux, uz, h = dx / d, dz / d, _J_SIDE * math.sqrt(h2)
+    jx, jz = gx + a * ux - h * uz, gz + a * uz + h * ux
+    # |J - G| = const and |J - K| = const  =>  (J-G).dJ = 0 and (J-K).(dJ - dK) = 0, with dK = -perp(K - P)
+    dkx, dkz = kz - pz, px - kx
+    a11, a12, a21, a22 = jx - gx, jz - gz, jx - kx, jz - kz
+    det = a11 * a22 - a12 * a21
+    if det == 0.0:
+        raise ValueError(f"the bucket four-bar is singular at {q_bucket:.4f} rad")
+    b2 = a21 * dkx + a22 * dkz
+    return jx, jz, kx, kz, -a12 * b2 / det, a11 * b2 / det
 
 
 def bucket_link_points(q_bucket: float) -> tuple[np.ndarray, np.ndarray]:
     """Return (J, K) in the stick frame: the link joint and the bucket's link pin."""
-    k = _P_BUCKET + rotation(-q_bucket) @ _K_BUCKET
-    j = _circle_intersection(_G, p.GUIDE_LINK_LENGTH, k, p.POWER_LINK_LENGTH, _J_SIDE)
-    return j, k
-
-
-def _bucket_link_velocities(q_bucket: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(J, K, dJ/dq, dK/dq) from the four-bar's velocity equations (exact, no differencing)."""
-    j, k = bucket_link_points(q_bucket)
-    dk = -_perp(k - _P_BUCKET)
-    # |J - G| = const and |J - K| = const  =>  (J-G).dJ = 0 and (J-K).(dJ - dK) = 0
-    a = np.array([j - _G, j - k])
-    b = np.array([0.0, (j - k) @ dk])
-    dj = np.linalg.solve(a, b)
-    return j, k, dj, dk
+    jx, jz, kx, kz, _, _ = _four_bar(q_bucket)
+    return np.array([jx, jz]), np.array([kx, kz])
 
 
 # --------------------------------------------------------------------------------------------
@@ -100,26 +106,36 @@ def _triangle(name: str) -> tuple[np.ndarray, np.ndarray, float]:
     raise KeyError(name)
 
 
+@cache
+def _triangle_floats(name: str) -> tuple[float, ...]:
+    """:func:`_triangle` and the joint's sign as plain floats: (base x, z, rod x, z, offset, sign)."""
+    base, rod, offset = _triangle(name)
+    return (*base.tolist(), *rod.tolist(), float(offset), _SIGN[name])
+
+
+def cylinder_geometry(name: str, angle: float) -> tuple[float, float]:
+    """Pin-to-pin length (m) and moment arm dC/dq (m/rad) of cylinder ``name`` at its joint's angle (rad)."""
+    if name == "bucket":
+        jx, jz, _, _, djx, djz = _four_bar(angle)
+        dx, dz = jx - _C_XZ[0], jz - _C_XZ[1]
+        length = math.hypot(dx, dz)
+        return length, (dx * djx + dz * djz) / length
+    bx, bz, rx, rz, offset, sign = _triangle_floats(name)
+    c, s = math.cos(offset + sign * angle), math.sin(offset + sign * angle)
+    px, pz = c * rx - s * rz, s * rx + c * rz  # the rod pin in the parent frame
+    dx, dz = px - bx, pz - bz
+    length = math.hypot(dx, dz)
+    return length, sign * (dx * -pz + dz * px) / length  # d . perp(rod pin), perp(v) = (-v_z, v_x)
+
+
 def cylinder_length(name: str, angle: float) -> float:
     """Pin-to-pin length (m) of cylinder ``name`` at its joint's angle (rad)."""
-    if name == "bucket":
-        j, _ = bucket_link_points(angle)
-        return float(np.hypot(*(j - _C_BUCKET)))
-    base, rod, offset = _triangle(name)
-    rod_parent = rotation(offset + _SIGN[name] * angle) @ rod
-    return float(np.hypot(*(rod_parent - base)))
+    return cylinder_geometry(name, angle)[0]
 
 
 def moment_arm(name: str, angle: float) -> float:
     """dC/dq (m/rad): cylinder force times this is the joint torque (the paper's Eqn 5)."""
-    if name == "bucket":
-        j, _, dj, _ = _bucket_link_velocities(angle)
-        d = j - _C_BUCKET
-        return float(d @ dj / np.hypot(*d))
-    base, rod, offset = _triangle(name)
-    rod_parent = rotation(offset + _SIGN[name] * angle) @ rod
-    d = rod_parent - base
-    return float(_SIGN[name] * (d @ _perp(rod_parent)) / np.hypot(*d))
+    return cylinder_geometry(name, angle)[1]
 
 
 @cache
