@@ -360,7 +360,7 @@ def test_a_checked_plan_keeps_the_clearance_the_check_found_missing(env, model):
     """Two rounds, each plan checked; the second keeps the clearance the check found the first overstated."""
     from hexgym.planning import MachineState
     from hexgym.planning.check import CheckResult
-    from hexgym.planning.planner import dump_goal, plan_checked
+    from hexgym.planning.planner import MEND_DELAYS_S, dump_goal, plan_checked
 
     layout = env.unwrapped.layout
     state = MachineState(env.unwrapped.physics.joint_positions(), np.zeros(4), 2000.0, layout)
@@ -373,10 +373,34 @@ def test_a_checked_plan_keeps_the_clearance_the_check_found_missing(env, model):
         return result
 
     plan, result = plan_checked(state, dump_goal(layout), model, check, budget=60, population=30, horizon_s=3.0)
-    assert len(checked) == 2 and plan.rollouts == 62  # each round simulates its final plan once more
+    assert plan.rollouts == 62  # each round simulates its final plan once more
+    # never at the goal: the swing delayed by each of MEND_DELAYS_S is checked too, each worse
+    assert len(checked) == 2 + len(MEND_DELAYS_S)
     assert result is checked[0]  # the second round's plan, checked worse, is not the one returned
     with pytest.raises(ValueError, match="budget must be an integer >= 2"):
         plan_checked(state, dump_goal(layout), model, check, budget=1)
+
+
+def test_a_plan_that_touches_on_the_accurate_model_is_mended_by_a_later_swing(env, model):
+    """A checked plan in contact is tried with its swing started later; the first delay that the check finds clear
+    and at the goal is returned, its other spools as planned."""
+    from hexgym.planning import MachineState
+    from hexgym.planning.check import CheckResult
+    from hexgym.planning.planner import MEND_DELAYS_S, dump_goal, plan_checked
+
+    layout = env.unwrapped.layout
+    state = MachineState(env.unwrapped.physics.joint_positions(), np.zeros(4), 2000.0, layout)
+    late = round(MEND_DELAYS_S[1] / model.control_period)
+
+    def check(spools_m, start, goal):  # a machine whose bucket meets the truck unless the swing waits `late` periods
+        waits = int(np.argmax(spools_m[:, 0] != 0.0))
+        return CheckResult(0.1, 0.0, 4.0) if waits >= late else CheckResult(-0.2, 0.0, 4.0)
+
+    plan, result = plan_checked(state, dump_goal(layout), model, check, budget=60, population=30, horizon_s=3.0,
+                                initial=np.tile([1.0, 1.0, 0.0, 0.0], (6, 1)))  # fmt: skip
+    assert result.collision_free and result.time_s == 4.0
+    assert not plan.spools_m[:late, 0].any() and plan.spools_m[late, 0] != 0.0
+    assert plan.spools_m[0, 1] != 0.0  # the boom lifts from the start, ahead of the swing
 
 
 def test_a_fitted_swing_comes_to_rest_at_its_target_on_the_circuit_model(env, model):
@@ -407,7 +431,7 @@ def test_a_plan_with_a_fitted_swing_runs_the_fitted_spools(env, model):
     swing before its check; the returned plan's spools are the fitted ones, its rollouts count the swing's batch."""
     from hexgym.planning import MachineState
     from hexgym.planning.check import CheckResult
-    from hexgym.planning.planner import plan_checked, return_goal
+    from hexgym.planning.planner import MEND_DELAYS_S, plan_checked, return_goal
 
     layout = env.unwrapped.layout
     state = MachineState(env.unwrapped.physics.joint_positions(), np.zeros(4), 0.0, layout)
@@ -425,7 +449,9 @@ def test_a_plan_with_a_fitted_swing_runs_the_fitted_spools(env, model):
         return CheckResult(1.0, 1.0, None)
 
     plan, _ = plan_checked(state, goal, model, check, budget=40, population=20, horizon_s=2.0, fit_swing=fit_swing)
-    assert len(fitted) == 2 and all(np.array_equal(s[:, 0], np.full(len(s), 0.5e-3)) for s in seen)
+    # the two rounds' plans are checked with the fitted swing; never at the goal, each is then tried delayed
+    assert len(fitted) == 2 and all(np.array_equal(s[:, 0], np.full(len(s), 0.5e-3)) for s in seen[:2])
+    assert len(seen) == 2 + len(MEND_DELAYS_S)
     assert abs(fitted[0][0] - (state.q[0] + 1.0)) < 0.3  # the goal's bearing
     assert np.array_equal(np.unique(np.abs(fitted[0][2])), [0.0, p.SPOOL_STROKE])  # searched: full, counter, closed
     assert np.array_equal(plan.spools_m[:, 0], np.full(len(plan.spools_m), 0.5e-3))

@@ -60,6 +60,9 @@ _UNREACHED_S = 10.0  # s added to the cost of a rollout that does not reach the 
 _SHORTFALL_COST = 20.0  # s per metre-second of clearance short of the margin
 _CONTACT_COST = 100.0  # s per metre of penetration
 _SPILL_COST = 20.0  # s per rad-second of tilt beyond the repose angle while loaded
+# s: a checked plan that touches or misses the goal is tried with its swing started this much later (the loaded boom
+# rises slower on the machine than on the fast model: later, the bucket comes to the truck higher)
+MEND_DELAYS_S = (0.15, 0.3, 0.45)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -406,7 +409,9 @@ def plan_checked(
     better checked plan is returned (collision-free first, then at the goal and sooner, else closer to it) with
     its check; its ``rollouts`` and ``wall_s`` count both rounds and the checks. ``correct`` (e.g.
     :meth:`PlanCheck.correct`) then trims that plan on the accurate model; a trimmed plan that ranks better there
-    is returned with its figures on the fast model (not cut at the fast model's goal: the trim acts last).
+    is returned with its figures on the fast model (not cut at the fast model's goal: the trim acts last). A plan that
+    still touches truck or ground or misses the goal there is tried with its swing started later (``MEND_DELAYS_S``,
+    each checked and trimmed) until one is clear and at the goal; the best ranked is returned.
 
     ``fit_swing`` (e.g. :meth:`PlanCheck.fit_swing`): the swing is not searched but turns as fast as it can to the
     goal's bearing (:func:`swing_target`). The search holds it at the fast model's own fastest turn (full spool,
@@ -441,17 +446,41 @@ def plan_checked(
     second_check = check(second.spools_m, state, goal)
     plan, checked = min(((first, first_check), (second, second_check)), key=lambda pc: _check_rank(*pc))
     rollouts += first.rollouts + second.rollouts
+
+    def adopt(spools: np.ndarray, checked: CheckResult) -> tuple[Plan, CheckResult]:
+        """The plan with ``spools`` that rank better on the accurate model: with a fitted swing the prediction stays
+        the fast model's with its own swing, else the new spools' figures on the fast model."""
+        nonlocal rollouts
+        if fit_swing is not None:
+            return dataclasses.replace(plan, spools_m=spools), checked
+        rollouts += 1
+        return _plan_of(spools, state, goal, model, margin_m, rollouts, start, truncate=False), checked
+
     if correct is not None:
         spools, corrected, _ = correct(plan.spools_m, state, goal, checked)
         if spools is not plan.spools_m:  # trimmed: it ranks better on the accurate model
-            if fit_swing is not None:  # the prediction stays the fast model's with its own swing
-                plan = dataclasses.replace(plan, spools_m=spools)
-            else:  # the trimmed spools' figures on the fast model
-                rollouts += 1
-                plan = _plan_of(spools, state, goal, model, margin_m, rollouts, start, truncate=False)
-            checked = corrected
+            plan, checked = adopt(spools, corrected)
+    base = plan.spools_m
+    for delay_s in MEND_DELAYS_S:  # touches or misses on the accurate model: the swing later, the lift ahead of it
+        if checked.collision_free and checked.time_s is not None:
+            break
+        spools = delay_swing(base, round(delay_s / model.control_period))
+        mended = check(spools, state, goal)
+        if correct is not None:
+            spools, mended, _ = correct(spools, state, goal, mended)
+        if _check_rank(plan, mended) < _check_rank(plan, checked):
+            plan, checked = adopt(spools, mended)
     wall_s = time.perf_counter() - start
     return dataclasses.replace(plan, rollouts=rollouts, wall_s=wall_s, fast_swing_switch=switch), checked
+
+
+def delay_swing(spools_m: np.ndarray, periods: int) -> np.ndarray:
+    """Spools (T, 4) with the swing's started ``periods`` control periods later, the others as they were, closed
+    for as long at the end."""
+    out = np.vstack([spools_m, np.zeros((periods, 4))])
+    out[:, 0] = 0.0
+    out[periods:, 0] = spools_m[:, 0]
+    return out
 
 
 def knot_means(per_step: np.ndarray, steps_per_knot: int) -> np.ndarray:
