@@ -332,6 +332,25 @@ def test_the_check_replays_a_plan_on_the_circuit_model_and_finds_its_contact(env
     assert down.message.startswith("no collision-free motion found") and "from the goal" in held.message
 
 
+def test_the_check_predicts_the_references_fuel(env, model):
+    """The check's fuel (the circuit's pump pressures and flows) is the reference's for the same spools, within 3 %;
+    held spools burn the engine's idle rate."""
+    from hexgym.hydraulics.reference import ReferenceModel
+    from hexgym.planning import MachineState
+    from hexgym.planning.check import PlanCheck, replay_plan
+    from hexgym.planning.planner import dump_goal
+
+    layout = env.unwrapped.layout
+    state = MachineState(env.unwrapped.physics.joint_positions(), np.zeros(4), 0.0, layout)
+    check, goal = PlanCheck(model), dump_goal(layout)
+    move = np.tile(np.array([0.8, 0.6, -0.4, 0.3]) * p.SPOOL_STROKE, (80, 1))  # 2 s: swing, boom up, stick out
+    moved = check(move, state, goal).fuel_l
+    reference = replay_plan(ReferenceModel(), move, state, goal, model).fuel_l
+    held = check(np.zeros((80, 4)), state, goal).fuel_l
+    assert moved == pytest.approx(reference, rel=0.03)
+    assert 0.0 < held < moved / 2
+
+
 def test_a_correction_trims_a_plan_to_its_point_on_the_accurate_model(env, model):
     """Spools that bring the fast model's teeth to rest at a point leave the circuit model's elsewhere; the
     correction's trimmed spools bring them there. Spools already there are returned as they are."""
@@ -500,7 +519,8 @@ def test_plan_summary_counts_the_targets_on_each_machine():
                 "scripted_time_s": 4.0, "scripted_fuel_l": 1.0, "predicted_time_s": 3.0, "predicted_fuel_l": 0.8,
                 "predicted_reached": True, "reference_time_s": ref_t, "reference_fuel_l": ref_fuel,
                 "scripted_reference_time_s": scripted_ref_t, "scripted_reference_fuel_l": 1.0,
-                "reference_goal_error_m": 0.1, "reference_min_clearance_m": 0.2, "checked_time_s": ref_t}  # fmt: skip
+                "reference_goal_error_m": 0.1, "reference_min_clearance_m": 0.2, "checked_time_s": ref_t,
+                "checked_fuel_l": 1.1 * ref_fuel}  # fmt: skip
 
     out = summarise([seed(3.0, 4.0, 0.9, 5.0), seed(None, None, 0.8, 5.0), seed(4.0, 5.0, 0.8, 5.0)])
     targets = out["targets"]
@@ -508,6 +528,7 @@ def test_plan_summary_counts_the_targets_on_each_machine():
     assert targets["reference_faster_15pct_no_more_fuel"] == 1  # 4.0 / 5.0 s with 0.9 of the fuel
     assert targets["reference_less_fuel_15pct_no_more_time"] == 1  # 5.0 / 5.0 s with 0.8 of the fuel
     assert out["median_reference_time_vs_scripted_reference"] == pytest.approx(0.9)
+    assert out["median_checked_fuel_error"] == pytest.approx(0.1)
     assert out["median_swing_switch_later_s"] is None  # no fitted swing
     fitted = seed(3.0, 4.0, 0.9, 5.0) | {"swing_switch_s": {"fast_model": 1.5, "plan": 1.8}}
     assert summarise([fitted, seed(3.0, 4.0, 0.9, 5.0)])["median_swing_switch_later_s"] == pytest.approx(0.3)

@@ -36,15 +36,19 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from hexgym.hydraulics.circuit import STATE_NAMES, STATE_SIZE, HydraulicCircuit
+from hexgym.hydraulics.circuit import STATE_NAMES, STATE_SIZE, HydraulicCircuit, fuel_rate
 from hexgym.mbl.table import MBLTable
 from hexgym.mbl.valve import LearnedValve
 from hexgym.model import circuit_kernel
+from hexgym.model.base import LEARNED_DTYPE
 from hexgym.model.python_backend import LearnedModel
 
 STOP_CLEARANCE = 1e-3  # m: the circuit's stroke ends, inside MuJoCo's joint limits (which would kick the servos)
 MAX_RATE = 10.0  # rad/s: the servos' range here, far beyond any joint's
 SUBSTEPS = 5  # circuit steps per 25 ms period (5 ms): 3.1 ms steps moved the selection logs by < 0.02 m
+
+# a row: the learned models' columns, and the pumps' power and the fuel rate as the reference reports them
+CIRCUIT_DTYPE = np.dtype(LEARNED_DTYPE.descr + [("pump_power_w", np.float64), ("fuel_rate_l_per_h", np.float64)])
 
 
 class CircuitModel(LearnedModel):
@@ -89,6 +93,13 @@ class CircuitModel(LearnedModel):
         holding = self.joint_loads()[1:] / self.physics.moment_arms()
         self.state = self.circuit.initial_state(holding)
         self.rates = np.zeros(4)
+
+    def observe(self) -> np.ndarray:
+        """One trajectory row (``CIRCUIT_DTYPE``): the learned models' columns, the pumps' power and the fuel rate
+        (L/h) from the circuit's pressures and pump flows, as :class:`~hexgym.hydraulics.reference.ReferenceModel`
+        reports them."""
+        hydraulic, brake = self.circuit.pump_and_brake_power(self.state)
+        return np.array((*super().observe().tolist(), hydraulic, fuel_rate(brake)), dtype=CIRCUIT_DTYPE)
 
     def _control_period(self) -> None:
         arms, mass, load = self._period_start()

@@ -66,6 +66,13 @@ class PlanReplay:
         """The first time at the goal with the swing at rest (None: never)."""
         return float(self.rows["t"][np.argmax(self.at)]) if self.at.any() else None
 
+    @property
+    def fuel_l(self) -> float | None:
+        """Diesel (L) to the plan's end, from the rows' fuel rate (None: a model that reports none)."""
+        if "fuel_rate_l_per_h" not in self.rows.dtype.names:
+            return None
+        return float(np.sum(self.rows["fuel_rate_l_per_h"][1 : self.planned + 1]) * ROW_S / 3600.0)
+
 
 def replay_plan(
     machine: MachineModel, spools_m: np.ndarray, state: MachineState, goal: Goal, model: RolloutModel
@@ -88,12 +95,14 @@ def replay_plan(
 @dataclasses.dataclass(frozen=True)
 class CheckResult:
     """A plan replayed on the circuit model: ``min_clearance_m`` (negative = contact) until it comes to rest,
-    ``goal_error_m`` where it does, ``time_s`` to the goal with the swing at rest (None: never); ``replay``: the
+    ``goal_error_m`` where it does, ``time_s`` to the goal with the swing at rest (None: never), ``fuel_l`` to the
+    plan's end (from the circuit's pump pressures and flows, as the reference accounts it); ``replay``: the
     replay itself (not compared), which :meth:`PlanCheck.correct` starts from."""
 
     min_clearance_m: float
     goal_error_m: float
     time_s: float | None
+    fuel_l: float | None = None
     replay: PlanReplay | None = dataclasses.field(default=None, compare=False, repr=False)
 
     @property
@@ -116,8 +125,9 @@ def _result(run: PlanReplay) -> CheckResult:
     """A replay's check: clearance until it comes to rest (the swing coasts on after the plan), goal error there,
     time to the goal."""
     return CheckResult(
-        min_clearance_m=float(run.clearance.min()), goal_error_m=float(run.error[-1]), time_s=run.time_s, replay=run
-    )
+        min_clearance_m=float(run.clearance.min()), goal_error_m=float(run.error[-1]), time_s=run.time_s,
+        fuel_l=run.fuel_l, replay=run,
+    )  # fmt: skip
 
 
 class PlanCheck:

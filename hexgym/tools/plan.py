@@ -160,9 +160,8 @@ def reference_replay(plan: Plan, state: MachineState, goal: Goal, model: Rollout
     from hexgym.hydraulics.reference import ReferenceModel
 
     run = replay_plan(ReferenceModel(), plan.spools_m, state, goal, model)
-    fuel_l = float(np.sum(run.rows["fuel_rate_l_per_h"][1 : run.planned + 1]) * ROW_S / 3600.0)
     return {
-        "time_s": run.time_s, "fuel_l": fuel_l,
+        "time_s": run.time_s, "fuel_l": run.fuel_l,
         "goal_error_m": float(run.error[-1]), "goal_error_at_plan_end_m": float(run.error[run.planned]),
         "min_clearance_m": float(run.clearance.min()), "tip": run.tips[: run.planned + 1],
     }  # fmt: skip
@@ -223,6 +222,7 @@ def plan_task(
         "predicted_fuel_l": plan.fuel_l, "predicted_min_clearance_m": plan.min_clearance_m,
         "predicted_collision_free": plan.collision_free, "predicted_spill_free": plan.spill_free, "check": check,
         "checked_time_s": checked.time_s if checked else None,
+        "checked_fuel_l": checked.fuel_l if checked else None,
         "checked_min_clearance_m": checked.min_clearance_m if checked else None,
         "checked_goal_error_m": checked.goal_error_m if checked else None,
         "checked_collision_free": checked.collision_free if checked else None,
@@ -297,6 +297,7 @@ def summarise(results: list[dict[str, Any]]) -> dict[str, Any]:
         "reference_contacts": sum(r["reference_min_clearance_m"] < 0 for r in results),
         "median_time_prediction_error": median([rel(r["predicted_time_s"], r["reference_time_s"]) for r in results]),
         "median_checked_time_error": median([rel(r["checked_time_s"], r["reference_time_s"]) for r in results]),
+        "median_checked_fuel_error": median([rel(r["checked_fuel_l"], r["reference_fuel_l"]) for r in results]),
         "median_reference_time_vs_scripted": median([_ratio(r["reference_time_s"], r["scripted_time_s"])
                                                      for r in results]),
         "median_reference_time_vs_scripted_reference": median(faster_ref),
