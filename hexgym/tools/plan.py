@@ -7,6 +7,9 @@ starts from rest at those angles. Then:
 
 - the planner (:func:`hexgym.planning.planner.plan_motion`) plans on the native learned model, its search
   started from the scripted loader's move (``warm_start``): ``predicted_*`` are its final rollout's figures;
+- by default the plan is checked, trimmed and if need be mended on the circuit model
+  (:func:`~hexgym.planning.planner.plan_checked`): ``checked_*`` are the check's figures (time to the goal,
+  clearance, goal error, fuel to the plan's end);
 - the planned spools are replayed in the environment (the learned model with the environment's fuel
   account, 0.1 s steps): ``learned_time_s``, ``learned_fuel_l`` (the figures compared with the scripted's);
 - the planned spools are replayed on the reference model (:mod:`hexgym.hydraulics.reference`, the
