@@ -27,8 +27,8 @@ The period's circuit steps run compiled (:func:`hexgym.model.circuit_kernel.cont
 on disk: about 10 s to compile on first use, 0.2 s to load after); ``_control_period_numpy`` runs the same
 steps through :class:`HydraulicCircuit`'s numpy methods, the reference the compiled period is tested
 against (tip paths within 1e-6 m; 2e-14 m measured on Test 3 and three suite logs). On ``hexgym bench``'s
-Test 3 (one thread, 2-core machine) the model runs 120-185x real time, about 11x the numpy path's 15-17x;
-what remains per period is mostly the linkage's kinematics (moment arms, cylinder lengths) and MuJoCo's step.
+Test 3 (one thread, 2-core machine) the model runs ~400x real time; of a period's ~70-80 us the compiled circuit
+takes ~25, MuJoCo's step and the Python around it the rest.
 """
 
 from __future__ import annotations
