@@ -413,6 +413,8 @@ def native_benchmark(seconds: float = 3.0) -> dict[str, float]:
 
     def per_period(model: LearnedModelBase) -> Callable[[], float]:
         spools = _test3_controls(model) * 1e-3
+        model.reset(pose)
+        model.step(spools[0])  # untimed: a compiled model loads (or compiles, after a change) its kernel here
 
         def run() -> float:
             model.reset(pose)
