@@ -4,11 +4,11 @@ The planner searches thousands of candidates on the fast native model, whose pap
 hydraulic functions share the pumps: a loaded boom rising while the swing turns comes up slower on the
 machine than the tables say, and a plan with 0.2 m of predicted clearance meets the truck's wall. The
 circuit model (:mod:`hexgym.model.circuit_model`: the open-centre circuit with the learned valve) follows
-the reference within centimetres but runs in Python, ~200x real time: too slow to search with, fast
-enough to check one plan (a 4 s move in ~30 ms). :class:`PlanCheck` replays a plan's spools on it from
-the plan's start state and measures it on the site's geometry as the planner does: the least clearance
-of bucket and stick to truck and ground, the goal error where the machine comes to rest, the time to
-the goal.
+the reference within centimetres but runs in Python, ~400x real time: too slow to search with, fast
+enough to check one plan (a 4-5 s move, settling and its site's clearances in 33-38 ms). :class:`PlanCheck`
+replays a plan's spools on it from the plan's start state and measures it on the site's geometry as the
+planner does: the least clearance of bucket and stick to truck and ground, the goal error where the machine
+comes to rest, the time to the goal, the fuel.
 
 :meth:`PlanCheck.correct` then trims a plan on the circuit model (see there): the fast model's plan ends within the
 tolerance of the dig start on its own model, but the machine it stands for ends 1-2 m away.
