@@ -646,12 +646,13 @@ class HydraulicCircuit:
         loss = (1.0 - p.SWING_MECHANICAL_EFFICIENCY) * abs(ideal) * np.tanh(omega / p.SWING_FRICTION_SPEED)
         return float(p.SWING_REDUCTION * (ideal - loss - p.SWING_MOTOR_VISCOUS_FRICTION * omega))
 
-    def pump_and_brake_power(self, state: np.ndarray) -> tuple[float, float]:
-        """The pumps' hydraulic power and the engine's brake power (W) at a circuit state (pump pressures times
-        flows; the engine drives the pumps through their overall efficiency and the accessories)."""
+    def pump_power(self, state: np.ndarray) -> tuple[np.ndarray, float, float]:
+        """The pumps' flows (m^3/s, 2), their hydraulic power and the engine's brake power (W) at a circuit state
+        (pump pressures times flows; the engine drives the pumps through their overall efficiency and the
+        accessories)."""
         q_pump, _, _ = self.pump_flows(state[0:2], state[N_NODES:])
         hyd = float(state[0] * q_pump[0] + state[1] * q_pump[1])
-        return hyd, p.ACCESSORY_POWER + max(hyd, 0.0) / p.PUMP_OVERALL_EFFICIENCY
+        return q_pump, hyd, p.ACCESSORY_POWER + max(hyd, 0.0) / p.PUMP_OVERALL_EFFICIENCY
 
     def outputs(
         self,
@@ -665,9 +666,8 @@ class HydraulicCircuit:
         x, _ = _validate_mechanics(ext_m, vel_mps, swing_rate)
         y = np.asarray(state, float)
         q, _ = self.branch_flows(y[:N_NODES], self.branch_areas(validate_spools(spools_m), x))
-        q_pump, _, _ = self.pump_flows(y[0:2], y[N_NODES:])
+        q_pump, hyd, brake = self.pump_power(y)
         out = {f"{n}_pressure_pa": float(y[i]) for i, n in enumerate(NODES)}
-        hyd, brake = self.pump_and_brake_power(y)
         leak = float(self._external_leak @ q)
         out |= {
             "pump1_flow_m3s": float(q_pump[0]),

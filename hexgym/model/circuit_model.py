@@ -98,7 +98,7 @@ class CircuitModel(LearnedModel):
         """One trajectory row (``CIRCUIT_DTYPE``): the learned models' columns, the pumps' power and the fuel rate
         (L/h) from the circuit's pressures and pump flows, as :class:`~hexgym.hydraulics.reference.ReferenceModel`
         reports them."""
-        hydraulic, brake = self.circuit.pump_and_brake_power(self.state)
+        _, hydraulic, brake = self.circuit.pump_power(self.state)
         return np.array((*super().observe().tolist(), hydraulic, fuel_rate(brake)), dtype=CIRCUIT_DTYPE)
 
     def _control_period(self) -> None:
