@@ -105,3 +105,23 @@ def test_the_loads_observation_means_the_same_on_the_reference(reference_env):
     learned.close()
     assert max(observed_gap) < 0.05  # MN: the two machines' motions differ a little
     assert max(oil_gap) > 0.1  # the oil's force at the start of the move is another quantity
+
+
+def test_the_fuel_on_the_reference_is_its_engines(reference_env, monkeypatch):
+    """The reference's fuel is its engine's (the pumps' pressures and flows through the BSFC map, at each control
+    period's end for the period), not the learned model's estimate from the motion."""
+    from hexgym.hydraulics.reference import ReferenceModel
+
+    machine = reference_env.unwrapped.machine
+    reference_env.reset(seed=4)
+    machine.step(np.array([0.0, 5e-3, 0.0, 0.0]))  # the reference's own rate, as its trajectory rows report it
+    assert machine.reference.fuel_rate_l_per_h() == pytest.approx(machine.reference.observe()["fuel_rate_l_per_h"])
+    assert machine.take_fuel_l() == pytest.approx(machine.reference.fuel_rate_l_per_h() * CONTROL_PERIOD / 3600.0)
+    assert machine.take_fuel_l() == 0.0  # taken
+    reference_env.reset(seed=4)
+    monkeypatch.setattr(ReferenceModel, "fuel_rate_l_per_h", lambda self: 36.0)
+    swing = np.array([1.0, 0.0, 0.0, 0.0], np.float32)  # full swing from rest: the estimate would say little
+    for _ in range(3):
+        _, _, _, _, info = reference_env.step(swing)
+        assert info["fuel_l_step"] == pytest.approx(36.0 * 0.1 / 3600.0, rel=1e-12)
+    assert info["fuel_l"] == pytest.approx(3 * 36.0 * 0.1 / 3600.0, rel=1e-12)

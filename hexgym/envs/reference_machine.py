@@ -1,7 +1,7 @@
 """The reference model (the real machine's stand-in) on the loading site, as the task's machine.
 
 ``HexLoading-v0`` with ``model="reference"`` runs the same task — pile, truck, digging force,
-payload, spill, contacts, fuel account — on the analytical open-centre circuit driving the full
+payload, spill, contacts, fuel — on the analytical open-centre circuit driving the full
 MuJoCo machine (:class:`hexgym.hydraulics.reference.ReferenceModel`) instead of the learned tables.
 It is slow (a few times real time) and meant for checking what an agent or a plan learned on the
 fast model does on the "real" machine, not for training.
@@ -10,7 +10,9 @@ fast model does on the "real" machine, not for training.
 (:class:`hexgym.model.base.LearnedModelBase`): a 25 ms control period made of ``STEPS_PER_PERIOD``
 reference steps, the joint loads as the learned model's (the loads the machine's dynamic model computes
 from its state: :meth:`ExcavatorPhysics.holding_loads`, so the observation means the same on every model),
-the swing's acceleration as its motor torque over the swing inertia.
+the swing's acceleration as its motor torque over the swing inertia, and the fuel its engine burns for the
+pumps' pressures and flows (:meth:`ReferenceMachine.take_fuel_l`; the task estimates a learned model's
+from its motion).
 """
 
 from __future__ import annotations
@@ -46,6 +48,7 @@ class ReferenceMachine(LearnedModelBase):
         self.physics = self.reference.physics
         self.physics.tracks_constraint_load = True  # joint_loads reads it
         self.spools_m = self.reference.spools_m
+        self._fuel_l = 0.0  # burnt since take_fuel_l last asked
 
     @property
     def control_period(self) -> float:
@@ -54,13 +57,14 @@ class ReferenceMachine(LearnedModelBase):
 
     @property
     def swing_acceleration(self) -> float:
-        """The swing motor's torque over the swing inertia, rad/s^2 (the torque the task's fuel account reads)."""
+        """The swing motor's torque over the swing inertia, rad/s^2."""
         return float(self.reference.joint_torques()[0]) / self.physics.swing_inertia()
 
     def reset(self, start: str | np.ndarray = "home", payload_kg: float = 0.0) -> None:
         """Start at rest at a keyframe or joint angles with a payload, the circuit holding the pose."""
         self.reference.reset(start, payload_kg)
         self.spools_m = self.reference.spools_m
+        self._fuel_l = 0.0
         self._hold_start()
 
     def _hold_start(self) -> None:
@@ -74,9 +78,17 @@ class ReferenceMachine(LearnedModelBase):
         d.qacc_warmstart[:] = warm_start
 
     def step(self, spools_m: np.ndarray, n: int = 1) -> None:
-        """Hold the spools (m, order swing, boom, stick, bucket) for ``n`` control periods."""
-        self.reference.step(spools_m, n * STEPS_PER_PERIOD)
+        """Hold the spools (m, order swing, boom, stick, bucket) for ``n`` control periods; the engine's fuel rate
+        at the end of each counts for the period (as :class:`hexgym.planning.check.PlanReplay` counts it)."""
+        for _ in range(n):
+            self.reference.step(spools_m, STEPS_PER_PERIOD)
+            self._fuel_l += self.reference.fuel_rate_l_per_h() * CONTROL_PERIOD / 3600.0
         self.spools_m = self.reference.spools_m
+
+    def take_fuel_l(self) -> float:
+        """Diesel (L) the engine burnt since the last call: its pumps' pressures and flows through the BSFC map."""
+        litres, self._fuel_l = self._fuel_l, 0.0
+        return litres
 
     def joint_loads(self) -> np.ndarray:
         """Torque each main joint's actuator must supply to hold the present motion (N m), from the state, as

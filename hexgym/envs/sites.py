@@ -139,6 +139,11 @@ class MachineSites:
             joint_loads[k] = machine.joint_loads()
             swing_torques[k] = machine.physics.swing_inertia() * machine.swing_acceleration
 
+    def measured_fuel(self, ids: np.ndarray, out: np.ndarray) -> None:
+        """Each machine's own fuel measure since it was last asked into ``out`` (k,), L: NaN for a learned model."""
+        for k, i in enumerate(ids.tolist()):
+            out[k] = self.machines[i].take_fuel_l()
+
     def limit_servo_windup(self, i: int = 0) -> None:
         """Keep each servo's integrated target where the servo is at most saturated (anti-windup).
 
@@ -247,6 +252,10 @@ class BatchSites:
         _loads(ids, self._qfrc_bias, self._qfrc_passive, self._qfrc_applied, self._plugin_state, self.dadr,
                self._load_slots, self._mass_matrix, self._swing_diag, self._acceleration_slot, joint_loads,
                swing_torques)  # fmt: skip
+
+    def measured_fuel(self, ids: np.ndarray, out: np.ndarray) -> None:
+        """No fuel measure of their own (NaN into ``out``): the task estimates the learned machines' fuel."""
+        out[: len(ids)] = np.nan
 
 
 # compiled: gathering a few numbers per site with numpy's fancy indexing costs more than the numbers

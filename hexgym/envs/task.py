@@ -19,7 +19,8 @@ A step advances four 25 ms control periods per site on the single environment's 
    pile, the digging force; spill when not cutting); while the edge cuts, :func:`follow_resistance`
    re-aims the force every period (it is proportional to the speed below 5 cm/s: held over a
    whole step it would lag the motion).
-3. After each interval, :func:`account`: fuel (the actuators' power through the engine's BSFC,
+3. After each interval, :func:`account`: fuel (the machine's own measure where it has one, the
+   reference's pumps; else the actuators' power through the engine's BSFC,
    :mod:`hexgym.hydraulics.fuel`'s own functions), hard contacts (:func:`hard_contact_force`) and
    the joint loads; the bucket is re-massed on changes over 20 kg (:func:`payload_change`).
 4. :func:`finish`: reward terms (the shaping terms from :func:`potentials`, computed only when one is
@@ -122,6 +123,10 @@ class SitePhysics(Protocol):
     def loads(self, ids: np.ndarray, joint_loads: np.ndarray, swing_torques: np.ndarray) -> None:
         """Write the main joints' loads into ``joint_loads`` (k, 4), N m (the machine model's ``joint_loads``), and
         the swing's inertia times its last table acceleration into ``swing_torques`` (k,), N m."""
+
+    def measured_fuel(self, ids: np.ndarray, out: np.ndarray) -> None:
+        """Write into ``out`` (k,) the diesel (L) each machine burnt since last asked, where the machine model
+        measures it (the reference: its pumps), else NaN (the task's account estimates it)."""
 
 
 # -- the compiled stages ----------------------------------------------------------------------------
@@ -372,12 +377,13 @@ def hard_contact_force(i: int, sensordata: np.ndarray, adr: int, slots: int) -> 
 @jit
 def account(
     ids: np.ndarray, seconds: np.ndarray, loads: np.ndarray, swing_torques: np.ndarray, qvel: np.ndarray,
-    dadr: np.ndarray, fuel_rates: np.ndarray, fuel_start: float, fuel_step: float, sensordata: np.ndarray,
-    contact_adr: int, slots: int, joint_loads: np.ndarray, fuel_l: np.ndarray, impulse: np.ndarray,
-    left: np.ndarray, interval: np.ndarray, going: np.ndarray,
+    dadr: np.ndarray, fuel_rates: np.ndarray, fuel_start: float, fuel_step: float, measured: np.ndarray,
+    sensordata: np.ndarray, contact_adr: int, slots: int, joint_loads: np.ndarray, fuel_l: np.ndarray,
+    impulse: np.ndarray, left: np.ndarray, interval: np.ndarray, going: np.ndarray,
 ) -> int:  # fmt: skip
-    """Close each site's interval of ``seconds``: fuel (the actuators' power at its end through the engine's
-    BSFC, :mod:`hexgym.hydraulics.fuel`), hard-contact impulse, the joint loads (k, 4) kept for the
+    """Close each site's interval of ``seconds``: fuel (the machine's own measure, ``measured`` (k,) L, where it
+    has one; else the actuators' power at the interval's end through the engine's BSFC,
+    :mod:`hexgym.hydraulics.fuel`), hard-contact impulse, the joint loads (k, 4) kept for the
     observation, and the periods ``left`` of the step. Returns how many sites have periods left (their ids first
     in ``going``, which may be ``ids`` itself), or -1 - i for a site i with too many contacts."""
     count = 0
@@ -389,8 +395,11 @@ def account(
             joint_loads[i, j] = loads[k, j]
         joint_loads[i, 0] = loads[k, 0]
         power += abs(swing_torques[k] * qvel[i, dadr[0]])
-        brake = min(_brake_power(power), _ENGINE_POWER)
-        fuel_l[i] += ew.table_at(fuel_rates, fuel_start, fuel_step, brake) * seconds[i] / 3600.0
+        if measured[k] == measured[k]:  # not NaN: the machine's own
+            fuel_l[i] += measured[k]
+        else:
+            brake = min(_brake_power(power), _ENGINE_POWER)
+            fuel_l[i] += ew.table_at(fuel_rates, fuel_start, fuel_step, brake) * seconds[i] / 3600.0
         force = hard_contact_force(i, sensordata, contact_adr, slots)
         if force < 0.0:
             return -1 - i
@@ -591,7 +600,7 @@ class LoadingTask:
         # and per k of a call's sites (written before read): clear of the pile, payload changed, the machines' loads;
         # the sites with periods left after an interval
         self._clear, self._change = np.zeros(n, np.bool_), np.zeros(n, np.bool_)
-        self._loads, self._swing_torques = np.zeros((n, 4)), np.zeros(n)
+        self._loads, self._swing_torques, self._measured_fuel = np.zeros((n, 4)), np.zeros(n), np.zeros(n)
         self._going = np.zeros(n, np.int64)
         # shaping potentials after the last step and now (zeros, never computed, while every shaping weight is 0)
         self._shaping = any(float(weights[term]) != 0.0 for term in SHAPING_TERMS)
@@ -633,6 +642,7 @@ class LoadingTask:
         ph = self.physics
         self.tip_before[ids] = ph.site_xpos[ids, ph.tip_site]
         ph.loads(ids, self._loads, self._swing_torques)
+        ph.measured_fuel(ids, self._measured_fuel)  # what a start burnt is no part of the episode
         self.joint_loads[ids] = self._loads[: len(ids)]
         if self._shaping:
             self._potentials(ids, self._potential)
@@ -756,9 +766,10 @@ class LoadingTask:
         the sites with periods left."""
         ph = self.physics
         ph.loads(ids, self._loads, self._swing_torques)
+        ph.measured_fuel(ids, self._measured_fuel)
         going = account(ids, self._seconds, self._loads, self._swing_torques, ph.qvel, ph.dadr, self._fuel_rates,
-                        self._fuel_start, self._fuel_step, ph.sensordata, ph.contact_adr, self.contact_slots,
-                        self.joint_loads, self._fuel, self._impulse, self._left, self._interval,
+                        self._fuel_start, self._fuel_step, self._measured_fuel, ph.sensordata, ph.contact_adr,
+                        self.contact_slots, self.joint_loads, self._fuel, self._impulse, self._left, self._interval,
                         self._going)  # fmt: skip
         if going < 0:
             raise RuntimeError(f"more than {self.contact_slots} bucket/stick contacts at environment {-1 - going}")

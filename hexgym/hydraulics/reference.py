@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from hexgym.hydraulics.circuit import CYLINDER_NAMES, NODES, HydraulicCircuit, validate_spools
+from hexgym.hydraulics.circuit import CYLINDER_NAMES, NODES, HydraulicCircuit, fuel_rate, validate_spools
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.machine.physics import ExcavatorPhysics, force_actuated_model
@@ -157,6 +157,11 @@ class ReferenceModel:
         dv = np.append(new.vel - mech.vel, new.swing_rate - mech.swing_rate)
         self.state = predicted + sens @ dv
         self._mech = new
+
+    def fuel_rate_l_per_h(self) -> float:
+        """The engine's fuel rate (L/h) now: its brake power for the pumps' pressures times flows (and the
+        accessories) through the BSFC map, as :meth:`observe` reports it."""
+        return fuel_rate(self.circuit.pump_power(self.state)[2])
 
     def joint_torques(self) -> np.ndarray:
         """The torques (N m) the circuit's present pressures put on the main joints [swing, boom, stick,

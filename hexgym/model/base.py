@@ -10,6 +10,7 @@ them through its config, :mod:`hexgym.model.plugin_mjcf`), the cylinder loads fr
 
 from __future__ import annotations
 
+import math
 from typing import Protocol
 
 import numpy as np
@@ -101,6 +102,12 @@ class LearnedModelBase:
     def swing_acceleration(self) -> float:
         """The swing table's last acceleration, rad/s^2."""
         raise NotImplementedError
+
+    def take_fuel_l(self) -> float:
+        """Diesel (L) the machine's engine burnt since the last call, where the model measures it (the reference:
+        its pumps' pressures and flows); NaN where it does not (the learned tables know no pressures: the task
+        estimates the fuel from the motion, :mod:`hexgym.hydraulics.fuel`)."""
+        return math.nan
 
     def joint_loads(self) -> np.ndarray:
         """Torque each main joint's actuator must supply to hold the present motion (N m); joint-limit
