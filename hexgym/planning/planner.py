@@ -406,8 +406,8 @@ def plan_checked(
     """:func:`plan_motion` in two rounds of half the ``budget``, each plan checked on the accurate model (``check``,
     e.g. :class:`hexgym.planning.check.PlanCheck`): by as much as the check finds the first plan closer to truck or
     ground than the fast model predicted, the second round keeps more clearance, starting from the first plan. The
-    better checked plan is returned (collision-free first, then at the goal and sooner, else closer to it) with
-    its check; its ``rollouts`` and ``wall_s`` count both rounds and the checks. ``correct`` (e.g.
+    better checked plan is returned (collision-free first, then at the goal at less time + ``w_fuel`` x fuel as the
+    accurate model measures them, else closer to it) with its check; its ``rollouts`` and ``wall_s`` count both rounds and the checks. ``correct`` (e.g.
     :meth:`PlanCheck.correct`) then trims that plan on the accurate model; a trimmed plan that ranks better there
     is returned with its figures on the fast model (not cut at the fast model's goal: the trim acts last). A plan that
     still touches truck or ground or misses the goal there is tried with its swing started later (``MEND_DELAYS_S``,
@@ -444,7 +444,8 @@ def plan_checked(
                                      initial=knot_means(first.spools_m / p.SPOOL_STROKE, per_knot), swing_m=swing_m,
                                      **search))  # fmt: skip
     second_check = check(second.spools_m, state, goal)
-    plan, checked = min(((first, first_check), (second, second_check)), key=lambda pc: _check_rank(*pc))
+    w_fuel = search.get("w_fuel", 1.0)
+    plan, checked = min(((first, first_check), (second, second_check)), key=lambda pc: _check_rank(pc[1], w_fuel))
     rollouts += first.rollouts + second.rollouts
 
     def adopt(spools: np.ndarray, checked: CheckResult) -> tuple[Plan, CheckResult]:
@@ -468,7 +469,7 @@ def plan_checked(
         mended = check(spools, state, goal)
         if correct is not None:
             spools, mended, _ = correct(spools, state, goal, mended)
-        if _check_rank(plan, mended) < _check_rank(plan, checked):
+        if _check_rank(mended, w_fuel) < _check_rank(checked, w_fuel):
             plan, checked = adopt(spools, mended)
     wall_s = time.perf_counter() - start
     return dataclasses.replace(plan, rollouts=rollouts, wall_s=wall_s, fast_swing_switch=switch), checked
@@ -492,7 +493,9 @@ def knot_means(per_step: np.ndarray, steps_per_knot: int) -> np.ndarray:
     return padded.reshape(knots, steps_per_knot, 4).mean(axis=1)
 
 
-def _check_rank(plan: Plan, checked: CheckResult) -> tuple[bool, bool, float]:
-    """Order of checked plans: collision-free first, then at the goal and sooner, else closer to it."""
-    at_goal = checked.time_s is not None
-    return (not checked.collision_free, not at_goal, checked.time_s if at_goal else checked.goal_error_m)
+def _check_rank(checked: CheckResult, w_fuel: float) -> tuple[bool, bool, float]:
+    """Order of checked plans: collision-free first, then at the goal at less time + ``w_fuel`` x fuel (the
+    search's objective, as the accurate model measures it), else closer to it."""
+    if checked.time_s is None:
+        return not checked.collision_free, True, checked.goal_error_m
+    return not checked.collision_free, False, checked.time_s + w_fuel * (checked.fuel_l or 0.0)
