@@ -430,3 +430,18 @@ def test_observation_points_to_the_fullest_cut_and_follows_the_pile(env):
     for r in np.arange(centre - 2.0, centre + 1.0, 0.2):
         u.earth.pile.take((r * c, r * s), (-s, c), p.BUCKET_WIDTH, 0.0, 10.0)  # take the line it points to
     assert u.fullest_cut_direction() != pytest.approx(direction)  # the cached value followed the pile's change
+
+
+def test_fuel_check_suite_compares_the_estimate_with_the_reference(tmp_path):
+    from hexgym.tools.fuel_check import main, suite_comparison
+
+    result = suite_comparison(suite_seed=7, count=1)
+    log = result["per_log"][0]
+    assert log["reference_l"] > 0.0
+    for key in ("estimate_on_reference_motion", "estimate_on_learned_model"):
+        error = log[f"{key}_l"] / log["reference_l"] - 1.0
+        assert result["summary"][key]["median_error"] == pytest.approx(error)
+        assert abs(error) < 0.5  # measured: 16-19 % median over 16 logs of two suites (docs/hydraulics.md)
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--suite", "-2"])
+    assert exit_info.value.code == 2

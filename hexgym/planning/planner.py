@@ -407,11 +407,12 @@ def plan_checked(
     e.g. :class:`hexgym.planning.check.PlanCheck`): by as much as the check finds the first plan closer to truck or
     ground than the fast model predicted, the second round keeps more clearance, starting from the first plan. The
     better checked plan is returned (collision-free first, then at the goal at less time + ``w_fuel`` x fuel as the
-    accurate model measures them, else closer to it) with its check; its ``rollouts`` and ``wall_s`` count both rounds and the checks. ``correct`` (e.g.
-    :meth:`PlanCheck.correct`) then trims that plan on the accurate model; a trimmed plan that ranks better there
-    is returned with its figures on the fast model (not cut at the fast model's goal: the trim acts last). A plan that
-    still touches truck or ground or misses the goal there is tried with its swing started later (``MEND_DELAYS_S``,
-    each checked and trimmed) until one is clear and at the goal; the best ranked is returned.
+    accurate model measures them, else closer to it) with its check; its ``rollouts`` and ``wall_s`` count both
+    rounds and the checks. ``correct`` (e.g. :meth:`PlanCheck.correct`) then trims that plan on the accurate model;
+    a trimmed plan that ranks better there is returned with its figures on the fast model (not cut at the fast
+    model's goal: the trim acts last). A plan that still touches truck or ground or misses the goal there is tried
+    with its swing started later (``MEND_DELAYS_S``, each checked and trimmed) until one is clear and at the goal;
+    the best ranked is returned.
 
     ``fit_swing`` (e.g. :meth:`PlanCheck.fit_swing`): the swing is not searched but turns as fast as it can to the
     goal's bearing (:func:`swing_target`). The search holds it at the fast model's own fastest turn (full spool,

@@ -1,12 +1,25 @@
-"""The env's fuel estimate (:mod:`hexgym.hydraulics.fuel`) against the reference circuit's fuel on one
-command sequence: ``python -m hexgym.tools.fuel_check``."""
+"""The env's fuel estimate (:mod:`hexgym.hydraulics.fuel`) against the reference circuit's fuel (its pumps'
+pressures and flows through the BSFC map): on one loading-like command sequence, or on a seeded suite of
+operator-like logs (:func:`hexgym.mbl.operator_logs.suite_log`), where the estimate is taken both from the
+reference's own motion (the estimate's own error) and from the learned model's replay of the log (what
+the environment reports)::
+
+    python -m hexgym.tools.fuel_check                                  # the loading-like sequence
+    python -m hexgym.tools.fuel_check --suite 16 --suite-seed 202 [--json OUT]
+"""
 
 from __future__ import annotations
 
+import argparse
+import statistics
+import sys
+
 import numpy as np
 
-from hexgym.hydraulics.fuel import actuator_power, fuel_litres
+from hexgym.files import PathError, check_output_file, write_json
+from hexgym.hydraulics.fuel import actuator_power, actuator_powers, fuel_litres, fuel_litres_many
 from hexgym.hydraulics.reference import ReferenceModel
+from hexgym.mbl.operator_logs import suite_log
 from hexgym.model.commandlog import CommandLog
 from hexgym.model.python_backend import LearnedModel
 from hexgym.model.replay import replay
@@ -24,6 +37,9 @@ CHECK_SEQUENCE = np.array(
     ],
     dtype=float,
 )
+SUITE_LOG_S = 30.0  # s of each suite log
+_REFERENCE_ROW_S = 0.02  # s: a multiple of the reference's 2 ms step
+_CYLINDERS = ("boom", "stick", "bucket")
 
 
 def compare_with_reference(duration: float = 16.0, payload_kg: float = 1000.0) -> dict[str, float]:
@@ -44,5 +60,69 @@ def compare_with_reference(duration: float = 16.0, payload_kg: float = 1000.0) -
     return {"reference_l": reference_l, "estimate_l": estimate_l, "ratio": estimate_l / reference_l}
 
 
+def _estimate_l(rows: np.ndarray, swing_torque: np.ndarray, dt: float) -> float:
+    """The estimate (L) over trajectory rows every ``dt`` s: cylinder forces x velocities, swing torque x rate."""
+    forces = np.stack([rows[f"{c}_force_n"] for c in _CYLINDERS], axis=1)
+    speeds = np.stack([rows[f"{c}_velocity_mps"] for c in _CYLINDERS], axis=1)
+    power = actuator_powers(forces, speeds, swing_torque, rows["qd_swing"])
+    return float(fuel_litres_many(power[1:], np.full(len(rows) - 1, dt)).sum())
+
+
+def suite_log_fuel(suite_seed: int, index: int) -> dict[str, float]:
+    """One suite log's fuel (L): the reference's, and the estimate on its motion and on the learned model's."""
+    log = suite_log(suite_seed, index, SUITE_LOG_S)
+    commands = CommandLog(log.t, log.spools_mm)
+    start = {"start": log.start_pose, "payload_kg": log.payload_kg}
+    reference = replay(ReferenceModel(), commands, dt_out=_REFERENCE_ROW_S, **start)
+    learned_model = LearnedModel()
+    learned = replay(learned_model, commands, dt_out=learned_model.control_period, **start)
+    return {
+        "reference_l": float(np.sum(reference["fuel_rate_l_per_h"][1:]) * _REFERENCE_ROW_S / 3600.0),
+        "estimate_on_reference_motion_l": _estimate_l(reference, reference["swing_torque_nm"], _REFERENCE_ROW_S),
+        "estimate_on_learned_model_l": _estimate_l(
+            learned, learned["swing_inertia_kgm2"] * learned["swing_acceleration_target"], learned_model.control_period
+        ),
+    }
+
+
+def suite_comparison(suite_seed: int, count: int) -> dict[str, object]:
+    """:func:`suite_log_fuel` of logs 0..count-1 and the medians of the estimates' relative errors."""
+    logs = [suite_log_fuel(suite_seed, i) for i in range(count)]
+
+    def errors(key: str) -> list[float]:
+        return [log[key] / log["reference_l"] - 1.0 for log in logs]
+
+    summary = {}
+    for key in ("estimate_on_reference_motion_l", "estimate_on_learned_model_l"):
+        e = errors(key)
+        summary[key.removesuffix("_l")] = {
+            "median_abs_error": statistics.median(abs(x) for x in e),
+            "median_error": statistics.median(e),
+            "worst_abs_error": max(abs(x) for x in e),
+        }
+    return {"suite_seed": suite_seed, "logs": count, "log_s": SUITE_LOG_S, "summary": summary, "per_log": logs}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Print (and write) the comparison; bad options get one line naming them."""
+    parser = argparse.ArgumentParser(prog="python -m hexgym.tools.fuel_check", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--suite", type=int, default=0, help="operator-like logs to compare (0: the loading sequence)")
+    parser.add_argument("--suite-seed", type=int, default=202, help="the suite's seed (default: 202)")
+    parser.add_argument("--json", metavar="OUT", help="also write the figures to this JSON file")
+    args = parser.parse_args(argv)
+    if args.suite < 0:
+        parser.exit(2, f"--suite must be >= 0, got {args.suite}\n")
+    try:
+        if args.json:
+            check_output_file(args.json, "--json")
+    except PathError as err:
+        parser.exit(2, f"{err}\n")
+    result = suite_comparison(args.suite_seed, args.suite) if args.suite else compare_with_reference()
+    print(result["summary"] if args.suite else result)
+    if args.json:
+        write_json(args.json, result)
+    return 0
+
+
 if __name__ == "__main__":
-    print(compare_with_reference())
+    sys.exit(main())
