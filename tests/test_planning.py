@@ -576,3 +576,29 @@ def test_plan_video_films_the_plan_then_the_scripted_move(tmp_path):
     out = plan_video(result, tmp_path / "plan.mp4", width=160, height=96)
     frames = iio.imread(out)
     assert frames.shape == (3 + 5, 96, 160, 3) and frames.std() > 5
+
+
+def test_release_at_stops_closes_only_spools_that_push_a_cylinder_into_its_stop():
+    from hexgym.planning.check import ROW_S, PlanReplay, release_at_stops
+
+    period, n = 0.025, 40  # 1 s of spools; rows every ROW_S
+    columns = [(f"{c}_extension_m", float) for c in ("boom", "stick", "bucket")]
+    rows = np.zeros(round(n * period / ROW_S) + 1, dtype=columns)
+    stroke = p.CYLINDERS["bucket"].stroke
+    rows["bucket_extension_m"] = np.linspace(stroke - 0.1, stroke + 0.02, len(rows)).clip(max=stroke)
+    rows["boom_extension_m"] = 0.5
+    rows["stick_extension_m"] = 0.0  # fully retracted throughout
+    run = PlanReplay(rows, None, None, None, None, None, len(rows) - 1)
+    spools = np.zeros((n, 4))
+    spools[:, 1] = 0.009  # boom mid-stroke: kept
+    spools[:, 3] = 0.009  # bucket curling: closed from where it reaches its stop
+    spools[:, 2] = 0.005  # stick pushed out of its retracted end: kept
+    released = release_at_stops(spools, run, period)
+    at_stop = rows["bucket_extension_m"][(np.arange(n) * period / ROW_S + 1e-9).astype(int)] >= stroke - 0.005
+    assert at_stop.any() and not at_stop.all()
+    np.testing.assert_array_equal(released[:, 3], np.where(at_stop, 0.0, 0.009))
+    np.testing.assert_array_equal(released[:, :3], spools[:, :3])
+    spools[:, 2] = -0.005  # now pulled into its retracted end: closed throughout
+    assert not release_at_stops(spools, run, period)[:, 2].any()
+    spools[:, 2] = spools[:, 3] = 0.0
+    assert release_at_stops(spools, run, period) is spools  # nothing to release: the plan itself

@@ -39,7 +39,7 @@ from hexgym.envs.loading import STEP_PERIOD
 from hexgym.envs.world import Layout, bed_frame, entry_radius
 from hexgym.hydraulics import fuel
 from hexgym.machine import parameters as p
-from hexgym.planning.check import CheckResult
+from hexgym.planning.check import CheckResult, release_at_stops
 from hexgym.planning.rollouts import MachineState, RolloutBatch, RolloutModel, bang_bang
 
 TASKS = ("dump", "return", "tip")
@@ -412,7 +412,8 @@ def plan_checked(
     a trimmed plan that ranks better there is returned with its figures on the fast model (not cut at the fast
     model's goal: the trim acts last). A plan that still touches truck or ground or misses the goal there is tried
     with its swing started later (``MEND_DELAYS_S``, each checked and trimmed) until one is clear and at the goal;
-    the best ranked is returned.
+    the best ranked is returned. Last, its spools that push a cylinder into a stroke end on the accurate model are
+    closed there (:func:`~hexgym.planning.check.release_at_stops`), kept when that ranks better.
 
     ``fit_swing`` (e.g. :meth:`PlanCheck.fit_swing`): the swing is not searched but turns as fast as it can to the
     goal's bearing (:func:`swing_target`). The search holds it at the fast model's own fastest turn (full spool,
@@ -472,6 +473,12 @@ def plan_checked(
             spools, mended, _ = correct(spools, state, goal, mended)
         if _check_rank(mended, w_fuel) < _check_rank(checked, w_fuel):
             plan, checked = adopt(spools, mended)
+    if checked.replay is not None:  # spools held against a stroke end only push oil over a relief
+        spools = release_at_stops(plan.spools_m, checked.replay, model.control_period)
+        if spools is not plan.spools_m:
+            released = check(spools, state, goal)
+            if _check_rank(released, w_fuel) < _check_rank(checked, w_fuel):
+                plan, checked = adopt(spools, released)
     wall_s = time.perf_counter() - start
     return dataclasses.replace(plan, rollouts=rollouts, wall_s=wall_s, fast_swing_switch=switch), checked
 
