@@ -442,6 +442,7 @@ def test_fuel_check_suite_compares_the_estimate_with_the_reference(tmp_path):
         error = log[f"{key}_l"] / log["reference_l"] - 1.0
         assert result["summary"][key]["median_error"] == pytest.approx(error)
         assert abs(error) < 0.5  # measured: 16-19 % median over 16 logs of two suites (docs/hydraulics.md)
-    with pytest.raises(SystemExit) as exit_info:
-        main(["--suite", "-2"])
-    assert exit_info.value.code == 2
+    for bad in (["--suite", "-2"], ["--suite", "1", "--suite-seed", "-1"]):
+        with pytest.raises(SystemExit) as exit_info:
+            main(bad)
+        assert exit_info.value.code == 2

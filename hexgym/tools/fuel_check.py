@@ -112,6 +112,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.suite < 0:
         parser.exit(2, f"--suite must be >= 0, got {args.suite}\n")
+    if args.suite_seed < 0:
+        parser.exit(2, f"--suite-seed must be >= 0, got {args.suite_seed}\n")
     try:
         if args.json:
             check_output_file(args.json, "--json")
