@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.model.backend import python_learned_model
 from hexgym.model.commandlog import CommandLog
@@ -46,7 +47,6 @@ FIT_FROM = (8, 24)  # control periods after the fast model's switch: the circuit
 FIT_REPLAYS = 6  # circuit replays a swing's fit makes at most
 ROW_S = 0.05  # s between a replay's rows (two control periods, and a multiple of the reference's 2 ms step)
 STOP_TOLERANCE_M = 0.005  # m from a stroke end: a cylinder there is at its stop (its cushion's last millimetres)
-_FRONT = {"boom": 1, "stick": 2, "bucket": 3}  # front cylinders and their spool columns
 
 
 @dataclasses.dataclass(frozen=True)
@@ -104,7 +104,7 @@ def release_at_stops(spools_m: np.ndarray, run: PlanReplay, period: float) -> np
     spools = np.asarray(spools_m)
     rows = np.minimum(np.arange(len(spools)) * period / ROW_S + 1e-9, len(run.rows) - 1).astype(int)
     out = spools.copy()
-    for name, col in _FRONT.items():
+    for col, name in enumerate(kinematics.FRONT_CYLINDERS, start=1):  # spool columns 1-3 (swing is column 0)
         extension = run.rows[f"{name}_extension_m"][rows]
         pushing_out = (extension >= p.CYLINDERS[name].stroke - STOP_TOLERANCE_M) & (spools[:, col] > p.SPOOL_DEAD_BAND)
         pulling_in = (extension <= STOP_TOLERANCE_M) & (spools[:, col] < -p.SPOOL_DEAD_BAND)

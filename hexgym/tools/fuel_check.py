@@ -17,8 +17,9 @@ import sys
 import numpy as np
 
 from hexgym.files import PathError, check_output_file, write_json
-from hexgym.hydraulics.fuel import actuator_power, actuator_powers, fuel_litres, fuel_litres_many
+from hexgym.hydraulics.fuel import actuator_powers, fuel_litres_many
 from hexgym.hydraulics.reference import ReferenceModel
+from hexgym.machine.kinematics import FRONT_CYLINDERS
 from hexgym.mbl.operator_logs import suite_log
 from hexgym.model.commandlog import CommandLog
 from hexgym.model.python_backend import LearnedModel
@@ -39,7 +40,6 @@ CHECK_SEQUENCE = np.array(
 )
 SUITE_LOG_S = 30.0  # s of each suite log
 _REFERENCE_ROW_S = 0.02  # s: a multiple of the reference's 2 ms step
-_CYLINDERS = ("boom", "stick", "bucket")
 
 
 def compare_with_reference(duration: float = 16.0, payload_kg: float = 1000.0) -> dict[str, float]:
@@ -49,21 +49,22 @@ def compare_with_reference(duration: float = 16.0, payload_kg: float = 1000.0) -
     dt = 0.01
     reference = replay(ReferenceModel(), commands, payload_kg=payload_kg, dt_out=dt, duration=duration)
     reference_l = float(np.sum(reference["fuel_rate_l_per_h"]) * dt / 3600.0)
-    learned = LearnedModel()
-    learned.reset("home", payload_kg=payload_kg)
-    estimate_l = 0.0
-    while learned.physics.time < duration - 1e-9:
-        learned.step(commands.spools_at(learned.physics.time) * 1e-3)
-        loads, rates = learned.joint_loads(), learned.physics.joint_velocities()
-        swing_torque = learned.physics.swing_inertia() * learned.swing_acceleration
-        estimate_l += fuel_litres(actuator_power(loads[1:], rates[1:], swing_torque, rates[0]), learned.control_period)
+    estimate_l = _learned_estimate_l(commands, {"payload_kg": payload_kg}, duration)
     return {"reference_l": reference_l, "estimate_l": estimate_l, "ratio": estimate_l / reference_l}
+
+
+def _learned_estimate_l(commands: CommandLog, start: dict, duration: float | None = None) -> float:
+    """The estimate (L) on the learned model's replay of ``commands`` from ``start`` (``replay``'s start and
+    payload), its power at the end of each control period held over the period."""
+    model = LearnedModel()
+    rows = replay(model, commands, dt_out=model.control_period, duration=duration, **start)
+    return _estimate_l(rows, rows["swing_inertia_kgm2"] * rows["swing_acceleration_target"], model.control_period)
 
 
 def _estimate_l(rows: np.ndarray, swing_torque: np.ndarray, dt: float) -> float:
     """The estimate (L) over trajectory rows every ``dt`` s: cylinder forces x velocities, swing torque x rate."""
-    forces = np.stack([rows[f"{c}_force_n"] for c in _CYLINDERS], axis=1)
-    speeds = np.stack([rows[f"{c}_velocity_mps"] for c in _CYLINDERS], axis=1)
+    forces = np.stack([rows[f"{c}_force_n"] for c in FRONT_CYLINDERS], axis=1)
+    speeds = np.stack([rows[f"{c}_velocity_mps"] for c in FRONT_CYLINDERS], axis=1)
     power = actuator_powers(forces, speeds, swing_torque, rows["qd_swing"])
     return float(fuel_litres_many(power[1:], np.full(len(rows) - 1, dt)).sum())
 
@@ -74,14 +75,10 @@ def suite_log_fuel(suite_seed: int, index: int) -> dict[str, float]:
     commands = CommandLog(log.t, log.spools_mm)
     start = {"start": log.start_pose, "payload_kg": log.payload_kg}
     reference = replay(ReferenceModel(), commands, dt_out=_REFERENCE_ROW_S, **start)
-    learned_model = LearnedModel()
-    learned = replay(learned_model, commands, dt_out=learned_model.control_period, **start)
     return {
         "reference_l": float(np.sum(reference["fuel_rate_l_per_h"][1:]) * _REFERENCE_ROW_S / 3600.0),
         "estimate_on_reference_motion_l": _estimate_l(reference, reference["swing_torque_nm"], _REFERENCE_ROW_S),
-        "estimate_on_learned_model_l": _estimate_l(
-            learned, learned["swing_inertia_kgm2"] * learned["swing_acceleration_target"], learned_model.control_period
-        ),
+        "estimate_on_learned_model_l": _learned_estimate_l(commands, start),
     }
 
 
