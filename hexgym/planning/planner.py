@@ -220,9 +220,12 @@ def evaluate(batch: RolloutBatch, goal: Goal, loaded: bool, margin_m: float = MA
 
 
 def move_fuel_l(model: RolloutModel, batch: RolloutBatch, index: int, end: int, sample_s: float = STEP_PERIOD) -> float:
-    """Diesel (L) of rollout ``index`` up to period ``end``, its power sampled every ``sample_s`` (as the
-    environment accounts it: the power at the end of each interval, held over it)."""
+    """Diesel (L) of rollout ``index`` up to period ``end``: the fuel rate its model reports for each period, else
+    its power sampled every ``sample_s`` (as the environment accounts it: the power at the end of each interval,
+    held over it)."""
     dt = float(batch.times_s[0])
+    if batch.fuel_l_per_h is not None:
+        return float(batch.fuel_l_per_h[index, : end + 1].sum() * dt / 3600.0)
     every = max(1, round(sample_s / dt))
     ends = np.arange(every - 1, end + 1, every)
     if not len(ends):

@@ -118,7 +118,9 @@ class RolloutBatch:
     ``states`` (B, T, nstate): the physics states (``mjSTATE_FULLPHYSICS``); ``qd`` (B, T, 4) rad/s;
     ``mouth`` (B, T, 3): the mouth's centre, world m; ``tilt`` (B, T): the mouth's normal from straight up,
     rad; ``power_w`` (B, T): the servos' |force x rate| summed (W: the lean machine's stiff servos' figure,
-    no fuel measure: :meth:`RolloutModel.actuator_power` gives the environment's).
+    no fuel measure: :meth:`RolloutModel.actuator_power` gives the environment's); ``fuel_l_per_h`` (B, T): the
+    engine's fuel rate where the model reports it (the circuit model's pumps), else None (the planner accounts the
+    fuel from the motion).
     """
 
     times_s: np.ndarray
@@ -131,6 +133,7 @@ class RolloutBatch:
     mouth: np.ndarray
     tilt: np.ndarray
     power_w: np.ndarray
+    fuel_l_per_h: np.ndarray | None = None
 
     @property
     def min_clearance_m(self) -> np.ndarray:
@@ -152,6 +155,27 @@ def _periods(horizon_s: float, period: float) -> int:
     if not (isinstance(horizon_s, int | float) and math.isfinite(horizon_s) and horizon_s > 0):
         raise ValueError(f"horizon_s must be finite and > 0, got {horizon_s!r}")
     return max(1, math.ceil(horizon_s / period - 1e-9))
+
+
+def spool_batch(spools_m: np.ndarray, horizon_s: float, period: float) -> np.ndarray:
+    """(B, T, 4) spools (m) per control period over ``horizon_s`` from (4,) held, (T', 4) per control period or
+    (B, T', 4); a sequence shorter than the horizon holds its last row. Refuses other shapes, non-finite spools and
+    spools beyond the stroke."""
+    spools = np.asarray(spools_m, float)
+    if spools.ndim == 1:
+        spools = spools[None, None]
+    elif spools.ndim == 2:
+        spools = spools[None]
+    if spools.ndim != 3 or spools.shape[-1] != 4 or spools.shape[1] == 0 or spools.shape[0] == 0:
+        raise ValueError(f"spools must have shape (4,), (T, 4) or (B, T, 4) with T, B >= 1, got {spools.shape}")
+    if not np.isfinite(spools).all():
+        raise ValueError("spools must be finite")
+    if np.abs(spools).max() > p.SPOOL_STROKE + 1e-12:
+        raise ValueError(f"spools must be within +-{p.SPOOL_STROKE} m, got up to {np.abs(spools).max():.4g} m")
+    periods = _periods(horizon_s, period)
+    if spools.shape[1] < periods:
+        spools = np.concatenate([spools, np.repeat(spools[:, -1:], periods - spools.shape[1], axis=1)], axis=1)
+    return spools[:, :periods]
 
 
 class RolloutModel:
@@ -260,28 +284,14 @@ class RolloutModel:
     def spool_controls(self, spools_m: np.ndarray, horizon_s: float) -> np.ndarray:
         """(B, T, nu) plugin controls (mm) from spools (m): (4,) held, (T', 4) per control period or
         (B, T', 4); a sequence shorter than the horizon holds its last row."""
-        spools = np.asarray(spools_m, float)
-        if spools.ndim == 1:
-            spools = spools[None, None]
-        elif spools.ndim == 2:
-            spools = spools[None]
-        if spools.ndim != 3 or spools.shape[-1] != 4 or spools.shape[1] == 0 or spools.shape[0] == 0:
-            raise ValueError(f"spools must have shape (4,), (T, 4) or (B, T, 4) with T, B >= 1, got {spools.shape}")
-        if not np.isfinite(spools).all():
-            raise ValueError("spools must be finite")
-        if np.abs(spools).max() > p.SPOOL_STROKE + 1e-12:
-            raise ValueError(f"spools must be within +-{p.SPOOL_STROKE} m, got up to {np.abs(spools).max():.4g} m")
-        periods = _periods(horizon_s, self.control_period)
+        spools = spool_batch(spools_m, horizon_s, self.control_period)
+        periods = spools.shape[1]
         per_step = self.state_size + self.model.nsensordata + self.model.nu  # values held per rollout step
         if spools.shape[0] * periods * self._steps_per_period * per_step * 8 > MAX_ROLLOUT_BYTES:
             raise ValueError(
                 f"horizon_s {horizon_s} s with {spools.shape[0]} rollouts is too long for memory "
                 f"(at most {MAX_ROLLOUT_BYTES // 2**30} GiB of states and sensors at once)"
             )
-        if spools.shape[1] < periods:
-            pad = np.repeat(spools[:, -1:], periods - spools.shape[1], axis=1)
-            spools = np.concatenate([spools, pad], axis=1)
-        spools = spools[:, :periods]
         per_step = np.repeat(spools, self._steps_per_period, axis=1) if self._steps_per_period > 1 else spools
         controls = np.zeros((*per_step.shape[:2], self.model.nu))
         controls[:, :, self._ctrl] = per_step * CTRL_PER_SPOOL_M
@@ -360,6 +370,19 @@ class RolloutModel:
                     self.detection_m,
                 )
         return tips, mouths, clearance
+
+    def tilt_at_angles(self, q: np.ndarray) -> np.ndarray:
+        """(N,) the mouth's normal from straight up (rad) at joint angles ``q`` (N, 4), as :attr:`RolloutBatch.tilt`."""
+        m, d = self.model, self.physics.data
+        qadr = np.array([m.jnt_qposadr[m.joint(n).id] for n in kinematics.JOINTS])
+        bucket = m.body("bucket").id
+        up = np.empty(len(q))
+        for k, angles in enumerate(np.atleast_2d(np.asarray(q, float))):
+            d.qpos[qadr] = angles
+            mujoco.mj_kinematics(m, d)
+            axes = d.xmat[bucket]  # row-major: the body's x and z axes' world z components are entries 6 and 8
+            up[k] = axes[6] * _MOUTH_NORMAL[0] + axes[8] * _MOUTH_NORMAL[1]
+        return np.arccos(np.clip(up, -1.0, 1.0))
 
     def actuator_power(self, physics_states: np.ndarray) -> np.ndarray:
         """The actuators' mechanical power (W) at physics states (N, nstate), as the environment accounts it for fuel

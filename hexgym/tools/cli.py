@@ -295,7 +295,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     seeds = parse_seeds(args.seeds) if args.seeds is not None else [args.seed]
     result = run_plan(args.task, seeds, w_fuel=args.w_fuel, budget=args.budget, nthread=args.threads,
                       json_out=args.json, margin_m=args.margin, ray=args.ray, check=not args.no_check,
-                      swing=args.swing)  # fmt: skip
+                      swing=args.swing, search=args.search)  # fmt: skip
     shown = result.get("summary", {k: v for k, v in result.items() if not k.endswith("_mm") and k != "paths"})
     print(json.dumps(shown, indent=2))
     if args.plot:
@@ -536,7 +536,7 @@ def _add_planning_parsers(sub: argparse._SubParsersAction) -> None:
     plan.add_argument("--video", metavar="MP4", default=None, help="also film the (first) seed's planned move and "
                       "the scripted loader's (the learned model, chase camera) to this MP4")  # fmt: skip
     plan.add_argument("--margin", type=float, default=None, help="clearance (m) the plan keeps from truck and ground "
-                      "(default: 0.8 with a load, 0.5 without)")  # fmt: skip
+                      "(default: 0.8 with a load, 0.5 without; 0.2 with --search circuit)")  # fmt: skip
     plan.add_argument(
         "--no-check",
         action="store_true",
@@ -546,6 +546,9 @@ def _add_planning_parsers(sub: argparse._SubParsersAction) -> None:
                       "as the other spools, or turned as fast as it can (full spool, then closed: the crossover "
                       "reliefs brake it) with its switch fitted to the circuit model (default: knots for dump, "
                       "bang-bang for return)")  # fmt: skip
+    plan.add_argument("--search", choices=("fast", "circuit"), default="fast", help="roll the candidates out on the "
+                      "fast native model (default; within 2 s) or on the circuit model itself (an offline plan: about "
+                      "a minute, a margin of 0.2 m)")  # fmt: skip
     plan.add_argument("--json", metavar="OUT", default=None, help="also write the figures to this JSON file")
     add_ray_option(plan, "the seeds (each with --threads cores)")
     plan.set_defaults(func=_cmd_plan)

@@ -42,6 +42,7 @@ from hexgym.files import save_figure, write_json
 from hexgym.machine import parameters as p
 from hexgym.parallel import executor
 from hexgym.planning.check import ROW_S, PlanCheck, replay_plan
+from hexgym.planning.circuit_search import CIRCUIT_MARGIN_M, CircuitRolloutModel
 from hexgym.planning.planner import (
     HORIZON_S,
     KNOT_S,
@@ -60,6 +61,7 @@ from hexgym.planning.rollouts import MachineState, RolloutModel
 
 TASKS = ("dump", "return")
 SWINGS = ("knots", "bang-bang")
+SEARCHES = ("fast", "circuit")  # the model the planner's candidates are rolled out on
 DEFAULT_SWING = {"dump": "knots", "return": "bang-bang"}  # loaded, a fastest swing reaches the truck before the lift
 _SCRIPTED_LIMIT_S = 30.0  # s: the scripted move's limit
 _CYCLE_LIMIT_S = 120.0  # s: the scripted first cycle's limit (to find the start states)
@@ -181,18 +183,24 @@ def plan_task(
     margin_m: float | None = None,
     check: bool = True,
     swing: str | None = None,
+    search: str = "fast",
 ) -> dict[str, Any]:
     """Plan ``task`` on seed ``seed``, replay it on the reference and in the environment, run the scripted loader:
     the figures. ``warm_start``: start the search from the scripted loader's move (its actions averaged per knot).
     ``check``: plan in two rounds, each plan checked on the circuit model (:func:`plan_checked`; ``checked_*``);
     else in one (:func:`plan_motion`). ``swing``: ``knots`` (searched per knot as the other spools) or
     ``bang-bang`` (the fastest turn to the goal's bearing, fitted to the circuit model: ``plan_checked``'s
-    ``fit_swing``; without the check, the fast model's own); default :data:`DEFAULT_SWING`. The horizon is
+    ``fit_swing``; without the check, the search model's own); default :data:`DEFAULT_SWING`. ``search``: the
+    model the candidates are rolled out on, ``fast`` (the native learned model, batched) or ``circuit`` (the circuit
+    model, :class:`~hexgym.planning.circuit_search.CircuitRolloutModel`: about a minute per plan; its margin
+    defaults to ``CIRCUIT_MARGIN_M``). The horizon is
     ``horizon_s`` or, shorter, the scripted move's time plus 0.5 s (rounded up to 0.5 s, >= 3 s)."""
     swing = _swing_of(task, swing)
+    _search_of(search)
     states = start_states(seed)
     state, goal = states[task]
-    margin_m = margin_for(state) if margin_m is None else margin_m
+    if margin_m is None:
+        margin_m = CIRCUIT_MARGIN_M if search == "circuit" else margin_for(state)
     model = RolloutModel(nthread=nthread, contacts=False)  # the plans reject every contact
     try:
         scripted = scripted_move(seed, state, goal, model)
@@ -203,23 +211,25 @@ def plan_task(
         options = {"w_fuel": w_fuel, "budget": budget, "horizon_s": horizon_s, "seed": seed, "initial": initial,
                    "margin_m": margin_m}  # fmt: skip
         checked = None
+        check_model = PlanCheck(model) if check or search == "circuit" else None
+        searched = CircuitRolloutModel(model, check_model.machine) if search == "circuit" else model
         if check:
-            check_model = PlanCheck(model)
             fit_swing = check_model.fit_swing if swing == "bang-bang" else None
-            plan, checked = plan_checked(state, goal, model, check_model, correct=check_model.correct,
+            plan, checked = plan_checked(state, goal, searched, check_model, correct=check_model.correct,
                                          fit_swing=fit_swing, **options)  # fmt: skip
-        elif swing == "bang-bang":  # the fast model's own fastest turn, not fitted
-            swing_m, switch, _ = swing_bang_bang(model, state, swing_target(state, goal, model), horizon_s)
-            plan = dataclasses.replace(plan_motion(state, goal, model, swing_m=swing_m, **options),
+        elif swing == "bang-bang":  # the search model's own fastest turn, not fitted
+            swing_m, switch, _ = swing_bang_bang(searched, state, swing_target(state, goal, model), horizon_s)
+            plan = dataclasses.replace(plan_motion(state, goal, searched, swing_m=swing_m, **options),
                                        fast_swing_switch=switch)  # fmt: skip
         else:
-            plan = plan_motion(state, goal, model, **options)
+            plan = plan_motion(state, goal, searched, **options)
         reference = reference_replay(plan, state, goal, model)
         learned = learned_replay(seed, state, goal, plan, model)
     finally:
         model.close()
     return {
         "task": task, "seed": seed, "w_fuel": w_fuel, "margin_m": margin_m, "horizon_s": horizon_s, "swing": swing,
+        "search": search,
         "plan_message": checked.message if checked else plan.message, "plan_wall_s": plan.wall_s,
         "rollouts": plan.rollouts, "predicted_reached": plan.reached, "predicted_time_s": plan.time_s,
         "predicted_fuel_l": plan.fuel_l, "predicted_min_clearance_m": plan.min_clearance_m,
@@ -256,6 +266,13 @@ def _swing_of(task: str, swing: str | None) -> str:
     if swing not in SWINGS:
         raise ValueError(f"--swing must be one of {SWINGS}, got {swing!r}")
     return swing
+
+
+def _search_of(search: str) -> str:
+    """``search`` if it names a search model (:data:`SEARCHES`), else a ValueError."""
+    if search not in SEARCHES:
+        raise ValueError(f"--search must be one of {SEARCHES}, got {search!r}")
+    return search
 
 
 def _swing_switches(plan: Plan, period: float) -> dict | None:
@@ -344,6 +361,7 @@ def run_plan(
     ray: str | None = None,
     check: bool = True,
     swing: str | None = None,
+    search: str = "fast",
 ) -> dict[str, Any]:
     """Plan on each seed; one seed's figures, or with several a summary and the per-seed figures.
 
@@ -358,8 +376,9 @@ def run_plan(
     if margin_m is not None and not (math.isfinite(margin_m) and 0 <= margin_m <= 2.0):
         raise ValueError(f"--margin must be within 0 and 2 m, got {margin_m}")
     _swing_of(task, swing)  # before any seed runs
+    _search_of(search)
     start = time.perf_counter()
-    jobs = [(task, s, w_fuel, budget, nthread, margin_m, check, swing) for s in seeds]
+    jobs = [(task, s, w_fuel, budget, nthread, margin_m, check, swing, search) for s in seeds]
     with executor(1, ray, cpus_per_task=nthread) as pool:
         results = pool.map(_plan_job, jobs)
     out: dict[str, Any] = results[0] if len(results) == 1 else {
@@ -371,9 +390,9 @@ def run_plan(
     return out
 
 
-def _plan_job(job: tuple[str, int, float, int, int, float | None, bool, str | None]) -> dict[str, Any]:
-    task, seed, w_fuel, budget, nthread, margin_m, check, swing = job
-    return plan_task(task, seed, w_fuel, budget, nthread, margin_m=margin_m, check=check, swing=swing)
+def _plan_job(job: tuple[str, int, float, int, int, float | None, bool, str | None, str]) -> dict[str, Any]:
+    task, seed, w_fuel, budget, nthread, margin_m, check, swing, search = job
+    return plan_task(task, seed, w_fuel, budget, nthread, margin_m=margin_m, check=check, swing=swing, search=search)
 
 
 def plot_plan(result: dict[str, Any], out: str | Path) -> Path:

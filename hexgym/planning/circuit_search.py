@@ -1,0 +1,72 @@
+"""Searching a plan on the circuit model itself: offline plans, where the 2 s budget does not apply.
+
+The fast native model misses how the hydraulic functions share the pumps (a loaded boom lifts more slowly on the
+machine while the swing turns), so a plan searched on it keeps a wide margin from truck and ground (0.8 m loaded)
+and is checked and trimmed on the circuit model afterwards (:mod:`hexgym.planning.check`). A plan made ahead of
+time (a site's loading cycle, computed once and executed many times, as the paper's optimal motions are) can
+search on the circuit model directly: :class:`CircuitRolloutModel` gives the planner the circuit model's rollouts,
+each candidate replayed in Python (~25 ms for a 5 s move: 2,000 candidates in about a minute on one core),
+measured on the site's geometry as the native rollouts are, with the fuel the circuit's pumps draw. Its error is
+centimetres, so the plan keeps ``CIRCUIT_MARGIN_M`` instead of the fast model's margins.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from hexgym.envs.world import Layout
+from hexgym.machine import kinematics
+from hexgym.model.backend import python_learned_model
+from hexgym.model.base import MachineModel
+from hexgym.model.commandlog import CommandLog
+from hexgym.model.replay import replay
+from hexgym.planning.rollouts import MachineState, RolloutBatch, RolloutModel, spool_batch
+
+CIRCUIT_MARGIN_M = 0.2  # m kept from truck and ground: the circuit model follows the reference within ~0.1 m
+REST_RATE = 1e-6  # rad/s: a start state faster than this is not at rest (a replay starts from rest)
+
+
+class CircuitRolloutModel:
+    """The planner's rollouts on the circuit model (see the module docstring): :meth:`rollout` as
+    :meth:`RolloutModel.rollout`, from a state at rest. ``geometry``: the native site model whose geometry measures
+    the replays (teeth, mouth, tilt, clearances) and whose control period they use; ``machine``: the circuit model
+    to replay on (default: a new one)."""
+
+    def __init__(self, geometry: RolloutModel, machine: MachineModel | None = None) -> None:
+        self.geometry = geometry
+        self.machine = python_learned_model("circuit") if machine is None else machine
+        self.control_period = geometry.control_period
+        self.detection_m = geometry.detection_m
+
+    def rollout(self, state: MachineState, spools_m: np.ndarray, horizon_s: float) -> RolloutBatch:
+        """Replay each spool sequence (see :func:`~hexgym.planning.rollouts.spool_batch`) from ``state`` for
+        ``horizon_s`` seconds: the state at the end of each control period, and the engine's fuel rate there."""
+        if np.abs(state.qd).max() > REST_RATE:
+            raise ValueError(f"the circuit model's rollouts start at rest; the state's rates are {state.qd.round(4)}")
+        spools = spool_batch(spools_m, horizon_s, self.control_period)
+        nbatch, periods = spools.shape[:2]
+        times = (np.arange(periods) + 1) * self.control_period
+        q, qd = np.empty((nbatch, periods, 4)), np.empty((nbatch, periods, 4))
+        fuel = np.empty((nbatch, periods))
+        knots = np.append(times - self.control_period, times[-1])  # each period's spools, closed at the end
+        for b in range(nbatch):
+            log = CommandLog(knots, np.vstack([spools[b] * 1e3, np.zeros(4)]))
+            rows = replay(self.machine, log, start=state.q, payload_kg=state.payload_kg, dt_out=self.control_period,
+                          duration=times[-1])[1:]  # fmt: skip
+            q[b] = np.column_stack([rows[f"q_{j}"] for j in kinematics.JOINTS])
+            qd[b] = np.column_stack([rows[f"qd_{j}"] for j in kinematics.JOINTS])
+            fuel[b] = rows["fuel_rate_l_per_h"]
+        flat = q.reshape(-1, 4)
+        tips, mouths, clearance = self.geometry.at_angles(flat, state.layout)
+        tilt = self.geometry.tilt_at_angles(flat)
+        return RolloutBatch(
+            times, q, tips.reshape(nbatch, periods, 3), clearance.reshape(nbatch, periods, -1),
+            np.empty((nbatch, periods, 0)), self.detection_m, qd, mouths.reshape(nbatch, periods, 3),
+            tilt.reshape(nbatch, periods), np.full((nbatch, periods), math.nan), fuel,
+        )  # fmt: skip
+
+    def at_angles(self, q: np.ndarray, layout: Layout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`RolloutModel.at_angles` of the site's geometry."""
+        return self.geometry.at_angles(q, layout)
