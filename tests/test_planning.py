@@ -351,6 +351,48 @@ def test_the_check_predicts_the_references_fuel(env, model):
     assert 0.0 < held < moved / 2
 
 
+def test_circuit_rollouts_are_the_checks_replays_with_its_fuel(env, model):
+    """The circuit model's rollouts follow the check's replay of the same spools to the digit, at every control
+    period (the check's rows: every second one), with the teeth, mouth, tilt and clearances of the site's geometry;
+    the planner counts their fuel from the circuit's own rate (not the motion-based account); a moving start state is
+    refused."""
+    import dataclasses
+
+    from hexgym.planning import MachineState
+    from hexgym.planning.check import PlanCheck, replay_plan
+    from hexgym.planning.circuit_search import CircuitRolloutModel
+    from hexgym.planning.planner import dump_goal, move_fuel_l
+
+    layout = env.unwrapped.layout
+    state = MachineState(env.unwrapped.physics.joint_positions(), np.zeros(4), 1500.0, layout)
+    check = PlanCheck(model)
+    circuit = CircuitRolloutModel(model, check.machine)
+    spools = np.repeat(np.random.default_rng(3).uniform(-1.0, 1.0, (2, 10, 4)) * p.SPOOL_STROKE, 4, axis=1)
+    batch = circuit.rollout(state, spools, 1.0)
+    run = replay_plan(check.machine, spools[1], state, dump_goal(layout), model)
+    assert batch.q.shape == (2, 40, 4) and batch.fuel_l_per_h.shape == (2, 40)
+    np.testing.assert_array_equal(batch.tip[1, 1::2], run.tips[1:21])
+    np.testing.assert_array_equal(batch.clearance_m[1, 1::2], run.clearance[1:21])
+    np.testing.assert_allclose(batch.tilt[1], model.tilt_at_angles(batch.q[1]))
+    assert not np.array_equal(batch.q[0], batch.q[1])
+    litres = move_fuel_l(circuit, batch, 1, 39)
+    assert litres == pytest.approx(batch.fuel_l_per_h[1].sum() * model.control_period / 3600.0)
+    assert litres == pytest.approx(run.fuel_l, rel=0.03)  # the same rate, sampled every period / every second one
+    with pytest.raises(ValueError, match="start at rest"):
+        circuit.rollout(dataclasses.replace(state, qd=np.array([0.3, 0.0, 0.0, 0.0])), spools, 1.0)
+    with pytest.raises(ValueError, match="within"):
+        circuit.rollout(state, spools * 2.0, 1.0)
+
+
+def test_a_tilt_at_angles_is_the_rollouts_tilt(env, model):
+    from hexgym.planning import MachineState
+
+    state = MachineState(env.unwrapped.physics.joint_positions(), np.zeros(4), 0.0, env.unwrapped.layout)
+    batch = model.rollout(state, np.tile(np.array([0.5, 0.5, -0.5, 1.0]) * p.SPOOL_STROKE, (20, 1)), 0.5)
+    # the batch's last period reads its own step's sensors (one step behind): the others are exact
+    np.testing.assert_allclose(model.tilt_at_angles(batch.q[0])[:-1], batch.tilt[0, :-1], atol=1e-12)
+
+
 def test_a_correction_trims_a_plan_to_its_point_on_the_accurate_model(env, model):
     """Spools that bring the fast model's teeth to rest at a point leave the circuit model's elsewhere; the
     correction's trimmed spools bring them there. Spools already there are returned as they are."""
@@ -490,6 +532,11 @@ def test_plan_command_names_bad_input(capsys):
 
     with pytest.raises(ValueError, match="--swing must be one of"):
         run_plan("return", [0], swing="fast")
+    with pytest.raises(ValueError, match="--search must be one of"):
+        run_plan("return", [0], search="reference")
+    with pytest.raises(SystemExit):
+        main(["plan", "--task", "dump", "--search", "exact"])
+    assert "invalid choice: 'exact'" in capsys.readouterr().err
 
 
 @pytest.mark.slow
@@ -507,6 +554,19 @@ def test_plan_command_writes_the_figures(tmp_path):
         assert key in result, key
     assert result["margin_m"] == 0.8  # loaded: the default margin is the loaded one
     assert result["scripted_reference_time_s"] > 0 and result["scripted_reference_fuel_l"] > 0
+
+
+def test_a_plan_searched_on_the_circuit_model_predicts_the_reference():
+    """``search="circuit"``: the candidates are the circuit model's, so the plan's predicted fuel is the reference's
+    within a few per cent, with the circuit search's margin; a budget too small to reach the goal says so."""
+    from hexgym.planning.circuit_search import CIRCUIT_MARGIN_M
+    from hexgym.tools.plan import plan_task
+
+    result = plan_task("dump", 0, budget=40, nthread=1, search="circuit")
+    assert result["search"] == "circuit" and result["margin_m"] == CIRCUIT_MARGIN_M and result["rollouts"] >= 40
+    assert result["predicted_fuel_l"] == pytest.approx(result["reference_fuel_l"], rel=0.03)
+    assert not result["predicted_reached"] and result["reference_time_s"] is None  # 40 candidates: short of it
+    assert "from the goal" in result["plan_message"]
 
 
 def test_plan_summary_counts_the_targets_on_each_machine():
