@@ -382,6 +382,8 @@ def test_circuit_rollouts_are_the_checks_replays_with_its_fuel(env, model):
         circuit.rollout(dataclasses.replace(state, qd=np.array([0.3, 0.0, 0.0, 0.0])), spools, 1.0)
     with pytest.raises(ValueError, match="within"):
         circuit.rollout(state, spools * 2.0, 1.0)
+    with pytest.raises(ValueError, match="too long for memory"):
+        circuit.rollout(state, spools, 1e9)
 
 
 def test_a_tilt_at_angles_is_the_rollouts_tilt(env, model):

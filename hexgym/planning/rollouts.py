@@ -157,10 +157,11 @@ def _periods(horizon_s: float, period: float) -> int:
     return max(1, math.ceil(horizon_s / period - 1e-9))
 
 
-def spool_batch(spools_m: np.ndarray, horizon_s: float, period: float) -> np.ndarray:
+def spool_batch(spools_m: np.ndarray, horizon_s: float, period: float, bytes_per_period: int = 256) -> np.ndarray:
     """(B, T, 4) spools (m) per control period over ``horizon_s`` from (4,) held, (T', 4) per control period or
-    (B, T', 4); a sequence shorter than the horizon holds its last row. Refuses other shapes, non-finite spools and
-    spools beyond the stroke."""
+    (B, T', 4); a sequence shorter than the horizon holds its last row. Refuses other shapes, non-finite spools,
+    spools beyond the stroke and a batch whose rollouts would hold more than ``MAX_ROLLOUT_BYTES`` at
+    ``bytes_per_period`` each."""
     spools = np.asarray(spools_m, float)
     if spools.ndim == 1:
         spools = spools[None, None]
@@ -173,6 +174,11 @@ def spool_batch(spools_m: np.ndarray, horizon_s: float, period: float) -> np.nda
     if np.abs(spools).max() > p.SPOOL_STROKE + 1e-12:
         raise ValueError(f"spools must be within +-{p.SPOOL_STROKE} m, got up to {np.abs(spools).max():.4g} m")
     periods = _periods(horizon_s, period)
+    if spools.shape[0] * periods * bytes_per_period > MAX_ROLLOUT_BYTES:
+        raise ValueError(
+            f"horizon_s {horizon_s} s with {spools.shape[0]} rollouts is too long for memory "
+            f"(at most {MAX_ROLLOUT_BYTES // 2**30} GiB of states and sensors at once)"
+        )
     if spools.shape[1] < periods:
         spools = np.concatenate([spools, np.repeat(spools[:, -1:], periods - spools.shape[1], axis=1)], axis=1)
     return spools[:, :periods]
@@ -284,14 +290,8 @@ class RolloutModel:
     def spool_controls(self, spools_m: np.ndarray, horizon_s: float) -> np.ndarray:
         """(B, T, nu) plugin controls (mm) from spools (m): (4,) held, (T', 4) per control period or
         (B, T', 4); a sequence shorter than the horizon holds its last row."""
-        spools = spool_batch(spools_m, horizon_s, self.control_period)
-        periods = spools.shape[1]
         per_step = self.state_size + self.model.nsensordata + self.model.nu  # values held per rollout step
-        if spools.shape[0] * periods * self._steps_per_period * per_step * 8 > MAX_ROLLOUT_BYTES:
-            raise ValueError(
-                f"horizon_s {horizon_s} s with {spools.shape[0]} rollouts is too long for memory "
-                f"(at most {MAX_ROLLOUT_BYTES // 2**30} GiB of states and sensors at once)"
-            )
+        spools = spool_batch(spools_m, horizon_s, self.control_period, self._steps_per_period * per_step * 8)
         per_step = np.repeat(spools, self._steps_per_period, axis=1) if self._steps_per_period > 1 else spools
         controls = np.zeros((*per_step.shape[:2], self.model.nu))
         controls[:, :, self._ctrl] = per_step * CTRL_PER_SPOOL_M
