@@ -5,8 +5,9 @@ start states: ``dump``, the loaded, curled bucket as it leaves the pile (the scr
 phase begins); ``return``, the emptied bucket over the truck (its ``to_pile`` phase begins). The move
 starts from rest at those angles. Then:
 
-- the planner (:func:`hexgym.planning.planner.plan_motion`) plans on the native learned model, its search
-  started from the scripted loader's move (``warm_start``): ``predicted_*`` are its final rollout's figures;
+- the planner (:func:`hexgym.planning.planner.plan_motion`) plans on the native learned model (``search="fast"``)
+  or, offline, on the circuit model (``search="circuit"``), its search started from the scripted loader's move
+  (``warm_start``): ``predicted_*`` are its final rollout's figures;
 - by default the plan is checked, trimmed and if need be mended on the circuit model
   (:func:`~hexgym.planning.planner.plan_checked`): ``checked_*`` are the check's figures (time to the goal,
   clearance, goal error, fuel to the plan's end);
