@@ -536,6 +536,10 @@ def test_plan_command_names_bad_input(capsys):
         run_plan("return", [0], swing="fast")
     with pytest.raises(ValueError, match="--search must be one of"):
         run_plan("return", [0], search="reference")
+    with pytest.raises(ValueError, match="--workers must be >= 1"):
+        run_plan("return", [0], workers=0)
+    assert main(["plan", "--task", "dump", "--workers", "0"]) == 2
+    assert "--workers must be" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["plan", "--task", "dump", "--search", "exact"])
     assert "invalid choice: 'exact'" in capsys.readouterr().err

@@ -295,7 +295,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     seeds = parse_seeds(args.seeds) if args.seeds is not None else [args.seed]
     result = run_plan(args.task, seeds, w_fuel=args.w_fuel, budget=args.budget, nthread=args.threads,
                       json_out=args.json, margin_m=args.margin, ray=args.ray, check=not args.no_check,
-                      swing=args.swing, search=args.search)  # fmt: skip
+                      swing=args.swing, search=args.search, workers=args.workers)  # fmt: skip
     shown = result.get("summary", {k: v for k, v in result.items() if not k.endswith("_mm") and k != "paths"})
     print(json.dumps(shown, indent=2))
     if args.plot:
@@ -532,6 +532,8 @@ def _add_planning_parsers(sub: argparse._SubParsersAction) -> None:
     plan.add_argument("--w-fuel", type=float, default=1.0, help="seconds per litre in the cost (default: 1)")
     plan.add_argument("--budget", type=int, default=2000, help="rollouts the planner may simulate (default: 2000)")
     plan.add_argument("--threads", type=int, default=2, help="rollout threads (default: 2)")
+    plan.add_argument("--workers", type=int, default=1, help="seeds planned at once, one process each (default: 1; "
+                      "plans sharing cores miss the 2 s wall: more for --search circuit)")  # fmt: skip
     plan.add_argument("--plot", metavar="PNG", default=None, help="also plot the (first) seed's plan to this PNG")
     plan.add_argument("--video", metavar="MP4", default=None, help="also film the (first) seed's planned move and "
                       "the scripted loader's (the learned model, chase camera) to this MP4")  # fmt: skip
