@@ -386,6 +386,24 @@ def test_circuit_rollouts_are_the_checks_replays_with_its_fuel(env, model):
         circuit.rollout(state, spools, 1e9)
 
 
+def test_circuit_rollouts_split_over_processes_are_the_same(env, model):
+    from hexgym.planning import MachineState
+    from hexgym.planning.circuit_search import CircuitRolloutModel
+
+    state = MachineState(env.unwrapped.physics.joint_positions(), np.zeros(4), 800.0, env.unwrapped.layout)
+    spools = np.repeat(np.random.default_rng(5).uniform(-1.0, 1.0, (5, 4, 4)) * p.SPOOL_STROKE, 5, axis=1)
+    here = CircuitRolloutModel(model).rollout(state, spools, 0.5)
+    split = CircuitRolloutModel(model, workers=2)
+    try:
+        apart = split.rollout(state, spools, 0.5)
+    finally:
+        split.close()
+    for field in ("q", "qd", "tip", "mouth", "clearance_m", "tilt", "fuel_l_per_h"):
+        np.testing.assert_array_equal(getattr(apart, field), getattr(here, field), err_msg=field)
+    with pytest.raises(ValueError, match="workers must be an integer >= 1"):
+        CircuitRolloutModel(model, workers=0)
+
+
 def test_a_tilt_at_angles_is_the_rollouts_tilt(env, model):
     from hexgym.planning import MachineState
 

@@ -22,6 +22,7 @@ from hexgym.model.backend import python_learned_model
 from hexgym.model.base import MachineModel
 from hexgym.model.commandlog import CommandLog
 from hexgym.model.replay import replay
+from hexgym.parallel import LocalPool
 from hexgym.planning.rollouts import MachineState, RolloutBatch, RolloutModel, spool_batch
 
 CIRCUIT_MARGIN_M = 0.2  # m kept from truck and ground: the circuit model follows the reference within ~0.1 m
@@ -32,13 +33,18 @@ class CircuitRolloutModel:
     """The planner's rollouts on the circuit model (see the module docstring): :meth:`rollout` as
     :meth:`RolloutModel.rollout`, from a state at rest. ``geometry``: the native site model whose geometry measures
     the replays (teeth, mouth, tilt, clearances) and whose control period they use; ``machine``: the circuit model
-    to replay on (default: a new one)."""
+    to replay on (default: a new one); ``workers``: processes a batch's candidates are split over (each with its own
+    circuit model and site geometry; the same figures to the digit). :meth:`close` ends them."""
 
-    def __init__(self, geometry: RolloutModel, machine: MachineModel | None = None) -> None:
+    def __init__(self, geometry: RolloutModel, machine: MachineModel | None = None, workers: int = 1) -> None:
+        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+            raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
         self.geometry = geometry
         self.machine = python_learned_model("circuit") if machine is None else machine
         self.control_period = geometry.control_period
         self.detection_m = geometry.detection_m
+        self.workers = workers
+        self._pool: LocalPool | None = None
 
     def rollout(self, state: MachineState, spools_m: np.ndarray, horizon_s: float) -> RolloutBatch:
         """Replay each spool sequence (see :func:`~hexgym.planning.rollouts.spool_batch`) from ``state`` for
@@ -47,26 +53,63 @@ class CircuitRolloutModel:
             raise ValueError(f"the circuit model's rollouts start at rest; the state's rates are {state.qd.round(4)}")
         spools = spool_batch(spools_m, horizon_s, self.control_period)
         nbatch, periods = spools.shape[:2]
-        times = (np.arange(periods) + 1) * self.control_period
-        q, qd = np.empty((nbatch, periods, 4)), np.empty((nbatch, periods, 4))
-        fuel = np.empty((nbatch, periods))
-        knots = np.append(times - self.control_period, times[-1])  # each period's spools, closed at the end
-        for b in range(nbatch):
-            log = CommandLog(knots, np.vstack([spools[b] * 1e3, np.zeros(4)]))
-            rows = replay(self.machine, log, start=state.q, payload_kg=state.payload_kg, dt_out=self.control_period,
-                          duration=times[-1])[1:]  # fmt: skip
-            q[b] = np.column_stack([rows[f"q_{j}"] for j in kinematics.JOINTS])
-            qd[b] = np.column_stack([rows[f"qd_{j}"] for j in kinematics.JOINTS])
-            fuel[b] = rows["fuel_rate_l_per_h"]
-        flat = q.reshape(-1, 4)
-        tips, mouths, clearance = self.geometry.at_angles(flat, state.layout)
-        tilt = self.geometry.tilt_at_angles(flat)
+        if self.workers > 1 and nbatch >= 2 * self.workers:
+            if self._pool is None:
+                self._pool = LocalPool(self.workers, _start_worker, (self.geometry.table_set, self.detection_m))
+            chunks = np.array_split(spools, self.workers)
+            parts = self._pool.map(_worker_replays, [(state, chunk) for chunk in chunks])
+            figures = {key: np.concatenate([part[key] for part in parts]) for key in parts[0]}
+        else:
+            figures = _replays(self.machine, self.geometry, state, spools)
         return RolloutBatch(
-            times, q, tips.reshape(nbatch, periods, 3), clearance.reshape(nbatch, periods, -1),
-            np.empty((nbatch, periods, 0)), self.detection_m, qd, mouths.reshape(nbatch, periods, 3),
-            tilt.reshape(nbatch, periods), np.full((nbatch, periods), math.nan), fuel,
+            (np.arange(periods) + 1) * self.control_period, figures["q"], figures["tip"], figures["clearance"],
+            np.empty((nbatch, periods, 0)), self.detection_m, figures["qd"], figures["mouth"], figures["tilt"],
+            np.full((nbatch, periods), math.nan), figures["fuel"],
         )  # fmt: skip
 
     def at_angles(self, q: np.ndarray, layout: Layout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """:meth:`RolloutModel.at_angles` of the site's geometry."""
         return self.geometry.at_angles(q, layout)
+
+    def close(self) -> None:
+        """End the worker processes (if any)."""
+        if self._pool is not None:
+            self._pool.close()
+            self._pool = None
+
+
+def _replays(machine: MachineModel, geometry: RolloutModel, state: MachineState, spools: np.ndarray) -> dict:
+    """The circuit model's replays of spools (B, T, 4) from ``state``, measured on ``geometry``: per candidate and
+    control period its joint angles and rates, fuel rate, teeth, mouth, clearances and tilt."""
+    nbatch, periods = spools.shape[:2]
+    period = geometry.control_period
+    times = (np.arange(periods) + 1) * period
+    q, qd = np.empty((nbatch, periods, 4)), np.empty((nbatch, periods, 4))
+    fuel = np.empty((nbatch, periods))
+    knots = np.append(times - period, times[-1])  # each period's spools, closed at the end
+    for b in range(nbatch):
+        log = CommandLog(knots, np.vstack([spools[b] * 1e3, np.zeros(4)]))
+        rows = replay(machine, log, start=state.q, payload_kg=state.payload_kg, dt_out=period, duration=times[-1])[1:]
+        q[b] = np.column_stack([rows[f"q_{j}"] for j in kinematics.JOINTS])
+        qd[b] = np.column_stack([rows[f"qd_{j}"] for j in kinematics.JOINTS])
+        fuel[b] = rows["fuel_rate_l_per_h"]
+    flat = q.reshape(-1, 4)
+    tips, mouths, clearance = geometry.at_angles(flat, state.layout)
+    return {
+        "q": q, "qd": qd, "fuel": fuel, "tip": tips.reshape(nbatch, periods, 3),
+        "mouth": mouths.reshape(nbatch, periods, 3), "clearance": clearance.reshape(nbatch, periods, -1),
+        "tilt": geometry.tilt_at_angles(flat).reshape(nbatch, periods),
+    }  # fmt: skip
+
+
+_WORKER: tuple[MachineModel, RolloutModel] | None = None  # a worker process's circuit model and site geometry
+
+
+def _start_worker(table_set: str, detection_m: float) -> None:
+    global _WORKER
+    _WORKER = (python_learned_model("circuit"), RolloutModel(table_set, detection_m=detection_m, contacts=False))
+
+
+def _worker_replays(job: tuple[MachineState, np.ndarray]) -> dict:
+    assert _WORKER is not None, "the worker was not started"
+    return _replays(*_WORKER, *job)

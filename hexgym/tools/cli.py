@@ -531,7 +531,8 @@ def _add_planning_parsers(sub: argparse._SubParsersAction) -> None:
     )
     plan.add_argument("--w-fuel", type=float, default=1.0, help="seconds per litre in the cost (default: 1)")
     plan.add_argument("--budget", type=int, default=2000, help="rollouts the planner may simulate (default: 2000)")
-    plan.add_argument("--threads", type=int, default=2, help="rollout threads (default: 2)")
+    plan.add_argument("--threads", type=int, default=2, help="rollout threads; with --search circuit, processes "
+                      "(default: 2)")  # fmt: skip
     plan.add_argument("--workers", type=int, default=1, help="seeds planned at once, one process each (default: 1; "
                       "plans sharing cores miss the 2 s wall: more for --search circuit)")  # fmt: skip
     plan.add_argument("--plot", metavar="PNG", default=None, help="also plot the (first) seed's plan to this PNG")

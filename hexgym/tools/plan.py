@@ -193,8 +193,8 @@ def plan_task(
     ``bang-bang`` (the fastest turn to the goal's bearing, fitted to the circuit model: ``plan_checked``'s
     ``fit_swing``; without the check, the search model's own); default :data:`DEFAULT_SWING`. ``search``: the
     model the candidates are rolled out on, ``fast`` (the native learned model, batched) or ``circuit`` (the circuit
-    model, :class:`~hexgym.planning.circuit_search.CircuitRolloutModel`: about a minute per plan; its margin
-    defaults to ``CIRCUIT_MARGIN_M``). The horizon is
+    model, :class:`~hexgym.planning.circuit_search.CircuitRolloutModel`, its candidates split over ``nthread``
+    processes: about a minute per plan on one; its margin defaults to ``CIRCUIT_MARGIN_M``). The horizon is
     ``horizon_s`` or, shorter, the scripted move's time plus 0.5 s (rounded up to 0.5 s, >= 3 s)."""
     swing = _swing_of(task, swing)
     _search_of(search)
@@ -203,6 +203,7 @@ def plan_task(
     if margin_m is None:
         margin_m = CIRCUIT_MARGIN_M if search == "circuit" else margin_for(state)
     model = RolloutModel(nthread=nthread, contacts=False)  # the plans reject every contact
+    searched: RolloutModel | CircuitRolloutModel = model
     try:
         scripted = scripted_move(seed, state, goal, model)
         scripted_reference = scripted_move(seed, state, goal, model, "reference")
@@ -213,7 +214,8 @@ def plan_task(
                    "margin_m": margin_m}  # fmt: skip
         checked = None
         check_model = PlanCheck(model) if check or search == "circuit" else None
-        searched = CircuitRolloutModel(model, check_model.machine) if search == "circuit" else model
+        if search == "circuit":  # its candidates split over nthread processes
+            searched = CircuitRolloutModel(model, check_model.machine, workers=nthread)
         if check:
             fit_swing = check_model.fit_swing if swing == "bang-bang" else None
             plan, checked = plan_checked(state, goal, searched, check_model, correct=check_model.correct,
@@ -227,6 +229,8 @@ def plan_task(
         reference = reference_replay(plan, state, goal, model)
         learned = learned_replay(seed, state, goal, plan, model)
     finally:
+        if searched is not model:
+            searched.close()
         model.close()
     return {
         "task": task, "seed": seed, "w_fuel": w_fuel, "margin_m": margin_m, "horizon_s": horizon_s, "swing": swing,
