@@ -411,6 +411,7 @@ def test_a_tilt_at_angles_is_the_rollouts_tilt(env, model):
     batch = model.rollout(state, np.tile(np.array([0.5, 0.5, -0.5, 1.0]) * p.SPOOL_STROKE, (20, 1)), 0.5)
     # the batch's last period reads its own step's sensors (one step behind): the others are exact
     np.testing.assert_allclose(model.tilt_at_angles(batch.q[0])[:-1], batch.tilt[0, :-1], atol=1e-12)
+    assert model.tilt_at_angles(batch.q[0, 3]) == pytest.approx(batch.tilt[0, 3:4], abs=1e-12)  # one pose
 
 
 def test_a_correction_trims_a_plan_to_its_point_on_the_accurate_model(env, model):

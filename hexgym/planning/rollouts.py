@@ -157,7 +157,12 @@ def _periods(horizon_s: float, period: float) -> int:
     return max(1, math.ceil(horizon_s / period - 1e-9))
 
 
-def spool_batch(spools_m: np.ndarray, horizon_s: float, period: float, bytes_per_period: int = 256) -> np.ndarray:
+_BYTES_PER_PERIOD = 256  # a rollout period's figures (angles, rates, teeth, mouth, clearances, tilt, fuel), with room
+
+
+def spool_batch(
+    spools_m: np.ndarray, horizon_s: float, period: float, bytes_per_period: int = _BYTES_PER_PERIOD
+) -> np.ndarray:
     """(B, T, 4) spools (m) per control period over ``horizon_s`` from (4,) held, (T', 4) per control period or
     (B, T', 4); a sequence shorter than the horizon holds its last row. Refuses other shapes, non-finite spools,
     spools beyond the stroke and a batch whose rollouts would hold more than ``MAX_ROLLOUT_BYTES`` at
@@ -376,8 +381,9 @@ class RolloutModel:
         m, d = self.model, self.physics.data
         qadr = np.array([m.jnt_qposadr[m.joint(n).id] for n in kinematics.JOINTS])
         bucket = m.body("bucket").id
+        q = np.atleast_2d(np.asarray(q, float))
         up = np.empty(len(q))
-        for k, angles in enumerate(np.atleast_2d(np.asarray(q, float))):
+        for k, angles in enumerate(q):
             d.qpos[qadr] = angles
             mujoco.mj_kinematics(m, d)
             axes = d.xmat[bucket]  # row-major: the body's x and z axes' world z components are entries 6 and 8
