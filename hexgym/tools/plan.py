@@ -415,7 +415,8 @@ def plot_plan(result: dict[str, Any], out: str | Path) -> Path:
     paths = {k: np.array(v) for k, v in result["paths"].items()}
     planned_dt, reference_dt, scripted_dt = 0.025, ROW_S, STEP_PERIOD
     fig, axes = plt.subplots(2, 2, figsize=(11, 7.5))
-    styles = (("planned_tip", "planned (learned model)", planned_dt, "C0"),
+    searched = "circuit model" if result.get("search") == "circuit" else "learned model"
+    styles = (("planned_tip", f"planned ({searched})", planned_dt, "C0"),
               ("reference_tip", "planned, on the reference", reference_dt, "C3"),
               ("scripted_tip", "scripted loader", scripted_dt, "C2"))  # fmt: skip
     for key, label, dt, colour in styles:
