@@ -76,6 +76,11 @@ class PlanReplay:
         return float(np.sum(self.rows["fuel_rate_l_per_h"][1 : self.planned + 1]) * ROW_S / 3600.0)
 
 
+def plan_log(spools_m: np.ndarray, period: float) -> CommandLog:
+    """A plan's spools (T, 4, m) held one control period ``period`` each, then closed, as a command log (mm)."""
+    return CommandLog(np.arange(len(spools_m) + 1) * period, np.vstack([np.asarray(spools_m) * 1e3, np.zeros((1, 4))]))
+
+
 def replay_plan(
     machine: MachineModel, spools_m: np.ndarray, state: MachineState, goal: Goal, model: RolloutModel
 ) -> PlanReplay:
@@ -83,7 +88,7 @@ def replay_plan(
     the spools closed, measured on the site by ``model``'s geometry (:meth:`RolloutModel.at_angles`)."""
     period = model.control_period
     n = len(spools_m)
-    log = CommandLog(np.arange(n + 1) * period, np.vstack([np.asarray(spools_m) * 1e3, np.zeros((1, 4))]))
+    log = plan_log(spools_m, period)
     planned = math.ceil(n * period / ROW_S - 1e-9)  # rows to the plan's end
     rows = replay(machine, log, start=state.q, payload_kg=state.payload_kg, dt_out=ROW_S,
                   duration=(planned + round(SETTLE_S / ROW_S)) * ROW_S)  # fmt: skip
@@ -210,7 +215,7 @@ class PlanCheck:
         period = self.model.control_period
         trial = spools.copy()
         trial[:, 0] = bang_bang(sign, switch, switch, len(trial))
-        log = CommandLog(np.arange(len(trial) + 1) * period, np.vstack([trial * 1e3, np.zeros((1, 4))]))
+        log = plan_log(trial, period)
         first = math.ceil(switch * period / ROW_S)
         for rows_to in (min(2 * first + round(1.0 / ROW_S), len(trial) * period / ROW_S), len(trial) * period / ROW_S):
             rows = replay(self.machine, log, start=state.q, payload_kg=state.payload_kg, dt_out=ROW_S,

@@ -20,9 +20,9 @@ from hexgym.envs.world import Layout
 from hexgym.machine import kinematics
 from hexgym.model.backend import python_learned_model
 from hexgym.model.base import MachineModel
-from hexgym.model.commandlog import CommandLog
 from hexgym.model.replay import replay
 from hexgym.parallel import LocalPool
+from hexgym.planning.check import plan_log
 from hexgym.planning.rollouts import MachineState, RolloutBatch, RolloutModel, spool_batch
 
 CIRCUIT_MARGIN_M = 0.2  # m kept from truck and ground: the circuit model follows the reference within ~0.1 m
@@ -83,13 +83,11 @@ def _replays(machine: MachineModel, geometry: RolloutModel, state: MachineState,
     control period its joint angles and rates, fuel rate, teeth, mouth, clearances and tilt."""
     nbatch, periods = spools.shape[:2]
     period = geometry.control_period
-    times = (np.arange(periods) + 1) * period
     q, qd = np.empty((nbatch, periods, 4)), np.empty((nbatch, periods, 4))
     fuel = np.empty((nbatch, periods))
-    knots = np.append(times - period, times[-1])  # each period's spools, closed at the end
-    for b in range(nbatch):
-        log = CommandLog(knots, np.vstack([spools[b] * 1e3, np.zeros(4)]))
-        rows = replay(machine, log, start=state.q, payload_kg=state.payload_kg, dt_out=period, duration=times[-1])[1:]
+    for b in range(nbatch):  # each replay's rows at the end of each period (its first row is the start)
+        rows = replay(machine, plan_log(spools[b], period), start=state.q, payload_kg=state.payload_kg,
+                      dt_out=period, duration=periods * period)[1:]  # fmt: skip
         q[b] = np.column_stack([rows[f"q_{j}"] for j in kinematics.JOINTS])
         qd[b] = np.column_stack([rows[f"qd_{j}"] for j in kinematics.JOINTS])
         fuel[b] = rows["fuel_rate_l_per_h"]
