@@ -219,6 +219,7 @@ class RolloutModel:
         if abs(self._steps_per_period * m.opt.timestep - self.control_period) > 1e-9:
             raise ValueError("the rollout model's control period must be a whole number of steps")
         self._ctrl = np.array([m.actuator(n).id for n in kinematics.JOINTS])
+        self._qadr = np.array([m.jnt_qposadr[m.joint(n).id] for n in kinematics.JOINTS])
         self._swing_act = int(m.actuator_actadr[self._ctrl[0]])
         self._kind = mujoco.mjtState.mjSTATE_FULLPHYSICS
         self.state_size = mujoco.mj_stateSize(m, self._kind)
@@ -325,19 +326,16 @@ class RolloutModel:
         k = self._steps_per_period
         ends = np.arange(k - 1, states.shape[1], k)
         reads = np.minimum(ends + 1, states.shape[1] - 1)
-        m = self.model
-        qadr = np.array([m.jnt_qposadr[m.joint(n).id] for n in kinematics.JOINTS]) + 1  # state[0] is the time
-        q = states[:, ends][:, :, qadr]
+        q = states[:, ends][:, :, self._qadr + 1]  # state[0] is the time
         s = sensors[:, reads]
         tip = s[:, :, self._tip]
         clearance = s[:, :, self._pair_adr]
         times = (np.arange(len(ends)) + 1) * self.control_period
-        up = s[:, :, self._bucket_x + 2] * _MOUTH_NORMAL[0] + s[:, :, self._bucket_z + 2] * _MOUTH_NORMAL[1]
         qd = s[:, :, self._qd]
         power = np.abs(s[:, :, self._force] * qd).sum(axis=2)
         return RolloutBatch(
             times, q, tip, clearance, states[:, ends], self.detection_m, qd, s[:, :, self._mouth],
-            np.arccos(np.clip(up, -1.0, 1.0)), power,
+            _tilt(s[:, :, self._bucket_x + 2], s[:, :, self._bucket_z + 2]), power,
         )  # fmt: skip
 
     def closest_point(self, physics_state: np.ndarray, pair: int) -> tuple[np.ndarray, float]:
@@ -359,14 +357,13 @@ class RolloutModel:
         laid out as ``layout`` (kinematics only: e.g. another model's trajectory)."""
         m, d = self.model, self.physics.data
         q = np.atleast_2d(np.asarray(q, float))
-        qadr = np.array([m.jnt_qposadr[m.joint(n).id] for n in kinematics.JOINTS])
         mujoco.mj_resetData(m, d)
         self.world.place(d, layout)
         tips, mouths, clearance = np.empty((len(q), 3)), np.empty((len(q), 3)), np.empty((len(q), len(PAIRS)))
         tip_site, mouth_site = m.site("tip").id, m.site("planning_mouth").id
         fromto = np.empty(6)
         for k, angles in enumerate(q):
-            d.qpos[qadr] = angles
+            d.qpos[self._qadr] = angles
             mujoco.mj_kinematics(m, d)
             tips[k], mouths[k] = d.site_xpos[tip_site], d.site_xpos[mouth_site]
             for j, (tool, obstacles) in enumerate(self._pair_geoms):
@@ -379,16 +376,14 @@ class RolloutModel:
     def tilt_at_angles(self, q: np.ndarray) -> np.ndarray:
         """(N,) the mouth's normal from straight up (rad) at joint angles ``q`` (N, 4), as :attr:`RolloutBatch.tilt`."""
         m, d = self.model, self.physics.data
-        qadr = np.array([m.jnt_qposadr[m.joint(n).id] for n in kinematics.JOINTS])
         bucket = m.body("bucket").id
         q = np.atleast_2d(np.asarray(q, float))
-        up = np.empty(len(q))
+        up = np.empty((len(q), 2))  # the bucket's x and z axes' world z components
         for k, angles in enumerate(q):
-            d.qpos[qadr] = angles
+            d.qpos[self._qadr] = angles
             mujoco.mj_kinematics(m, d)
-            axes = d.xmat[bucket]  # row-major: the body's x and z axes' world z components are entries 6 and 8
-            up[k] = axes[6] * _MOUTH_NORMAL[0] + axes[8] * _MOUTH_NORMAL[1]
-        return np.arccos(np.clip(up, -1.0, 1.0))
+            up[k] = d.xmat[bucket][[6, 8]]  # row-major: column 0 is the x axis, column 2 the z axis
+        return _tilt(up[:, 0], up[:, 1])
 
     def actuator_power(self, physics_states: np.ndarray) -> np.ndarray:
         """The actuators' mechanical power (W) at physics states (N, nstate), as the environment accounts it for fuel
@@ -412,6 +407,11 @@ class RolloutModel:
         if self._pool is not None:
             self._pool.close()
             self._pool = None
+
+
+def _tilt(x_up: np.ndarray, z_up: np.ndarray) -> np.ndarray:
+    """The mouth's normal from straight up (rad), from the world z components of the bucket's x and z axes."""
+    return np.arccos(np.clip(x_up * _MOUTH_NORMAL[0] + z_up * _MOUTH_NORMAL[1], -1.0, 1.0))
 
 
 def bang_bang(sign: float, switch: int, stop: int, periods: int) -> np.ndarray:
