@@ -199,8 +199,7 @@ def test_clearance_sensors_read_the_geom_pairs_distances(model):
         batch = model.rollout(state, np.repeat(knots, 20, axis=1), 5.0)
         for i in range(len(knots)):
             _, _, exact = model.at_angles(batch.q[i], state.layout)
-            # the last period reads its own step's sensors (see RolloutModel._batch)
-            np.testing.assert_allclose(batch.clearance_m[i, :-1], exact[:-1], atol=1e-12)
+            np.testing.assert_allclose(batch.clearance_m[i], exact, atol=1e-12)
         near |= (batch.clearance_m < model.detection_m).any(axis=(0, 1))
         far |= (batch.clearance_m == model.detection_m).any(axis=(0, 1))
     assert near.all() and far.all()  # every pair both within the cutoff and beyond it
@@ -409,8 +408,7 @@ def test_a_tilt_at_angles_is_the_rollouts_tilt(env, model):
 
     state = MachineState(env.unwrapped.physics.joint_positions(), np.zeros(4), 0.0, env.unwrapped.layout)
     batch = model.rollout(state, np.tile(np.array([0.5, 0.5, -0.5, 1.0]) * p.SPOOL_STROKE, (20, 1)), 0.5)
-    # the batch's last period reads its own step's sensors (one step behind): the others are exact
-    np.testing.assert_allclose(model.tilt_at_angles(batch.q[0])[:-1], batch.tilt[0, :-1], atol=1e-12)
+    np.testing.assert_allclose(model.tilt_at_angles(batch.q[0]), batch.tilt[0], atol=1e-12)  # the last period too
     assert model.tilt_at_angles(batch.q[0, 3]) == pytest.approx(batch.tilt[0, 3:4], abs=1e-12)  # one pose
 
 
@@ -464,19 +462,21 @@ def test_a_checked_plan_keeps_the_clearance_the_check_found_missing(env, model):
 
 
 def test_a_plan_that_touches_on_the_accurate_model_is_mended_by_a_later_swing(env, model):
-    """A checked plan in contact is tried with its swing started later; the first delay that the check finds clear
-    and at the goal is returned, its other spools as planned."""
+    """A checked plan in contact, or closer than the check's margin, is tried with its swing started later; the first
+    delay that the check finds clear by its margin and at the goal is returned, its other spools as planned."""
     from hexgym.planning import MachineState
-    from hexgym.planning.check import CheckResult
+    from hexgym.planning.check import CHECK_MARGIN_M, CheckResult
     from hexgym.planning.planner import MEND_DELAYS_S, dump_goal, plan_checked
 
     layout = env.unwrapped.layout
     state = MachineState(env.unwrapped.physics.joint_positions(), np.zeros(4), 2000.0, layout)
-    late = round(MEND_DELAYS_S[1] / model.control_period)
+    near, late = (round(delay / model.control_period) for delay in MEND_DELAYS_S[:2])
+    close = CheckResult(CHECK_MARGIN_M / 2, 0.0, 4.0)
+    assert close.collision_free and not close.clear and "0.05 m clear" in close.message
 
     def check(spools_m, start, goal):  # a machine whose bucket meets the truck unless the swing waits `late` periods
         waits = int(np.argmax(spools_m[:, 0] != 0.0))
-        return CheckResult(0.1, 0.0, 4.0) if waits >= late else CheckResult(-0.2, 0.0, 4.0)
+        return CheckResult(0.1, 0.0, 4.0) if waits >= late else close if waits >= near else CheckResult(-0.2, 0.0, 4.0)
 
     plan, result = plan_checked(state, dump_goal(layout), model, check, budget=60, population=30, horizon_s=3.0,
                                 initial=np.tile([1.0, 1.0, 0.0, 0.0], (6, 1)))  # fmt: skip
@@ -514,6 +514,7 @@ def test_a_plan_with_a_fitted_swing_runs_the_fitted_spools(env, model):
     from hexgym.planning import MachineState
     from hexgym.planning.check import CheckResult
     from hexgym.planning.planner import MEND_DELAYS_S, plan_checked, return_goal
+    from hexgym.planning.rollouts import bang_bang
 
     layout = env.unwrapped.layout
     state = MachineState(env.unwrapped.physics.joint_positions(), np.zeros(4), 0.0, layout)
@@ -535,7 +536,9 @@ def test_a_plan_with_a_fitted_swing_runs_the_fitted_spools(env, model):
     assert len(fitted) == 2 and all(np.array_equal(s[:, 0], np.full(len(s), 0.5e-3)) for s in seen[:2])
     assert len(seen) == 2 + len(MEND_DELAYS_S)
     assert abs(fitted[0][0] - (state.q[0] + 1.0)) < 0.3  # the goal's bearing
-    assert np.array_equal(np.unique(np.abs(fitted[0][2])), [0.0, p.SPOOL_STROKE])  # searched: full, counter, closed
+    searched, switch = fitted[0][2], fitted[0][1]  # full towards the goal to the switch, then counter, then closed
+    stop = len(searched) - np.count_nonzero(np.cumprod(searched[::-1] == 0.0))
+    assert np.array_equal(searched, bang_bang(1.0, switch, stop, len(searched))) and 0 < switch < stop
     assert np.array_equal(plan.spools_m[:, 0], np.full(len(plan.spools_m), 0.5e-3))
     assert plan.rollouts == 42 + 2 * 80 // 3 - 1
 
@@ -687,3 +690,19 @@ def test_release_at_stops_closes_only_spools_that_push_a_cylinder_into_its_stop(
     assert not release_at_stops(spools, run, period)[:, 2].any()
     spools[:, 2] = spools[:, 3] = 0.0
     assert release_at_stops(spools, run, period) is spools  # nothing to release: the plan itself
+
+
+def test_a_replay_reaches_the_goal_only_where_it_stays_there():
+    """A move that passes through the goal and comes to rest beyond it has not reached it; one that stays has, from
+    the row it stays from."""
+    from hexgym.planning.check import PlanReplay
+
+    rows = np.zeros(6, dtype=[("t", float)])
+    rows["t"] = np.arange(6) * 0.05
+
+    def time_s(at: list[int]) -> float | None:
+        return PlanReplay(rows, None, None, None, None, np.array(at, bool), 5).time_s
+
+    assert time_s([0, 1, 1, 0, 0, 0]) is None  # through and beyond
+    assert time_s([0, 1, 0, 0, 1, 1]) == pytest.approx(0.2)  # through, back, and there to the end
+    assert time_s([1, 1, 1, 1, 1, 1]) == 0.0 and time_s([0] * 6) is None

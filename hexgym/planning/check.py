@@ -46,6 +46,9 @@ SWING_STOPPED = 0.02  # rad/s: a braking swing this slow has stopped
 FIT_FROM = (8, 24)  # control periods after the fast model's switch: the circuit model's first two tried
 FIT_REPLAYS = 6  # circuit replays a swing's fit makes at most
 ROW_S = 0.05  # s between a replay's rows (two control periods, and a multiple of the reference's 2 ms step)
+# m: the clearance a plan keeps on the circuit model to count as clear of truck and ground: the circuit model's
+# clearances were within 0.034 m of the reference's on the selection seeds' checked plans (20-29, dumps and returns)
+CHECK_MARGIN_M = 0.05
 STOP_TOLERANCE_M = 0.005  # m from a stroke end: a cylinder there is at its stop (its cushion's last millimetres)
 
 
@@ -65,8 +68,10 @@ class PlanReplay:
 
     @property
     def time_s(self) -> float | None:
-        """The first time at the goal with the swing at rest (None: never)."""
-        return float(self.rows["t"][np.argmax(self.at)]) if self.at.any() else None
+        """The time from which the machine stays at the goal with the swing at rest to the replay's end (None: it
+        does not end there; a move that passes through the goal and comes to rest beyond it has not reached it)."""
+        stays = np.logical_and.accumulate(self.at[::-1])[::-1]  # at the goal from each row on
+        return float(self.rows["t"][np.argmax(stays)]) if stays[-1] else None
 
     @property
     def fuel_l(self) -> float | None:
@@ -132,8 +137,14 @@ class CheckResult:
 
     @property
     def collision_free(self) -> bool:
-        """Whether bucket and stick stay clear of truck and ground."""
+        """Whether bucket and stick stay off truck and ground on the accurate model."""
         return self.min_clearance_m >= 0.0
+
+    @property
+    def clear(self) -> bool:
+        """Whether bucket and stick keep :data:`CHECK_MARGIN_M` from truck and ground on the accurate model (what
+        the machine it stands for needs to stay off them)."""
+        return self.min_clearance_m >= CHECK_MARGIN_M
 
     @property
     def message(self) -> str:
@@ -141,6 +152,9 @@ class CheckResult:
         if not self.collision_free:
             return (f"no collision-free motion found: on the accurate model the plan's clearance is "
                     f"{self.min_clearance_m:.3f} m")  # fmt: skip
+        if not self.clear:
+            return (f"no motion found that stays {CHECK_MARGIN_M} m clear: on the accurate model the plan's "
+                    f"clearance is {self.min_clearance_m:.3f} m")  # fmt: skip
         if self.time_s is None:
             return f"on the accurate model the plan comes to rest {self.goal_error_m:.2f} m from the goal"
         return f"on the accurate model: at the goal in {self.time_s:.2f} s, clearance {self.min_clearance_m:.2f} m"
@@ -229,14 +243,14 @@ class PlanCheck:
     def correct(
         self, spools_m: np.ndarray, state: MachineState, goal: Goal, checked: CheckResult | None = None
     ) -> tuple[np.ndarray, CheckResult, int]:
-        """The plan's spools trimmed so that on the circuit model the machine comes to rest at the goal: the teeth
-        at a point goal's point, the mouth ``TRIM_INSET_M`` inside a dump goal's box (so that the machine it stands
-        for, centimetres away, is inside too). One offset per joint is added to the spools of the plan's last
-        ``TRIM_S``, found by Newton's method on the replays (least-norm steps: three coordinates, four offsets;
-        the offsets' effect probed on the fast model in one batch, then updated by Broyden's rule). Returns the
-        best spools found (clear of truck and ground until the machine rests first; of spools in contact, the
-        shallowest to the centimetre; then the closest; ``spools_m`` itself when none ranks better), their check
-        and the replays made. ``checked``: the check of ``spools_m`` already made (its replay is not made again)."""
+        """The plan's spools trimmed so that on the circuit model the machine comes to rest at the goal: the teeth at a
+        point goal's point, the mouth ``TRIM_INSET_M`` inside a dump goal's box (so that the machine it stands for,
+        centimetres away, is inside too). One offset per joint is added to the spools of the plan's last ``TRIM_S``,
+        found by Newton's method on the replays (least-norm steps: three coordinates, four offsets; the offsets' effect
+        probed on the fast model in one batch, then updated by Broyden's rule). Returns the best spools found
+        (:data:`CHECK_MARGIN_M` clear of truck and ground until the machine rests first; of the others, the least short
+        of it to the centimetre; then the closest; ``spools_m`` itself when none ranks better), their check and the
+        replays made. ``checked``: the check of ``spools_m`` already made (its replay is not made again)."""
         window = min(len(spools_m), round(TRIM_S / self.model.control_period))
         inset = TRIM_INSET_M if goal.task == "dump" else 0.0
 
@@ -250,9 +264,9 @@ class PlanCheck:
             return goal.miss(run.mouths[-1], run.tips[-1], inset), run
 
         def rank(run: PlanReplay, residual: np.ndarray) -> tuple[bool, float, float]:
-            """Clear first; in contact, shallower to the centimetre first; then closer to the aim."""
-            depth = max(-float(run.clearance.min()), 0.0)
-            return (depth > 0.0, round(depth, 2), float(np.linalg.norm(residual)))
+            """Clear first; too close, less short of the margin to the centimetre first; then closer to the aim."""
+            short = max(CHECK_MARGIN_M - float(run.clearance.min()), 0.0)
+            return (short > 0.0, round(short, 2), float(np.linalg.norm(residual)))
 
         offsets = np.zeros(4)
         if checked is not None and checked.replay is not None:

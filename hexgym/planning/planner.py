@@ -409,14 +409,15 @@ def plan_checked(
     """:func:`plan_motion` in two rounds of half the ``budget``, each plan checked on the accurate model (``check``,
     e.g. :class:`hexgym.planning.check.PlanCheck`): by as much as the check finds the first plan closer to truck or
     ground than the fast model predicted, the second round keeps more clearance, starting from the first plan. The
-    better checked plan is returned (collision-free first, then at the goal at less time + ``w_fuel`` x fuel as the
-    accurate model measures them, else closer to it) with its check; its ``rollouts`` and ``wall_s`` count both
-    rounds and the checks. ``correct`` (e.g. :meth:`PlanCheck.correct`) then trims that plan on the accurate model;
-    a trimmed plan that ranks better there is returned with its figures on the fast model (not cut at the fast
-    model's goal: the trim acts last). A plan that still touches truck or ground or misses the goal there is tried
-    with its swing started later (``MEND_DELAYS_S``, each checked and trimmed) until one is clear and at the goal;
-    the best ranked is returned. Last, its spools that push a cylinder into a stroke end on the accurate model are
-    closed there (:func:`~hexgym.planning.check.release_at_stops`), kept when that ranks better.
+    better checked plan is returned (clear by the check's margin first: ``CheckResult.clear``; then at the goal at less
+    time + ``w_fuel`` x fuel as the accurate model measures them, else closer to it) with its check; its ``rollouts``
+    and ``wall_s`` count both rounds and the checks. ``correct`` (e.g. :meth:`PlanCheck.correct`) then trims that plan
+    on the accurate model; a trimmed plan that ranks better there is returned with its figures on the fast model (not
+    cut at the fast model's goal: the trim acts last). A plan that still comes closer than the check's margin to truck
+    or ground or misses the goal there is tried with its swing started later (``MEND_DELAYS_S``, each checked and
+    trimmed) until one is clear and at the goal; the best ranked is returned. Last, its spools that push a cylinder into
+    a stroke end on the accurate model are closed there (:func:`~hexgym.planning.check.release_at_stops`), kept when
+    that ranks better.
 
     ``fit_swing`` (e.g. :meth:`PlanCheck.fit_swing`): the swing is not searched but turns as fast as it can to the
     goal's bearing (:func:`swing_target`). The search holds it at the fast model's own fastest turn (full spool,
@@ -468,7 +469,7 @@ def plan_checked(
             plan, checked = adopt(spools, corrected)
     base = plan.spools_m
     for delay_s in MEND_DELAYS_S:  # touches or misses on the accurate model: the swing later, the lift ahead of it
-        if checked.collision_free and checked.time_s is not None:
+        if checked.clear and checked.time_s is not None:
             break
         spools = delay_swing(base, round(delay_s / model.control_period))
         mended = check(spools, state, goal)
@@ -505,8 +506,8 @@ def knot_means(per_step: np.ndarray, steps_per_knot: int) -> np.ndarray:
 
 
 def _check_rank(checked: CheckResult, w_fuel: float) -> tuple[bool, bool, float]:
-    """Order of checked plans: collision-free first, then at the goal at less time + ``w_fuel`` x fuel (the
-    search's objective, as the accurate model measures it), else closer to it."""
+    """Order of checked plans: clear (:attr:`CheckResult.clear`) first, then at the goal at less time + ``w_fuel`` x
+    fuel (the search's objective, as the accurate model measures it), else closer to it."""
     if checked.time_s is None:
-        return not checked.collision_free, True, checked.goal_error_m
-    return not checked.collision_free, False, checked.time_s + w_fuel * (checked.fuel_l or 0.0)
+        return not checked.clear, True, checked.goal_error_m
+    return not checked.clear, False, checked.time_s + w_fuel * (checked.fuel_l or 0.0)

@@ -306,6 +306,9 @@ class RolloutModel:
     def rollout(self, state: MachineState, spools_m: np.ndarray, horizon_s: float) -> RolloutBatch:
         """Roll out spool sequences (see :meth:`spool_controls`) from ``state`` for ``horizon_s`` seconds."""
         controls = self.spool_controls(spools_m, horizon_s)
+        # one step more: mj_step computes the sensors before it integrates, so a step's state is read from the
+        # next step's sensors, the last step's too
+        controls = np.concatenate([controls, controls[:, -1:]], axis=1)
         nbatch, nstep = controls.shape[:2]
         x0 = self.initial_state(state)
         from mujoco import rollout
@@ -321,13 +324,13 @@ class RolloutModel:
         return self._batch(states, sensors)
 
     def _batch(self, states: np.ndarray, sensors: np.ndarray) -> RolloutBatch:
-        """Sample the end of each control period. Sensors lag the state by one step (mj_step computes them before
-        integrating), so a period's end is read from the next step's sensors (the last: from its own)."""
+        """Sample the end of each control period from a rollout one step longer than its periods. Sensors lag the
+        state by one step (mj_step computes them before integrating), so a period's end is read from the next
+        step's sensors."""
         k = self._steps_per_period
-        ends = np.arange(k - 1, states.shape[1], k)
-        reads = np.minimum(ends + 1, states.shape[1] - 1)
+        ends = np.arange(k - 1, states.shape[1] - 1, k)
         q = states[:, ends][:, :, self._qadr + 1]  # state[0] is the time
-        s = sensors[:, reads]
+        s = sensors[:, ends + 1]
         tip = s[:, :, self._tip]
         clearance = s[:, :, self._pair_adr]
         times = (np.arange(len(ends)) + 1) * self.control_period

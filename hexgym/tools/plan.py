@@ -15,9 +15,10 @@ starts from rest at those angles. Then:
   account, 0.1 s steps): ``learned_time_s``, ``learned_fuel_l`` (the figures compared with the scripted's);
 - the planned spools are replayed on the reference model (:mod:`hexgym.hydraulics.reference`, the
   stand-in for the real machine; machine alone, its clearances from its joint angles on the site), then
-  ``SETTLE_S`` with the spools closed: ``reference_time_s`` (first time at the goal with the swing at rest,
-  null if never), ``reference_fuel_l`` (to the plan's end), ``reference_goal_error_m`` (where it settles;
-  ``reference_goal_error_at_plan_end_m`` at the plan's end), ``reference_min_clearance_m``;
+  ``SETTLE_S`` with the spools closed: ``reference_time_s`` (the time from which it stays at the goal with the
+  swing at rest, null if it does not settle there), ``reference_fuel_l`` (to the plan's end),
+  ``reference_goal_error_m`` (where it settles; ``reference_goal_error_at_plan_end_m`` at the plan's end),
+  ``reference_min_clearance_m``;
 - the scripted loader does the same move from the same rest state on the learned model (the
   environment): ``scripted_time_s``, ``scripted_fuel_l`` (to its first step at the goal; 0.1 s steps; for
   ``return`` its teeth within the tolerance or its ``penetrate`` phase begun, moving or not: in its favour),
@@ -161,8 +162,8 @@ def scripted_knots(actions: np.ndarray, knot_s: float = KNOT_S) -> np.ndarray:
 
 def reference_replay(plan: Plan, state: MachineState, goal: Goal, model: RolloutModel) -> dict[str, Any]:
     """The plan's spools on the reference model from ``state`` (at rest), then ``SETTLE_S`` with the spools closed
-    (:func:`hexgym.planning.check.replay_plan`): the first time at the goal with the swing at rest, the fuel to the
-    plan's end, the goal error where the machine settles (and at the plan's end), the least clearance."""
+    (:func:`hexgym.planning.check.replay_plan`): the time from which it stays at the goal with the swing at rest, the
+    fuel to the plan's end, the goal error where the machine settles (and at the plan's end), the least clearance."""
     from hexgym.hydraulics.reference import ReferenceModel
 
     run = replay_plan(ReferenceModel(), plan.spools_m, state, goal, model)
@@ -244,6 +245,7 @@ def plan_task(
         "checked_min_clearance_m": checked.min_clearance_m if checked else None,
         "checked_goal_error_m": checked.goal_error_m if checked else None,
         "checked_collision_free": checked.collision_free if checked else None,
+        "checked_clear": checked.clear if checked else None,
         "learned_time_s": learned["time_s"], "learned_fuel_l": learned["fuel_l"],
         "learned_min_clearance_m": learned["min_clearance_m"], "warm_start": warm_start,
         "reference_time_s": reference["time_s"], "reference_fuel_l": reference["fuel_l"],
