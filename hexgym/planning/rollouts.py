@@ -294,21 +294,21 @@ class RolloutModel:
         m.body_quat[body] = self.physics.data.mocap_quat[self.world.truck_mocap]
 
     def spool_controls(self, spools_m: np.ndarray, horizon_s: float) -> np.ndarray:
-        """(B, T, nu) plugin controls (mm) from spools (m): (4,) held, (T', 4) per control period or
-        (B, T', 4); a sequence shorter than the horizon holds its last row."""
+        """(B, S + 1, nu) plugin controls (mm) for the S physics steps of the horizon and one more, from spools (m):
+        (4,) held, (T', 4) per control period or (B, T', 4); a sequence shorter than the horizon holds its last row,
+        and so does the step after the horizon (mj_step computes the sensors before it integrates, so a step's state
+        is read from the next step's sensors: the horizon's last step's too)."""
         per_step = self.state_size + self.model.nsensordata + self.model.nu  # values held per rollout step
         spools = spool_batch(spools_m, horizon_s, self.control_period, self._steps_per_period * per_step * 8)
-        per_step = np.repeat(spools, self._steps_per_period, axis=1) if self._steps_per_period > 1 else spools
-        controls = np.zeros((*per_step.shape[:2], self.model.nu))
-        controls[:, :, self._ctrl] = per_step * CTRL_PER_SPOOL_M
+        steps = spools.shape[1] * self._steps_per_period
+        controls = np.zeros((spools.shape[0], steps + 1, self.model.nu))
+        controls[:, :steps, self._ctrl] = np.repeat(spools, self._steps_per_period, axis=1) * CTRL_PER_SPOOL_M
+        controls[:, steps] = controls[:, steps - 1]
         return controls
 
     def rollout(self, state: MachineState, spools_m: np.ndarray, horizon_s: float) -> RolloutBatch:
         """Roll out spool sequences (see :meth:`spool_controls`) from ``state`` for ``horizon_s`` seconds."""
         controls = self.spool_controls(spools_m, horizon_s)
-        # one step more: mj_step computes the sensors before it integrates, so a step's state is read from the
-        # next step's sensors, the last step's too
-        controls = np.concatenate([controls, controls[:, -1:]], axis=1)
         nbatch, nstep = controls.shape[:2]
         x0 = self.initial_state(state)
         from mujoco import rollout
