@@ -175,13 +175,13 @@ def test_truck_clearance_is_predicted_where_the_layout_puts_the_truck(env, model
     layout = env.unwrapped.layout
     for boom in np.linspace(0.2, 1.0, 9):
         q = np.array([layout.truck_direction, boom, 0.4, 0.8])
-        _, _, clearance = model.at_angles(q, layout)
+        clearance = model.at_angles(q, layout).clearance
         if clearance[0, 0] < model.detection_m:
             break
     else:
         pytest.skip("no pose near the truck found")
     batch = model.rollout(MachineState(q, np.zeros(4), 0.0, layout), np.zeros(4), 0.2)
-    _, _, along = model.at_angles(batch.q[0], layout)
+    along = model.at_angles(batch.q[0], layout).clearance
     np.testing.assert_allclose(batch.clearance_m[0], along, atol=1e-6)
     assert batch.clearance_m[0, :, 0].min() < model.detection_m  # the truck is where the layout says
 
@@ -198,7 +198,7 @@ def test_clearance_sensors_read_the_geom_pairs_distances(model):
         knots = np.clip(rng.normal(0.0, 0.7, (12, 10, 4)), -1.0, 1.0) * p.SPOOL_STROKE
         batch = model.rollout(state, np.repeat(knots, 20, axis=1), 5.0)
         for i in range(len(knots)):
-            _, _, exact = model.at_angles(batch.q[i], state.layout)
+            exact = model.at_angles(batch.q[i], state.layout).clearance
             np.testing.assert_allclose(batch.clearance_m[i], exact, atol=1e-12)
         near |= (batch.clearance_m < model.detection_m).any(axis=(0, 1))
         far |= (batch.clearance_m == model.detection_m).any(axis=(0, 1))
@@ -305,7 +305,7 @@ def test_a_plan_from_inside_the_ground_is_not_reported_safe(env, model):
     layout = env.unwrapped.layout
     for boom in np.linspace(0.6, -0.4, 11):
         q = np.array([0.0, boom, 0.5, 0.8])
-        _, _, clearance = model.at_angles(q, layout)
+        clearance = model.at_angles(q, layout).clearance
         if clearance[0, 1] < -0.2:
             break
     else:
@@ -324,7 +324,7 @@ def test_the_check_replays_a_plan_on_the_circuit_model_and_finds_its_contact(env
     state = MachineState(env.unwrapped.physics.joint_positions(), np.zeros(4), 0.0, layout)
     check = PlanCheck(model)
     held = check(np.zeros((40, 4)), state, dump_goal(layout))
-    _, _, clearance = model.at_angles(state.q[None], layout)
+    clearance = model.at_angles(state.q[None], layout).clearance
     assert held.collision_free and held.min_clearance_m == pytest.approx(clearance.min(), abs=0.02)
     down = check(np.tile(BOOM_DOWN, (80, 1)), state, dump_goal(layout))  # 2 s boom down: into the ground
     assert not down.collision_free and down.time_s is None and down.goal_error_m > 0.0
@@ -372,7 +372,7 @@ def test_circuit_rollouts_are_the_checks_replays_with_its_fuel(env, model):
     assert batch.q.shape == (2, 40, 4) and batch.fuel_l_per_h.shape == (2, 40)
     np.testing.assert_array_equal(batch.tip[1, 1::2], run.tips[1:21])
     np.testing.assert_array_equal(batch.clearance_m[1, 1::2], run.clearance[1:21])
-    np.testing.assert_allclose(batch.tilt[1], model.tilt_at_angles(batch.q[1]))
+    np.testing.assert_allclose(batch.tilt[1], model.at_angles(batch.q[1], layout).tilt)
     assert not np.array_equal(batch.q[0], batch.q[1])
     litres = move_fuel_l(circuit, batch, 1, 39)
     assert litres == pytest.approx(batch.fuel_l_per_h[1].sum() * model.control_period / 3600.0)
@@ -403,13 +403,13 @@ def test_circuit_rollouts_split_over_processes_are_the_same(env, model):
         CircuitRolloutModel(model, workers=0)
 
 
-def test_a_tilt_at_angles_is_the_rollouts_tilt(env, model):
+def test_the_tilt_at_angles_is_the_rollouts_tilt(env, model):
     from hexgym.planning import MachineState
 
     state = MachineState(env.unwrapped.physics.joint_positions(), np.zeros(4), 0.0, env.unwrapped.layout)
     batch = model.rollout(state, np.tile(np.array([0.5, 0.5, -0.5, 1.0]) * p.SPOOL_STROKE, (20, 1)), 0.5)
-    np.testing.assert_allclose(model.tilt_at_angles(batch.q[0]), batch.tilt[0], atol=1e-12)  # the last period too
-    assert model.tilt_at_angles(batch.q[0, 3]) == pytest.approx(batch.tilt[0, 3:4], abs=1e-12)  # one pose
+    np.testing.assert_allclose(model.at_angles(batch.q[0], state.layout).tilt, batch.tilt[0], atol=1e-12)  # all
+    assert model.at_angles(batch.q[0, 3], state.layout).tilt == pytest.approx(batch.tilt[0, 3:4], abs=1e-12)  # one pose
 
 
 def test_a_correction_trims_a_plan_to_its_point_on_the_accurate_model(env, model):
@@ -447,7 +447,7 @@ def test_a_checked_plan_keeps_the_clearance_the_check_found_missing(env, model):
     checked = []
 
     def check(spools_m, start, goal):  # a machine 0.4 m closer to the truck than the fast model says
-        _, _, clearance = model.at_angles(np.atleast_2d(start.q), layout)
+        clearance = model.at_angles(np.atleast_2d(start.q), layout).clearance
         result = CheckResult(float(clearance.min()) - 0.4 * len(checked), 1.0, None)
         checked.append(result)
         return result

@@ -98,10 +98,10 @@ def replay_plan(
     rows = replay(machine, log, start=state.q, payload_kg=state.payload_kg, dt_out=ROW_S,
                   duration=(planned + round(SETTLE_S / ROW_S)) * ROW_S)  # fmt: skip
     q = np.column_stack([rows[f"q_{j}"] for j in ("swing", "boom", "stick", "bucket")])
-    tips, mouths, clearance = model.at_angles(q, state.layout)
-    error = goal.error_m(mouths, tips)
+    poses = model.at_angles(q, state.layout)
+    error = goal.error_m(poses.mouth, poses.tip)
     at = (error <= (0.0 if goal.task == "dump" else goal.tolerance_m)) & (np.abs(rows["qd_swing"]) < 0.1)
-    return PlanReplay(rows, tips, mouths, clearance, error, at, planned)
+    return PlanReplay(rows, poses.tip, poses.mouth, poses.clearance, error, at, planned)
 
 
 def release_at_stops(spools_m: np.ndarray, run: PlanReplay, period: float) -> np.ndarray:

@@ -23,7 +23,7 @@ from hexgym.model.base import MachineModel
 from hexgym.model.replay import replay
 from hexgym.parallel import LocalPool
 from hexgym.planning.check import plan_log
-from hexgym.planning.rollouts import MachineState, RolloutBatch, RolloutModel, spool_batch
+from hexgym.planning.rollouts import MachineState, RolloutBatch, RolloutModel, SitePoses, spool_batch
 
 CIRCUIT_MARGIN_M = 0.2  # m kept from truck and ground: the circuit model follows the reference within ~0.1 m
 REST_RATE = 1e-6  # rad/s: a start state faster than this is not at rest (a replay starts from rest)
@@ -67,7 +67,7 @@ class CircuitRolloutModel:
             np.full((nbatch, periods), math.nan), figures["fuel"],
         )  # fmt: skip
 
-    def at_angles(self, q: np.ndarray, layout: Layout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def at_angles(self, q: np.ndarray, layout: Layout) -> SitePoses:
         """:meth:`RolloutModel.at_angles` of the site's geometry."""
         return self.geometry.at_angles(q, layout)
 
@@ -91,12 +91,11 @@ def _replays(machine: MachineModel, geometry: RolloutModel, state: MachineState,
         q[b] = np.column_stack([rows[f"q_{j}"] for j in kinematics.JOINTS])
         qd[b] = np.column_stack([rows[f"qd_{j}"] for j in kinematics.JOINTS])
         fuel[b] = rows["fuel_rate_l_per_h"]
-    flat = q.reshape(-1, 4)
-    tips, mouths, clearance = geometry.at_angles(flat, state.layout)
+    poses = geometry.at_angles(q.reshape(-1, 4), state.layout)
     return {
-        "q": q, "qd": qd, "fuel": fuel, "tip": tips.reshape(nbatch, periods, 3),
-        "mouth": mouths.reshape(nbatch, periods, 3), "clearance": clearance.reshape(nbatch, periods, -1),
-        "tilt": geometry.tilt_at_angles(flat).reshape(nbatch, periods),
+        "q": q, "qd": qd, "fuel": fuel, "tip": poses.tip.reshape(nbatch, periods, 3),
+        "mouth": poses.mouth.reshape(nbatch, periods, 3), "clearance": poses.clearance.reshape(nbatch, periods, -1),
+        "tilt": poses.tilt.reshape(nbatch, periods),
     }  # fmt: skip
 
 

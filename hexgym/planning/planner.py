@@ -238,7 +238,7 @@ def move_fuel_l(model: RolloutModel, batch: RolloutBatch, index: int, end: int, 
 def swing_target(state: MachineState, goal: Goal, model: RolloutModel) -> float:
     """The swing angle (rad, unwrapped from the start's) that turns the teeth towards the goal's point: its bearing
     less the teeth's bearing off the swing angle at the start (the arm's plane need not pass through the axis)."""
-    tips, _, _ = model.at_angles(state.q[None], state.layout)
+    tips = model.at_angles(state.q[None], state.layout).tip
     off_axis = math.atan2(tips[0, 1], tips[0, 0]) - state.q[0]
     bearing = math.atan2(goal.point[1], goal.point[0]) - off_axis
     return float(state.q[0] + (bearing - state.q[0] + math.pi) % (2 * math.pi) - math.pi)

@@ -33,7 +33,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import mujoco
 import numpy as np
@@ -187,6 +187,17 @@ def spool_batch(
     if spools.shape[1] < periods:
         spools = np.concatenate([spools, np.repeat(spools[:, -1:], periods - spools.shape[1], axis=1)], axis=1)
     return spools[:, :periods]
+
+
+class SitePoses(NamedTuple):
+    """Where the tool is at joint angles (N rows) on a site: the teeth and the mouth's centre (N, 3, world m), the
+    pairs' clearances (N, 4, m, as :attr:`RolloutBatch.clearance_m`) and the mouth's tilt (N, rad, as
+    :attr:`RolloutBatch.tilt`)."""
+
+    tip: np.ndarray
+    mouth: np.ndarray
+    clearance: np.ndarray
+    tilt: np.ndarray
 
 
 class RolloutModel:
@@ -355,38 +366,28 @@ class RolloutModel:
                 best, point = dist, (fromto[:3] + fromto[3:]) / 2.0
         return point, float(min(best, self.detection_m))
 
-    def at_angles(self, q: np.ndarray, layout: Layout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Teeth (N, 3), mouth centre (N, 3) and the pairs' clearances (N, 4) at joint angles ``q`` (N, 4) on a site
-        laid out as ``layout`` (kinematics only: e.g. another model's trajectory)."""
+    def at_angles(self, q: np.ndarray, layout: Layout) -> SitePoses:
+        """The tool's poses at joint angles ``q`` (N, 4) on a site laid out as ``layout`` (kinematics only: e.g.
+        another model's trajectory)."""
         m, d = self.model, self.physics.data
         q = np.atleast_2d(np.asarray(q, float))
         mujoco.mj_resetData(m, d)
         self.world.place(d, layout)
         tips, mouths, clearance = np.empty((len(q), 3)), np.empty((len(q), 3)), np.empty((len(q), len(PAIRS)))
-        tip_site, mouth_site = m.site("tip").id, m.site("planning_mouth").id
+        up = np.empty((len(q), 2))  # the bucket's x and z axes' world z components
+        tip_site, mouth_site, bucket = m.site("tip").id, m.site("planning_mouth").id, m.body("bucket").id
         fromto = np.empty(6)
         for k, angles in enumerate(q):
             d.qpos[self._qadr] = angles
             mujoco.mj_kinematics(m, d)
             tips[k], mouths[k] = d.site_xpos[tip_site], d.site_xpos[mouth_site]
+            up[k] = d.xmat[bucket][[6, 8]]  # row-major: column 0 is the x axis, column 2 the z axis
             for j, (tool, obstacles) in enumerate(self._pair_geoms):
                 clearance[k, j] = min(
                     min(mujoco.mj_geomDistance(m, d, tool, o, self.detection_m, fromto) for o in obstacles),
                     self.detection_m,
                 )
-        return tips, mouths, clearance
-
-    def tilt_at_angles(self, q: np.ndarray) -> np.ndarray:
-        """(N,) the mouth's normal from straight up (rad) at joint angles ``q`` (N, 4), as :attr:`RolloutBatch.tilt`."""
-        m, d = self.model, self.physics.data
-        bucket = m.body("bucket").id
-        q = np.atleast_2d(np.asarray(q, float))
-        up = np.empty((len(q), 2))  # the bucket's x and z axes' world z components
-        for k, angles in enumerate(q):
-            d.qpos[self._qadr] = angles
-            mujoco.mj_kinematics(m, d)
-            up[k] = d.xmat[bucket][[6, 8]]  # row-major: column 0 is the x axis, column 2 the z axis
-        return _tilt(up[:, 0], up[:, 1])
+        return SitePoses(tips, mouths, clearance, _tilt(up[:, 0], up[:, 1]))
 
     def actuator_power(self, physics_states: np.ndarray) -> np.ndarray:
         """The actuators' mechanical power (W) at physics states (N, nstate), as the environment accounts it for fuel

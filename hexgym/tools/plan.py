@@ -129,9 +129,9 @@ def scripted_move(
             break
     fuel_l = env.fuel_l
     env.close()
-    tips, _, clearance = model.at_angles(np.array(qs), state.layout)
-    return {"time_s": reached_at, "fuel_l": fuel_l, "min_clearance_m": float(clearance.min()), "steps": len(qs),
-            "actions": np.array(actions), "tip": tips}  # fmt: skip
+    poses = model.at_angles(np.array(qs), state.layout)
+    return {"time_s": reached_at, "fuel_l": fuel_l, "min_clearance_m": float(poses.clearance.min()),
+            "steps": len(qs), "actions": np.array(actions), "tip": poses.tip}  # fmt: skip
 
 
 def learned_replay(seed: int, state: MachineState, goal: Goal, plan: Plan, model: RolloutModel) -> dict[str, Any]:
@@ -151,7 +151,7 @@ def learned_replay(seed: int, state: MachineState, goal: Goal, plan: Plan, model
             break
     fuel_l = env.fuel_l
     env.close()
-    _, _, clearance = model.at_angles(np.array(qs), state.layout)
+    clearance = model.at_angles(np.array(qs), state.layout).clearance
     return {"time_s": reached_at, "fuel_l": fuel_l, "min_clearance_m": float(clearance.min())}
 
 
