@@ -1060,6 +1060,102 @@ def _(tmp):
     return lambda: load_trained(path)
 
 
+# -- untrusted files: RLlib checkpoints and YAML env_wrapper run nothing -------------------------
+def _rllib_checkpoint(tmp: Path, state: bytes | None = None, hidden: tuple[int, ...] = (8,), n_obs: int = 23) -> Path:
+    """An RLlib checkpoint directory as `train --framework rllib` writes it: its module's weights pickled
+    (or ``state``), and a crafted ``class_and_ctor_args.pkl`` (RLlib's own loader would run it)."""
+    from collections import OrderedDict
+
+    rng = np.random.default_rng(0)
+    weights: OrderedDict[str, np.ndarray] = OrderedDict()
+    size = n_obs
+    for i, h in enumerate(hidden):
+        weights[f"encoder.actor_encoder.net.mlp.{2 * i}.weight"] = rng.normal(size=(h, size)).astype(np.float32)
+        weights[f"encoder.actor_encoder.net.mlp.{2 * i}.bias"] = np.zeros(h, np.float32)
+        size = h
+    weights["pi.net.mlp.0.weight"] = rng.normal(size=(8, size)).astype(np.float32)
+    weights["pi.net.mlp.0.bias"] = np.zeros(8, np.float32)
+    weights["vf.net.mlp.0.weight"] = rng.normal(size=(1, size)).astype(np.float32)
+    weights["vf.net.mlp.0.bias"] = np.zeros(1, np.float32)
+    module = tmp / "ck" / "learner_group" / "learner" / "rl_module" / "default_policy"
+    write(module / "module_state.pkl", state if state is not None else pickle.dumps(weights, protocol=5))
+    write(module / "class_and_ctor_args.pkl", evil_pickle(tmp))
+    write(module / "metadata.json", '{"state_file": "module_state", "checkpoint_version": "2.1"}')
+    return tmp / "ck"
+
+
+@case("RLlib checkpoint", "weights with a crafted class file load without it", marker=True)
+def _(tmp):
+    from hexgym.agents.rllib import load_rllib_policy
+
+    checkpoint = _rllib_checkpoint(tmp)
+
+    def load() -> None:
+        policy = load_rllib_policy(checkpoint)
+        action = policy.act(np.ones(23, np.float32), None)
+        assert action.shape == (4,) and np.all(np.abs(action) <= 1)
+
+    return load
+
+
+for _name, _state, _match in (
+    ("a crafted module_state.pkl", "evil", r"module_state.pkl is not an RL module's weights: it refers to posix.mkdir"),
+    ("garbage weights", b"\x80\x05garbage", r"module_state.pkl is not an RL module's weights"),
+    ("an object array", "object", r"not an RL module's weights|is not an array of finite numbers"),
+    ("a list, not a mapping", "list", r"is not a mapping of names to arrays"),
+    ("NaN weights", "nan", r"pi.net.mlp.0.weight is not an array of finite numbers"),
+):
+    case("RLlib checkpoint", _name, _match, marker=True)(
+        lambda tmp, state=_state: _evaluate_rllib(tmp, _crafted_state(tmp, state))
+    )
+
+
+def _crafted_state(tmp: Path, kind: str) -> bytes:
+    if isinstance(kind, bytes):
+        return kind
+    if kind == "evil":
+        return evil_pickle(tmp)
+    if kind == "object":
+        return pickle.dumps({"pi.net.mlp.0.weight": np.array([object()] * 2, dtype=object)})
+    if kind == "list":
+        return pickle.dumps([np.zeros(3)])
+    bad = {"pi.net.mlp.0.weight": np.full((8, 4), np.nan), "pi.net.mlp.0.bias": np.zeros(8)}
+    return pickle.dumps(bad)
+
+
+def _evaluate_rllib(tmp: Path, state: bytes) -> list[str]:
+    return ["evaluate", "--policy", str(_rllib_checkpoint(tmp, state)), "--episodes", "1", "--seconds", "1"]
+
+
+@case("RLlib checkpoint", "weights for other observations", r"is for 7 observations and 4 actions, HexLoading-v0 has 23",
+      marker=True)  # fmt: skip
+def _(tmp):
+    return ["video", "--policy", str(_rllib_checkpoint(tmp, n_obs=7)), "--out", str(tmp / "v.mp4")]
+
+
+@case("RLlib checkpoint", "no actor encoder", r"is not RLlib PPO's default module", marker=True)
+def _(tmp):
+    return ["evaluate", "--policy", str(_rllib_checkpoint(tmp, hidden=())), "--episodes", "1"]
+
+
+@case("YAML", "env_wrapper naming a module to import", r"h.yml: env_wrapper 'os.mkdir' is not a registered wrapper",
+      marker=True)  # fmt: skip
+def _(tmp):
+    return _train_yaml(tmp, TINY_YAML + "  env_wrapper: os.mkdir\n")
+
+
+@case("YAML", "env_wrapper that is a mapping", r"env_wrapper must be the name of a registered wrapper", marker=True)
+def _(tmp):
+    return _train_yaml(tmp, TINY_YAML + "  env_wrapper: {gymnasium.wrappers.TimeLimit: {max_episode_steps: 3}}\n")
+
+
+@case("YAML", "env_wrapper of a module in the working folder", r"'evilmod.Wrapper' is not a registered wrapper",
+      marker=True)  # fmt: skip
+def _(tmp):
+    write(tmp / "evilmod.py", "import os\nos.mkdir('MARKER')\nWrapper = None\n")
+    return _train_yaml(tmp, TINY_YAML + "  env_wrapper: evilmod.Wrapper\n")
+
+
 # -- running the corpus ----------------------------------------------------------------------------
 def snapshot(root: Path) -> dict[str, tuple[str, int]]:
     """Every path under ``root``: its content's digest (or kind) and permission bits."""

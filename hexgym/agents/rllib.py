@@ -20,6 +20,9 @@ imported only when a function here is called: ``import hexgym`` never imports th
 
 from __future__ import annotations
 
+import os
+import pickle
+import re
 import shutil
 import tempfile
 import time
@@ -28,9 +31,10 @@ from typing import Any
 
 import numpy as np
 
+from hexgym.agents.policy_files import PolicyFileError
 from hexgym.checks import check_count, check_seed
 from hexgym.envs import ENV_ID
-from hexgym.files import check_output_dir
+from hexgym.files import check_input_file, check_output_dir
 from hexgym.parallel import connect, import_ray
 
 RLLIB_ENV = "hexgym-rllib"  # the name the env creator is registered under in Ray's registry
@@ -127,6 +131,8 @@ def train_rllib(
     from hexgym.agents.training import load_hyperparams
 
     hp = load_hyperparams(algo, env_id, hyperparams)
+    if hp.get("env_wrapper"):
+        raise ValueError(f"env_wrapper {hp['env_wrapper']!r}: --framework rllib runs the environment unwrapped")
     total = check_count("timesteps", timesteps if timesteps is not None else hp.get("n_timesteps", 100_000))
     check_seed("seed", seed)
     check_count("checkpoint_every", checkpoint_every)
@@ -172,21 +178,26 @@ def train_rllib(
 
 
 class RLlibPolicy:
-    """An RLlib RL module from a checkpoint: the Gaussian's mean action, clipped to the action space."""
+    """An RLlib PPO policy from its weights alone: the actor's mean action, clipped to the action space.
 
-    def __init__(self, module: Any) -> None:
-        self.module = module
+    ``layers``: the actor encoder's (weight, bias) pairs, each followed by tanh (RLlib's default
+    ``fcnet_activation``, the one ``hexgym train --framework rllib`` uses), then the policy head's pair,
+    whose outputs are a diagonal Gaussian's means then log-stds. Plain numpy: nothing of RLlib runs.
+    """
+
+    def __init__(self, layers: list[tuple[np.ndarray, np.ndarray]]) -> None:
+        self.layers = layers
 
     def reset(self) -> None:
         """Nothing to forget (the module is feed-forward)."""
 
     def act(self, obs: np.ndarray, env: Any) -> np.ndarray:
         """The mean action for ``obs``."""
-        import torch
-
-        with torch.no_grad():
-            out = self.module.forward_inference({"obs": torch.as_tensor(np.asarray(obs, np.float32)[None])})
-        inputs = out["action_dist_inputs"][0].numpy()
+        h = np.asarray(obs, np.float32)
+        for weight, bias in self.layers[:-1]:
+            h = np.tanh(weight @ h + bias)
+        weight, bias = self.layers[-1]
+        inputs = weight @ h + bias
         mean = inputs[: len(inputs) // 2]  # a diagonal Gaussian's inputs: means, then log-stds
         return np.clip(mean, -1.0, 1.0).astype(np.float32)
 
@@ -204,19 +215,112 @@ def rllib_module_path(path: str | Path) -> Path:
     return module
 
 
-def load_rllib_policy(path: str | Path) -> RLlibPolicy:
-    """The policy of an RLlib checkpoint directory (see :func:`rllib_module_path`); needs ``hexgym[cluster]``."""
-    module_path = rllib_module_path(path)
-    import_ray()
-    from ray.rllib.core.rl_module.rl_module import RLModule
+# What an RL module's state pickle (``module_state.pkl``: a dict of numpy arrays) refers to: a dict
+# class and numpy's array construction from bytes. Any other reference refuses the file unread.
+_WEIGHT_GLOBALS = {
+    ("collections", "OrderedDict"),
+    ("numpy", "dtype"), ("numpy", "ndarray"),
+    ("numpy._core.numeric", "_frombuffer"), ("numpy.core.numeric", "_frombuffer"),
+    ("numpy._core.multiarray", "_reconstruct"), ("numpy.core.multiarray", "_reconstruct"),
+}  # fmt: skip
+MAX_STATE_BYTES = 1 << 30  # an RL module's weights (hexgym's: tens of kB)
+_ACTOR = re.compile(r"encoder\.actor_encoder\.net\.mlp\.(\d+)\.(weight|bias)")
+_HEAD = re.compile(r"pi\.net\.mlp\.(\d+)\.(weight|bias)")
 
+
+class _WeightsUnpickler(pickle.Unpickler):
+    def find_class(self, module: str, name: str) -> Any:
+        if (module, name) in _WEIGHT_GLOBALS:
+            return super().find_class(module, name)
+        raise pickle.UnpicklingError(f"it refers to {module}.{name}; a module's weights are numpy arrays only")
+
+    def persistent_load(self, pid: Any) -> Any:
+        raise pickle.UnpicklingError("it refers to an outside object")
+
+
+def read_module_weights(module_dir: str | Path) -> dict[str, np.ndarray]:
+    """The weights of an RL module directory (``module_state.pkl``, or torch's ``module_state.pt``), read
+    without running anything from the checkpoint: numpy arrays only (``torch.load(weights_only=True)``)."""
+    module_dir = Path(module_dir)
+    found = [
+        module_dir / name for name in ("module_state.pkl", "module_state.pt") if os.path.lexists(module_dir / name)
+    ]
+    if not found:
+        raise PolicyFileError(f"RLlib checkpoint {module_dir}: no module_state.pkl (the RL module's weights)")
+    path = check_input_file(found[0], "RLlib module state")
+    if path.stat().st_size > MAX_STATE_BYTES:
+        raise PolicyFileError(f"RLlib module state {path}: {path.stat().st_size} bytes, more than {MAX_STATE_BYTES}")
+    try:
+        if path.suffix == ".pt":
+            import torch
+
+            state = torch.load(path, map_location="cpu", weights_only=True)
+            state = {k: v.numpy() if hasattr(v, "numpy") else v for k, v in state.items()}
+        else:
+            with path.open("rb") as f:
+                state = _WeightsUnpickler(f).load()
+    except Exception as exc:  # noqa: BLE001 - a damaged or crafted file: what it is, in one line
+        text = " ".join(str(exc).split())[:200] or type(exc).__name__
+        raise PolicyFileError(f"RLlib module state {path} is not an RL module's weights: {text}") from None
+    if not isinstance(state, dict) or not all(isinstance(k, str) for k in state):
+        raise PolicyFileError(f"RLlib module state {path} is not a mapping of names to arrays")
+    for key, value in state.items():
+        if not isinstance(value, np.ndarray) or value.dtype.kind != "f" or not np.all(np.isfinite(value)):
+            raise PolicyFileError(f"RLlib module state {path}: {key} is not an array of finite numbers")
+    return state
+
+
+def _layers(path: Path, state: dict[str, np.ndarray], pattern: re.Pattern, what: str) -> list[tuple]:
+    """The (weight, bias) pairs of the linear layers whose names match ``pattern``, in order."""
+    found: dict[int, dict[str, np.ndarray]] = {}
+    for key, value in state.items():
+        match = pattern.fullmatch(key)
+        if match:
+            found.setdefault(int(match[1]), {})[match[2]] = value
+    layers = []
+    for index in sorted(found):
+        pair = found[index]
+        if (
+            set(pair) != {"weight", "bias"}
+            or pair["weight"].ndim != 2
+            or pair["bias"].shape != pair["weight"][:, 0].shape
+        ):
+            raise PolicyFileError(
+                f"RLlib checkpoint {path}: {what} layer {index} is not a linear layer's weight and bias"
+            )
+        layers.append((pair["weight"].astype(np.float32), pair["bias"].astype(np.float32)))
+    return layers
+
+
+def load_rllib_policy(path: str | Path) -> RLlibPolicy:
+    """The policy of an RLlib checkpoint directory (see :func:`rllib_module_path`), from its weights alone.
+
+    Nothing of the checkpoint is unpickled but numpy arrays (:func:`read_module_weights`); its pickled
+    class and constructor arguments are never read, so a crafted checkpoint runs nothing, and Ray is
+    not needed. The module must be RLlib PPO's default: an actor MLP with tanh, a linear policy head.
+    """
     from hexgym.envs.loading import task_spaces
 
-    module = RLModule.from_checkpoint(str(module_path.resolve()))
-    observation, action = task_spaces()
-    if module.observation_space.shape != observation.shape or module.action_space.shape != action.shape:
-        raise ValueError(
-            f"RLlib checkpoint {path} is for observations {module.observation_space.shape} and actions "
-            f"{module.action_space.shape}, HexLoading-v0 has {observation.shape} and {action.shape}"
+    module_path = rllib_module_path(path)
+    state = read_module_weights(module_path)
+    actor = _layers(module_path, state, _ACTOR, "actor encoder")
+    head = _layers(module_path, state, _HEAD, "policy head")
+    if not actor or len(head) != 1:
+        raise PolicyFileError(
+            f"RLlib checkpoint {path} is not RLlib PPO's default module (an actor MLP and a linear policy head, "
+            "as `hexgym train --framework rllib` writes)"
         )
-    return RLlibPolicy(module)
+    layers = actor + head
+    observation, action = task_spaces()
+    sizes_in = [w.shape[1] for w, _ in layers]
+    sizes_out = [w.shape[0] for w, _ in layers]
+    if sizes_in[1:] != sizes_out[:-1]:
+        raise PolicyFileError(
+            f"RLlib checkpoint {path}: its layers' sizes do not chain ({sizes_in} in, {sizes_out} out)"
+        )
+    if sizes_in[0] != observation.shape[0] or sizes_out[-1] != 2 * action.shape[0]:
+        raise PolicyFileError(
+            f"RLlib checkpoint {path} is for {sizes_in[0]} observations and {sizes_out[-1] // 2} actions, "
+            f"HexLoading-v0 has {observation.shape[0]} and {action.shape[0]}"
+        )
+    return RLlibPolicy(layers)

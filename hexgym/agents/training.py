@@ -126,6 +126,10 @@ def load_hyperparams(algo: str, env_id: str = ENV_ID, path: str | Path | None = 
     if not isinstance(table[env_id], dict):
         raise ValueError(f"{path}: the entry for {env_id!r} must be a mapping of hyperparameters")
     hp = dict(table[env_id])
+    try:
+        _wrapper(hp.get("env_wrapper"))  # a registered name, or refused before any work
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
     hp["policy_kwargs"] = _parse_kwargs(hp.get("policy_kwargs", {}))
     normalize = _parse_kwargs(hp.get("normalize", False))
     hp["normalize"] = {"norm_obs": True, "norm_reward": False} if normalize is True else (normalize or {})
@@ -225,17 +229,33 @@ def _previous_action_class() -> type:
     return PreviousAction
 
 
-def _wrapper(path: str | None) -> Any:
-    """The wrapper class named by a dotted path (rl-zoo3's ``env_wrapper``), or None."""
-    if not path:
-        return None
-    import importlib
+WRAPPERS: dict[str, Callable[[Any], Any]] = {"hexgym.agents.training.PreviousActionWrapper": PreviousActionWrapper}
+"""The wrappers a hyperparameter file's ``env_wrapper`` may name (by this name or its last part): a file names
+a registered wrapper, never a module to import, so a hyperparameter file runs no code of its own choosing."""
 
-    module, _, name = path.rpartition(".")
-    try:
-        return getattr(importlib.import_module(module), name)
-    except (ImportError, AttributeError, ValueError) as exc:
-        raise ValueError(f"env_wrapper {path!r} cannot be imported: {exc}") from exc
+
+def register_wrapper(name: str, wrapper: Callable[[Any], Any]) -> None:
+    """Let ``env_wrapper: <name>`` apply ``wrapper`` (a callable taking and returning an env) in this process."""
+    if not isinstance(name, str) or not name or not callable(wrapper):
+        raise TypeError(f"register_wrapper needs a name and a callable, got {name!r} and {wrapper!r}")
+    WRAPPERS[name] = wrapper
+
+
+def _wrapper(path: Any) -> Any:
+    """The registered wrapper (:data:`WRAPPERS`) named by rl-zoo3's ``env_wrapper``, or None; nothing is imported."""
+    if path is None or path == "":
+        return None
+    if not isinstance(path, str):
+        raise ValueError(f"env_wrapper must be the name of a registered wrapper, got {path!r}")
+    short = {name.rpartition(".")[2]: wrapper for name, wrapper in WRAPPERS.items()}
+    found = WRAPPERS.get(path) or short.get(path)
+    if found is None:
+        raise ValueError(
+            f"env_wrapper {path!r} is not a registered wrapper ({', '.join(sorted(WRAPPERS))}); a hyperparameter "
+            "file names registered wrappers only, it never imports a module (from Python: "
+            "hexgym.agents.training.register_wrapper)"
+        )
+    return found
 
 
 def make_env(env_id: str = ENV_ID, wrapper: str | None = None, **env_kwargs: Any) -> Any:
