@@ -31,6 +31,8 @@ class MblTable {
   int dims() const { return d_; }
   double axis_lo(int j) const { return axes_[j].lo; }
   double axis_hi(int j) const { return axes_[j].hi; }
+  const std::vector<double>& axis_nodes(int j) const { return axes_[j].nodes; }
+  const std::vector<double>& values() const { return values_; }  // C order
 
  private:
   struct Axis {

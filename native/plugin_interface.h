@@ -11,12 +11,16 @@ constexpr double kCtrlPerSpoolMetre = 1000.0;  // ctrl unit: mm of spool
 constexpr int kTableFormatVersion = 1;
 
 // Plugin state slots (offsets) and size
-constexpr int kLoad = 0;  // 4 value(s)
-constexpr int kAcceleration = 4;  // 1 value(s)
-constexpr int kPhase = 5;  // 1 value(s)
-constexpr int kTargets = 6;  // 4 value(s)
-constexpr int kInertia = 10;  // 1 value(s)
-constexpr int kStateSize = 11;
+constexpr int kLoad = 0, kLoadSize = 4;
+constexpr int kAcceleration = 4, kAccelerationSize = 1;
+constexpr int kPhase = 5, kPhaseSize = 1;
+constexpr int kTargets = 6, kTargetsSize = 4;
+constexpr int kInertia = 10, kInertiaSize = 1;
+constexpr int kHydraulics = 11, kHydraulicsSize = 14;
+constexpr int kRates = 25, kRatesSize = 4;
+constexpr int kCircuitReady = 29, kCircuitReadySize = 1;
+constexpr int kCircuitFault = 30, kCircuitFaultSize = 1;
+constexpr int kStateSize = 31;
 
 // Config keys, in the declared order
 constexpr const char* kAttributes[] = {
@@ -34,7 +38,8 @@ constexpr const char* kAttributes[] = {
     "swing_rest_rate",  // rad/s
     "rate_range",  // lo hi per joint, rad/s (the Python path's servo ctrlrange)
     "control_period",  // s between table queries, >= one step (default: one step)
-    "table_set",  // which table set the tables directory holds: paper or extended (default: the default set)
+    "table_set",  // which table set the tables directory holds: circuit, paper or extended (default: the default set)
+    "circuit",  // the circuit's numbers (nodes, branches, then CIRCUIT_FIELDS), for table_set circuit
 };
 constexpr int kNumAttributes = sizeof(kAttributes) / sizeof(kAttributes[0]);
 
@@ -110,8 +115,124 @@ constexpr TableSet kTableSets[kNumTableSets] = {
 };
 constexpr char kDefaultTableSet[] = "paper";
 
+// The circuit model's numbers (config key "circuit"): nodes, branches, then these fields in order,
+// each rows x extent numbers (C order of (extent, rows))
+constexpr int kNumPumps = 2;
+constexpr int kNumCylinders = 3;
+constexpr int kNumFunctions = 4;
+// hexgym_circuit_period's buffer: slot offsets and size
+constexpr int kPeriodSpools = 0;
+constexpr int kPeriodRates = 4;
+constexpr int kPeriodExt = 8;
+constexpr int kPeriodArms = 11;
+constexpr int kPeriodMass = 14;
+constexpr int kPeriodLoad = 30;
+constexpr int kPeriodTravel = 34;
+constexpr int kPeriodState = 38;
+constexpr int kPeriodSize = 52;
+enum CircuitLaw {
+  kLawDischarge,
+  kLawSqrt2Rho,
+  kLawLaminarSq,
+  kLawAtmosphere,
+  kLawVacuum,
+  kLawPolytropic,
+  kLawAirFraction,
+  kLawBulkModulus,
+  kLawCushionLength,
+  kLawCushionArea,
+  kLawCushionPortArea,
+  kLawNfcFullFlow,
+  kLawNfcMinFlow,
+  kLawIdleFraction,
+  kLawPowerLimit,
+  kLawMaxFlow,
+  kLawRegulatorTime,
+  kLawMaxSplits,
+  kLawTrustFloor,
+  kLawTrustJump,
+  kLawCoulomb,
+  kLawFrictionVelocity,
+  kLawViscous,
+  kLawSwingReduction,
+  kLawSwingDisplacement,
+  kLawSwingViscous,
+  kLawSwingEfficiency,
+  kLawSwingFrictionSpeed,
+  kLawSwingA,
+  kLawSwingB,
+  kLawStopClearance,
+  kLawDeadBand,
+  kLawClosedArea,
+  kLawIdlePressure,
+  kLawRestPressure,
+  kNumCircuitLaws
+};
+enum CircuitExtent {
+  kPerOne,
+  kPerNodes,
+  kPerBranches,
+  kPerPumps,
+  kPerFunctions,
+  kPerCylinders,
+};
+enum CircuitFieldId {
+  kFieldLaws,
+  kFieldBranchFrom,
+  kFieldBranchTo,
+  kFieldBranchArea,
+  kFieldBranchCrack,
+  kFieldBranchInvSpan,
+  kFieldBranchLaminar,
+  kFieldPassageBranch,
+  kFieldBypassBranch,
+  kFieldPumpNode,
+  kFieldSignalNode,
+  kFieldPumpSections,
+  kFieldHeadArea,
+  kFieldRodArea,
+  kFieldStroke,
+  kFieldCylinderCount,
+  kFieldPortVolume,
+  kFieldHeadNode,
+  kFieldRodNode,
+  kFieldFunction,
+  kFieldNodeVolume,
+  kFieldDisplacement,
+  kNumCircuitFields
+};
+struct CircuitField {
+  const char* name;
+  int rows;
+  CircuitExtent per;
+};
+constexpr CircuitField kCircuitFields[kNumCircuitFields] = {
+    {"laws", 35, kPerOne},
+    {"branch_from", 1, kPerBranches},
+    {"branch_to", 1, kPerBranches},
+    {"branch_area", 1, kPerBranches},
+    {"branch_crack", 1, kPerBranches},
+    {"branch_inv_span", 1, kPerBranches},
+    {"branch_laminar", 1, kPerBranches},
+    {"passage_branch", 4, kPerFunctions},
+    {"bypass_branch", 1, kPerPumps},
+    {"pump_node", 1, kPerPumps},
+    {"signal_node", 1, kPerPumps},
+    {"pump_sections", 2, kPerPumps},
+    {"head_area", 1, kPerCylinders},
+    {"rod_area", 1, kPerCylinders},
+    {"stroke", 1, kPerCylinders},
+    {"cylinder_count", 1, kPerCylinders},
+    {"port_volume", 1, kPerCylinders},
+    {"head_node", 1, kPerCylinders},
+    {"rod_node", 1, kPerCylinders},
+    {"function", 1, kPerCylinders},
+    {"node_volume", 1, kPerNodes},
+    {"displacement", 4, kPerNodes},
+};
+
 // All of the above as JSON, returned by hexgym_mbl_interface() for the Python side's check
-constexpr char kInterfaceJson[] = "{\"clearance_config_keys\":[\"tool\",\"obstacles\",\"cutoff\"],\"clearance_plugin\":\"hexgym.clearance\",\"config_keys\":[\"tables\",\"boom_triangle\",\"stick_triangle\",\"bucket_four_bar\",\"retracted_length\",\"stroke\",\"end_margin\",\"push_limit\",\"pull_limit\",\"swing_torque_limit\",\"dead_band\",\"swing_rest_rate\",\"rate_range\",\"control_period\",\"table_set\"],\"ctrl_per_spool_m\":1000.0,\"default_table_set\":\"paper\",\"joints\":[\"swing\",\"boom\",\"stick\",\"bucket\"],\"plugin\":\"hexgym.mbl\",\"quantities\":[\"swing_spool_m\",\"boom_spool_m\",\"stick_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"stick_force_n\",\"bucket_force_n\",\"stick_drive_force_n\",\"swing_inertia_kgm2\",\"swing_rate_radps\",\"pump1_pressure_pa\",\"pump2_pressure_pa\"],\"state\":{\"acceleration\":[4,1],\"inertia\":[10,1],\"load\":[0,4],\"phase\":[5,1],\"targets\":[6,4]},\"state_size\":11,\"table_format_version\":1,\"table_sets\":{\"extended\":[{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\"],\"name\":\"boom\",\"output\":\"boom_velocity_mps\"},{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\"],\"name\":\"bucket\",\"output\":\"bucket_velocity_mps\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"swing_inertia_kgm2\",\"stick_force_n\"],\"name\":\"stick\",\"output\":\"stick_velocity_mps\"},{\"inputs\":[\"swing_spool_m\",\"pump2_pressure_pa\",\"swing_rate_radps\"],\"name\":\"swing\",\"output\":\"swing_torque_nm\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"stick_drive_force_n\",\"swing_rate_radps\"],\"name\":\"pump2\",\"output\":\"pump2_pressure_pa\"}],\"paper\":[{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\"],\"name\":\"boom\",\"output\":\"boom_velocity_mps\"},{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\"],\"name\":\"bucket\",\"output\":\"bucket_velocity_mps\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"swing_inertia_kgm2\",\"stick_force_n\"],\"name\":\"stick\",\"output\":\"stick_velocity_mps\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"stick_force_n\",\"swing_inertia_kgm2\",\"swing_rate_radps\"],\"name\":\"swing\",\"output\":\"swing_acceleration_radps2\"}]}}";
+constexpr char kInterfaceJson[] = "{\"circuit_counts\":{\"cylinders\":3,\"functions\":4,\"pumps\":2},\"circuit_fields\":[[\"laws\",35,\"one\"],[\"branch_from\",1,\"branches\"],[\"branch_to\",1,\"branches\"],[\"branch_area\",1,\"branches\"],[\"branch_crack\",1,\"branches\"],[\"branch_inv_span\",1,\"branches\"],[\"branch_laminar\",1,\"branches\"],[\"passage_branch\",4,\"functions\"],[\"bypass_branch\",1,\"pumps\"],[\"pump_node\",1,\"pumps\"],[\"signal_node\",1,\"pumps\"],[\"pump_sections\",2,\"pumps\"],[\"head_area\",1,\"cylinders\"],[\"rod_area\",1,\"cylinders\"],[\"stroke\",1,\"cylinders\"],[\"cylinder_count\",1,\"cylinders\"],[\"port_volume\",1,\"cylinders\"],[\"head_node\",1,\"cylinders\"],[\"rod_node\",1,\"cylinders\"],[\"function\",1,\"cylinders\"],[\"node_volume\",1,\"nodes\"],[\"displacement\",4,\"nodes\"]],\"circuit_laws\":[\"discharge\",\"sqrt_2_rho\",\"laminar_sq\",\"atmosphere\",\"vacuum\",\"polytropic\",\"air_fraction\",\"bulk_modulus\",\"cushion_length\",\"cushion_area\",\"cushion_port_area\",\"nfc_full_flow\",\"nfc_min_flow\",\"idle_fraction\",\"power_limit\",\"max_flow\",\"regulator_time\",\"max_splits\",\"trust_floor\",\"trust_jump\",\"coulomb\",\"friction_velocity\",\"viscous\",\"swing_reduction\",\"swing_displacement\",\"swing_viscous\",\"swing_efficiency\",\"swing_friction_speed\",\"swing_a\",\"swing_b\",\"stop_clearance\",\"dead_band\",\"closed_area\",\"idle_pressure\",\"rest_pressure\"],\"circuit_period\":{\"arms\":[11,3],\"ext\":[8,3],\"load\":[30,4],\"mass\":[14,16],\"rates\":[4,4],\"spools\":[0,4],\"state\":[38,14],\"travel\":[34,4]},\"clearance_config_keys\":[\"tool\",\"obstacles\",\"cutoff\"],\"clearance_plugin\":\"hexgym.clearance\",\"config_keys\":[\"tables\",\"boom_triangle\",\"stick_triangle\",\"bucket_four_bar\",\"retracted_length\",\"stroke\",\"end_margin\",\"push_limit\",\"pull_limit\",\"swing_torque_limit\",\"dead_band\",\"swing_rest_rate\",\"rate_range\",\"control_period\",\"table_set\",\"circuit\"],\"ctrl_per_spool_m\":1000.0,\"default_table_set\":\"paper\",\"joints\":[\"swing\",\"boom\",\"stick\",\"bucket\"],\"plugin\":\"hexgym.mbl\",\"quantities\":[\"swing_spool_m\",\"boom_spool_m\",\"stick_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"stick_force_n\",\"bucket_force_n\",\"stick_drive_force_n\",\"swing_inertia_kgm2\",\"swing_rate_radps\",\"pump1_pressure_pa\",\"pump2_pressure_pa\"],\"state\":{\"acceleration\":[4,1],\"circuit_fault\":[30,1],\"circuit_ready\":[29,1],\"hydraulics\":[11,14],\"inertia\":[10,1],\"load\":[0,4],\"phase\":[5,1],\"rates\":[25,4],\"targets\":[6,4]},\"state_size\":31,\"table_format_version\":1,\"table_sets\":{\"extended\":[{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\"],\"name\":\"boom\",\"output\":\"boom_velocity_mps\"},{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\"],\"name\":\"bucket\",\"output\":\"bucket_velocity_mps\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"swing_inertia_kgm2\",\"stick_force_n\"],\"name\":\"stick\",\"output\":\"stick_velocity_mps\"},{\"inputs\":[\"swing_spool_m\",\"pump2_pressure_pa\",\"swing_rate_radps\"],\"name\":\"swing\",\"output\":\"swing_torque_nm\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"stick_drive_force_n\",\"swing_rate_radps\"],\"name\":\"pump2\",\"output\":\"pump2_pressure_pa\"}],\"paper\":[{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\"],\"name\":\"boom\",\"output\":\"boom_velocity_mps\"},{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\"],\"name\":\"bucket\",\"output\":\"bucket_velocity_mps\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"swing_inertia_kgm2\",\"stick_force_n\"],\"name\":\"stick\",\"output\":\"stick_velocity_mps\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"stick_force_n\",\"swing_inertia_kgm2\",\"swing_rate_radps\"],\"name\":\"swing\",\"output\":\"swing_acceleration_radps2\"}]}}";
 
 }  // namespace hexgym
 

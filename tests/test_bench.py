@@ -17,7 +17,7 @@ ISSUE_KEYS = (
     "hopper_steps_per_s",
     "vector_steps_per_s",
     "circuit_realtime_factor_python",
-    "circuit_period_compiled_us",
+    "circuit_period_native_us",
 )
 
 

@@ -1,13 +1,12 @@
-"""The circuit model's compiled control period (hexgym.model.circuit_kernel) against the numpy circuit it mirrors."""
+"""The circuit model's native kernel (native/circuit.cc, through hexgym.model.circuit_kernel) against the numpy
+circuit it mirrors (hexgym.hydraulics.circuit, the definition)."""
 
 from __future__ import annotations
 
 import dataclasses
 
-import numba
 import numpy as np
 import pytest
-from numba.core.caching import NullCache
 
 from hexgym.hydraulics.circuit import HydraulicCircuit
 from hexgym.mbl.table import MBLTable, load_tables
@@ -16,6 +15,8 @@ from hexgym.model import circuit_kernel as ck
 from hexgym.model.circuit_model import STOP_CLEARANCE, CircuitModel
 from hexgym.model.commandlog import CommandLog
 from hexgym.model.replay import replay
+
+pytestmark = pytest.mark.skipif(bool(ck.native_reason()), reason="the native library is not built")
 
 RTOL = 1e-10
 
@@ -26,13 +27,8 @@ def circuit() -> HydraulicCircuit:
 
 
 @pytest.fixture(scope="module")
-def constants(circuit: HydraulicCircuit) -> tuple[tuple, tuple]:
-    return ck.pack(circuit, circuit.valve, STOP_CLEARANCE)
-
-
-def _areas(constants: tuple[tuple, tuple], spools: np.ndarray, ext: np.ndarray) -> np.ndarray:
-    k, valve = constants
-    return ck.branch_areas(k, *ck.valve_areas(valve, spools), ext)
+def kernel(circuit: HydraulicCircuit) -> ck.NativeCircuit:
+    return ck.NativeCircuit(circuit, circuit.valve.tables, STOP_CLEARANCE)
 
 
 def _cases(circuit: HydraulicCircuit, n: int, seed: int = 0):
@@ -57,54 +53,38 @@ def _close(got: np.ndarray, want: np.ndarray) -> None:
     np.testing.assert_allclose(got, want, rtol=RTOL, atol=RTOL * 1e-3 * np.max(np.abs(want)))
 
 
-def test_valve_and_branch_areas_are_the_learned_valves(circuit, constants) -> None:
+def test_branch_areas_are_the_learned_valves(circuit, kernel) -> None:
     for _, spools, ext, _, _ in _cases(circuit, 200):
-        passages, pump_bypass = ck.valve_areas(constants[1], spools)
-        want = circuit.valve(spools)
-        for row, key in enumerate(ck.PASSAGES):
-            _close(passages[row], getattr(want, key))
-        _close(pump_bypass, want.pump_bypass)
-        _close(_areas(constants, spools, ext), circuit.branch_areas(spools, ext))
+        _close(kernel.branch_areas(spools, ext), circuit.branch_areas(spools, ext))
 
 
-def test_derivatives_jacobian_and_forces_are_the_circuits(circuit, constants) -> None:
+def test_derivatives_jacobian_and_forces_are_the_circuits(circuit, kernel) -> None:
     for y, spools, ext, vel, rate in _cases(circuit, 200, seed=1):
-        k = ck.Circuit(*constants[0])
-        f, jac, _ = ck.evaluate(constants[0], y, _areas(constants, spools, ext), ext, vel, rate)
+        f, jac = kernel.derivatives(y, spools, ext, vel, rate)
         f_ref, jac_ref = circuit.jacobian(y, spools, ext, vel, rate)
         _close(f, f_ref)
         _close(jac, jac_ref)
-        forces, torque = ck.oil_loads(k.laws, k.cylinder, k.cylinder_index, y, vel, rate)
+        forces, torque = kernel.forces(y, vel, rate)
         forces_ref, torque_ref = circuit.actuator_forces(y, ext, vel, rate, end_stops=False)
         _close(forces, forces_ref)
         assert torque == pytest.approx(torque_ref, rel=RTOL, abs=1e-6)
 
 
-def test_step_splitting_and_sensitivity_are_the_circuits(circuit, constants) -> None:
+def test_step_splitting_and_sensitivity_are_the_circuits(circuit, kernel) -> None:
     splits = 0
     for y, spools, ext, vel, rate in _cases(circuit, 200, seed=2):
-        k = ck.Circuit(*constants[0])
         circuit.split_count = 0
-        new, sens, n = ck.advance(constants[0], y, 0.005, _areas(constants, spools, ext), ext, vel, rate)
+        new, sens, n = kernel.step(y, spools, ext, vel, rate, 0.005)
         new_ref, sens_ref = circuit.step_with_sensitivity(y, 0.005, spools, ext, vel, rate)
         assert n == circuit.split_count
         splits += n
         _close(new, new_ref)
         _close(sens, sens_ref)
-        dforce, dtorque = ck.coupling(k.laws, k.cylinder, k.cylinder_index, sens, vel)
+        dforce, dtorque = kernel.coupling(sens, vel)
         dforce_ref, dtorque_ref = circuit.coupling_derivatives(sens_ref, vel, rate)
         _close(dforce, dforce_ref)
         assert dtorque == pytest.approx(dtorque_ref, rel=RTOL)
     assert splits > 100  # the splitting was exercised
-
-
-def test_linear_solve_is_lapacks() -> None:
-    rng = np.random.default_rng(3)
-    for n in (1, 3, 4, 14):
-        a, b = rng.normal(size=(n, n)), rng.normal(size=(n, 5))
-        a[rng.uniform(size=(n, n)) < 0.5] = 0.0
-        a += np.diag(rng.uniform(0.5, 2.0, n))
-        _close(ck.solve(a.copy(), b.copy()), np.linalg.solve(a, b))
 
 
 def test_any_one_input_tables_are_read(circuit) -> None:
@@ -117,19 +97,13 @@ def test_any_one_input_tables_are_read(circuit) -> None:
         axis = np.linspace(lo, hi, 31) if even else np.sort(np.r_[lo, hi, rng.uniform(lo, hi, 40)])
         values = table(axis[:, None]) * rng.uniform(0.8, 1.2) + rng.normal(0.0, 1e-6, len(axis))
         tables[name] = dataclasses.replace(table, axes=(axis,), values=values, confidence=np.ones(len(axis)))
-    valve = LearnedValve(tables)
-    _, packed = ck.pack(HydraulicCircuit(valve=valve), valve, STOP_CLEARANCE)
-    inv_step = ck.Valve(*packed).inv_step
-    assert np.any(inv_step > 0.0) and np.any(inv_step == 0.0)  # even and uneven axes
-    for _, spools, _, _, _ in _cases(circuit, 200, seed=5):
-        passages, pump_bypass = ck.valve_areas(packed, spools)
-        want = valve(spools)
-        for row, key in enumerate(ck.PASSAGES):
-            _close(passages[row], getattr(want, key))
-        _close(pump_bypass, want.pump_bypass)
+    other = HydraulicCircuit(valve=LearnedValve(tables))
+    kernel = ck.NativeCircuit(other, tables, STOP_CLEARANCE)
+    for _, spools, ext, _, _ in _cases(circuit, 200, seed=5):
+        _close(kernel.branch_areas(spools, ext), other.branch_areas(spools, ext))
 
 
-def test_tables_of_more_inputs_are_refused() -> None:
+def test_tables_of_more_inputs_are_refused(circuit) -> None:
     tables = load_tables(table_set="circuit")
     table = tables["boom_pa"]
     axes = (table.axes[0], np.array([0.0, 1.0]))
@@ -138,12 +112,51 @@ def test_tables_of_more_inputs_are_refused() -> None:
     tables["boom_pa"] = MBLTable(
         table.name, (*table.inputs, "x"), table.output, axes, values, np.ones_like(values), params
     )
-    valve = LearnedValve(tables)
     with pytest.raises(ValueError, match="boom_pa"):
-        ck.pack(HydraulicCircuit(valve=valve), valve, STOP_CLEARANCE)
+        ck.NativeCircuit(circuit, tables, STOP_CLEARANCE)
 
 
-def test_compiled_period_follows_the_numpy_period() -> None:
+def test_the_circuit_is_data_to_the_kernel(circuit, kernel) -> None:
+    """The structure comes from the numbers, not from C++: the same circuit with its nodes renumbered (the swing
+    ports first, the pumps last) gives the same derivatives, renumbered; numbers of a wrong length or a node out of
+    range are refused, naming the field."""
+    nodes = 12
+    order = np.r_[10, 11, 4:10, 2, 3, 0, 1]  # new node k is old node order[k]
+    new_of = np.empty(nodes + 1, dtype=int)
+    new_of[order], new_of[nodes] = np.arange(nodes), nodes  # the tank stays last
+    fields = ck.circuit_fields(circuit, STOP_CLEARANCE)
+    for name in ("branch_from", "branch_to", "pump_node", "signal_node", "head_node", "rod_node"):
+        fields[name] = new_of[fields[name]]
+    fields["node_volume"], fields["displacement"] = fields["node_volume"][order], fields["displacement"][order]
+    laws = fields["laws"].copy()
+    for law in ("swing_a", "swing_b"):
+        i = ck.CIRCUIT_LAWS.index(law)
+        laws[i] = new_of[int(laws[i])]
+    fields["laws"] = laws
+    renumbered = _kernel_of(ck.pack_fields(fields, nodes, len(circuit.branches.names)))
+    state_order = np.r_[order, 12, 13]
+    for y, spools, ext, vel, rate in _cases(circuit, 50, seed=6):
+        f, jac = kernel.derivatives(y, spools, ext, vel, rate)
+        f2, jac2 = renumbered.derivatives(y[state_order], spools, ext, vel, rate)
+        _close(f2, f[state_order])
+        _close(jac2, jac[np.ix_(state_order, state_order)])
+    numbers = ck.circuit_numbers(circuit, STOP_CLEARANCE)
+    with pytest.raises(ValueError, match="numbers where the layout"):
+        _kernel_of(np.append(numbers, 0.0))
+    broken = numbers.copy()
+    broken[2 + len(ck.CIRCUIT_LAWS)] = 99.0  # the first branch's "from" node
+    with pytest.raises(ValueError, match="branch_from"):
+        _kernel_of(broken)
+
+
+def _kernel_of(numbers: np.ndarray) -> ck.NativeCircuit:
+    """A kernel of these circuit numbers (NativeCircuit packs them from a HydraulicCircuit)."""
+    kernel = ck.NativeCircuit.__new__(ck.NativeCircuit)
+    kernel._init(numbers, load_tables(table_set="circuit"), branches=int(numbers[1]))
+    return kernel
+
+
+def test_native_period_follows_the_numpy_period() -> None:
     """Four functions for 4 s, the bucket into its stroke end (held) and steps split: the same tip path to 1e-6 m,
     the same circuit state and splits."""
     t = np.arange(0.0, 4.0001, 0.05)
@@ -156,26 +169,17 @@ def test_compiled_period_follows_the_numpy_period() -> None:
     compiled, reference = CircuitModel(), CircuitModel()
     reference._control_period = reference._control_period_numpy
     runs = {}
-    for name, model in (("compiled", compiled), ("numpy", reference)):
+    for name, model in (("native", compiled), ("numpy", reference)):
         model.circuit.split_count = 0
         runs[name] = replay(model, log, start="home", payload_kg=1000.0, dt_out=0.05)
     tip = {name: np.column_stack([run[f"tip_{c}"] for c in "xyz"]) for name, run in runs.items()}
-    assert np.max(np.linalg.norm(tip["compiled"] - tip["numpy"], axis=1)) <= 1e-6
+    assert np.max(np.linalg.norm(tip["native"] - tip["numpy"], axis=1)) <= 1e-6
     assert np.ptp(runs["numpy"]["q_swing"]) > 0.3 and np.ptp(runs["numpy"]["q_boom"]) > 0.2  # it moved
     stroke = compiled.circuit.stroke[2] - STOP_CLEARANCE
     assert runs["numpy"]["bucket_extension_m"][-1] == pytest.approx(stroke, abs=1e-4)  # held at the stop
     assert compiled.circuit.split_count == reference.circuit.split_count > 0
     np.testing.assert_allclose(compiled.state, reference.state, rtol=1e-6, atol=1.0)
     np.testing.assert_allclose(compiled.rates, reference.rates, rtol=1e-6, atol=1e-9)
-
-
-def test_compiled_functions_are_cached_and_documented() -> None:
-    found = {name: f for name, f in vars(ck).items() if isinstance(f, numba.core.registry.CPUDispatcher)}
-    assert {"control_period", "substep", "advance", "evaluate", "valve_areas", "solve"} <= set(found)
-    for name, function in found.items():
-        assert not isinstance(function._cache, NullCache), f"{name} is compiled without cache=True"
-        assert not function.targetoptions.get("fastmath"), f"{name}: fastmath would change the circuit's floats"
-        assert function.__doc__, f"{name} has no docstring"
 
 
 def test_a_non_finite_state_is_refused() -> None:

@@ -83,6 +83,11 @@ _PORTS = {"boom": (4, 5), "stick": (6, 7), "bucket": (8, 9), "swing": (10, 11)}
 _SQRT_2_RHO = np.sqrt(2.0 / p.OIL_DENSITY)
 SWING_DISPLACEMENT_RAD = p.SWING_MOTOR_DISPLACEMENT / (2.0 * np.pi)  # m^3/rad
 _VACUUM = 1e3 - p.ATMOSPHERIC_PRESSURE  # Pa gauge: the floor of the compliance law
+REST_PRESSURE = 1.0e6  # Pa: a chamber that holds no load, at the start
+# A step is split where its linearisation cannot be trusted: a pressure above TRUST_FLOOR_PA falling below half,
+# or any jumping by more than TRUST_JUMP_PA (tuned on a replay against 0.125 ms steps)
+TRUST_FLOOR_PA = 0.3e6
+TRUST_JUMP_PA = 5e6
 
 
 # --------------------------------------------------------------------------------------------
@@ -341,7 +346,9 @@ class HydraulicCircuit:
         self._displacement[10, 3], self._displacement[11, 3] = swept, -swept
 
     # ---- initial state ---------------------------------------------------------------------
-    def initial_state(self, holding_forces_n: np.ndarray | None = None, rest_pressure: float = 1.0e6) -> np.ndarray:
+    def initial_state(
+        self, holding_forces_n: np.ndarray | None = None, rest_pressure: float = REST_PRESSURE
+    ) -> np.ndarray:
         """Idle pumps, neutral valve, and chamber pressures that hold ``holding_forces_n``.
 
         ``holding_forces_n`` (N, per cylinder) is the force the cylinder must push (positive) or
@@ -357,7 +364,7 @@ class HydraulicCircuit:
         y[10:12] = rest_pressure
         return y
 
-    # ---- the layout, read-only (for compiled copies of this law, hexgym.model.circuit_kernel) ----
+    # ---- the layout, read-only (for the native kernel's numbers, hexgym.model.circuit_kernel) ----
     @property
     def branch_groups(self) -> dict[str, np.ndarray]:
         """Branch indices of the valve's passages: ``pa``, ``pb``, ``at``, ``bt`` in ``FUNCTIONS`` order,
@@ -607,8 +614,8 @@ class HydraulicCircuit:
         crosses relief and check thresholds: both call for smaller steps. The thresholds (a
         fall below half, a jump over 5 MPa) were tuned on a replay against 0.125 ms steps.
         """
-        falls = (p1 < 0.5 * p0) & (p0 > 0.3e6)
-        return not (np.any(falls) or np.any(p1 < _VACUUM) or np.any(np.abs(p1 - p0) > 5e6))
+        falls = (p1 < 0.5 * p0) & (p0 > TRUST_FLOOR_PA)
+        return not (np.any(falls) or np.any(p1 < _VACUUM) or np.any(np.abs(p1 - p0) > TRUST_JUMP_PA))
 
     # ---- forces and outputs -----------------------------------------------------------------
     def actuator_forces(

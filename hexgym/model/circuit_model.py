@@ -23,15 +23,16 @@ Every control period (one 25 ms step of the lean machine), ``SUBSTEPS`` times:
 The lean machine's stiff rate servos then move the joints by the period's mean rates (so MuJoCo's
 positions follow the circuit's); the rates at the period's end stay the model's state.
 
-The period's circuit steps run compiled (:func:`hexgym.model.circuit_kernel.control_period`, numba, cached
-on disk: about 10 s to compile on first use, 0.2 s to load after); ``_control_period_numpy`` runs the same
-steps through :class:`HydraulicCircuit`'s numpy methods, the reference the compiled period is tested
-against (tip paths within 1e-6 m; 2e-14 m measured on Test 3 and three suite logs). On ``hexgym bench``'s
-Test 3 (one thread, 2-core machine) the model runs ~400x real time; of a period's ~70-80 us the compiled circuit
-takes ~25, MuJoCo's step and the Python around it the rest.
+The period's circuit steps run natively (:class:`hexgym.model.circuit_kernel.NativeCircuit`: the C++ kernel the
+``hexgym.mbl`` plugin runs, called through ``ctypes``); ``_control_period_numpy`` runs the same steps through
+:class:`HydraulicCircuit`'s numpy methods, the definition the kernel is tested against, and the fallback (several
+times slower, said once per process) where the plugin library was not built. The native plugin runs this whole
+period inside ``mj_step`` (:class:`hexgym.model.native_backend.NativeLearnedModel` with the ``circuit`` tables).
 """
 
 from __future__ import annotations
+
+import warnings
 
 import mujoco
 import numpy as np
@@ -80,7 +81,9 @@ class CircuitModel(LearnedModel):
         self.tables, self.table_set = tables, "circuit"
         valve = LearnedValve(tables)
         self.circuit = HydraulicCircuit(valve=valve)
-        self._constants = circuit_kernel.pack(self.circuit, valve, STOP_CLEARANCE)
+        self._kernel = _native_kernel(self.circuit, tables)
+        if self._kernel is None:
+            self._control_period = self._control_period_numpy
         nv = self.physics.model.nv
         self._mass_index = self._dofs[:, None] * nv + self._dofs[None, :]  # the main joints' block of M, flat
         self.substeps = substeps
@@ -105,8 +108,8 @@ class CircuitModel(LearnedModel):
         arms, mass, load = self._period_start()
         h = self.control_period / self.substeps
         ext = self.physics.cylinder_extensions()
-        state, rates, _, travel, splits = circuit_kernel.control_period(
-            *self._constants, self.spools_m, self.state, self.rates, ext, arms, mass, load, h, self.substeps
+        state, rates, _, travel, splits = self._kernel.control_period(
+            self.spools_m, self.state, self.rates, ext, arms, mass, load, h, self.substeps
         )
         if not np.isfinite(state.sum()):
             raise ValueError(f"hydraulic state must be {STATE_SIZE} finite numbers ({STATE_NAMES})")
@@ -116,7 +119,7 @@ class CircuitModel(LearnedModel):
 
     def _control_period_numpy(self) -> None:
         """:meth:`_control_period` through :class:`HydraulicCircuit`'s numpy methods, one :meth:`_substep` at a time
-        (what the compiled period, :func:`hexgym.model.circuit_kernel.control_period`, is tested against)."""
+        (the definition the native kernel is tested against, and its fallback)."""
         arms, mass, load = self._period_start()
         rates, ext = self.rates, self.physics.cylinder_extensions().copy()
         h = self.control_period / self.substeps
@@ -169,6 +172,22 @@ class CircuitModel(LearnedModel):
         dv = np.append(arms * (new[1:] - rates[1:]), new[0] - rates[0])
         self.state = predicted + sens @ dv  # the pressures follow the rates the step reached
         return new, new_ext
+
+
+_fallback_said = False
+
+
+def _native_kernel(circuit: HydraulicCircuit, tables: dict[str, MBLTable]) -> circuit_kernel.NativeCircuit | None:
+    """The native kernel for this circuit and valve, or None where the library cannot be used (said once per
+    process: the model then runs the definition's numpy steps, several times slower)."""
+    global _fallback_said
+    reason = circuit_kernel.native_reason()
+    if not reason:
+        return circuit_kernel.NativeCircuit(circuit, tables, STOP_CLEARANCE)
+    if not _fallback_said:
+        _fallback_said = True
+        warnings.warn(f"hexgym: {reason}; the circuit model runs its numpy definition", RuntimeWarning, stacklevel=3)
+    return None
 
 
 def _with_joints_held(lhs: np.ndarray, rhs: np.ndarray, rates: np.ndarray, held: np.ndarray) -> np.ndarray:

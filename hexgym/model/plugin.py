@@ -23,6 +23,7 @@ import mujoco
 import numpy as np
 
 from hexgym.files import atomic_path
+from hexgym.hydraulics.circuit import STATE_SIZE as CIRCUIT_STATE_SIZE
 from hexgym.machine import kinematics
 from hexgym.mbl.schema import DEFAULT_TABLE_SET, NATIVE_TABLE_SETS, QUANTITIES, TABLE_SETS
 from hexgym.mbl.table import FORMAT_VERSION
@@ -45,7 +46,8 @@ CONFIG_KEYS: dict[str, str] = {
     "swing_rest_rate": "rad/s",
     "rate_range": "lo hi per joint, rad/s (the Python path's servo ctrlrange)",
     "control_period": "s between table queries, >= one step (default: one step)",
-    "table_set": "which table set the tables directory holds: paper or extended (default: the default set)",
+    "table_set": "which table set the tables directory holds: circuit, paper or extended (default: the default set)",
+    "circuit": "the circuit's numbers (nodes, branches, then CIRCUIT_FIELDS), for table_set circuit",
 }
 # Plugin state slots (mjSTATE_PLUGIN, so mj_getState/mj_setState restore a step exactly): name -> size.
 STATE_SLOTS: dict[str, int] = {
@@ -54,6 +56,89 @@ STATE_SLOTS: dict[str, int] = {
     "phase": 1,  # steps since the last table query, less whole control periods
     "targets": 4,  # the joint-rate targets held until the next query (the swing's unclipped)
     "inertia": 1,  # the swing inertia at the last table query, kg m^2 (torque tables keep the momentum)
+    "hydraulics": CIRCUIT_STATE_SIZE,  # the circuit model's pressures (Pa) and pump displacements (STATE_NAMES)
+    "rates": 4,  # the circuit model's joint rates at the last period's end, rad/s
+    "circuit_ready": 1,  # 1 once the circuit's state is set; 0 after a reset (the next query sets it to hold the loads)
+    "circuit_fault": 1,  # 1 once the circuit's state went non-finite (the machine then holds still)
+}
+# The circuit model's constants as the native kernel reads them (native/circuit.cc; config key "circuit", and
+# hexgym.model.circuit_kernel's binding): the counts of nodes and branches, then each field in this order, its
+# numbers in C order of the shape (extent, rows), or (extent,) for one row. Extents: "one", "nodes", "branches",
+# "pumps", "functions" (the spools' order), "cylinders" (boom, stick, bucket).
+CIRCUIT_LAWS = (
+    "discharge",  # orifice discharge coefficient
+    "sqrt_2_rho",  # sqrt(2 / oil density)
+    "laminar_sq",  # the orifice law's laminar pressure, squared, Pa^2
+    "atmosphere",  # Pa
+    "vacuum",  # Pa gauge: the compliance law's floor
+    "polytropic",  # entrained air's polytropic exponent
+    "air_fraction",  # entrained air at atmospheric pressure
+    "bulk_modulus",  # Pa
+    "cushion_length",  # m
+    "cushion_area",  # m^2
+    "cushion_port_area",  # m^2
+    "nfc_full_flow",  # Pa: NFC signal for full displacement
+    "nfc_min_flow",  # Pa: NFC signal for idle displacement
+    "idle_fraction",  # the pumps' idle displacement fraction
+    "power_limit",  # W: the pumps' cross-sensing horsepower limit
+    "max_flow",  # m^3/s per pump
+    "regulator_time",  # s
+    "max_splits",  # a step is split in halves at most this deep
+    "trust_floor",  # Pa: a pressure above it that more than halves in a step splits it
+    "trust_jump",  # Pa: a pressure change larger than this splits a step
+    "coulomb",  # N per cylinder
+    "friction_velocity",  # m/s
+    "viscous",  # N s/m per cylinder
+    "swing_reduction",  # motor turns per upper-structure turn
+    "swing_displacement",  # m^3/rad of the motor
+    "swing_viscous",  # N m s/rad at the motor
+    "swing_efficiency",  # the motor and gear's mechanical efficiency
+    "swing_friction_speed",  # rad/s at the motor
+    "swing_a",  # the swing motor's port nodes
+    "swing_b",
+    "stop_clearance",  # m inside each stroke end, where the joints are held
+    "dead_band",  # m of spool: the passages to and from the ports are closed within it
+    "closed_area",  # m^2: a closed bypass section in the series law
+    "idle_pressure",  # Pa: the pump and NFC signal lines at rest
+    "rest_pressure",  # Pa: a chamber that holds no load
+)
+CIRCUIT_FIELDS: dict[str, tuple[int, str]] = {
+    "laws": (len(CIRCUIT_LAWS), "one"),
+    "branch_from": (1, "branches"),  # node indices; the tank is node `nodes`
+    "branch_to": (1, "branches"),
+    "branch_area": (1, "branches"),  # m^2, fixed orifices (the valve's passages are set each period)
+    "branch_crack": (1, "branches"),  # Pa, pressure-operated valves
+    "branch_inv_span": (1, "branches"),  # 1/Pa, > 0 for a pressure-operated valve
+    "branch_laminar": (1, "branches"),  # m^3/(s Pa), leaks
+    "passage_branch": (4, "functions"),  # the branch of each section's pump->a, pump->b, a->tank, b->tank
+    "bypass_branch": (1, "pumps"),  # each pump's centre bypass branch
+    "pump_node": (1, "pumps"),
+    "signal_node": (1, "pumps"),  # each pump's NFC signal node
+    "pump_sections": (2, "pumps"),  # each pump's two sections (function indices), in series on its bypass
+    "head_area": (1, "cylinders"),  # m^2 per cylinder
+    "rod_area": (1, "cylinders"),
+    "stroke": (1, "cylinders"),  # m
+    "cylinder_count": (1, "cylinders"),  # cylinders per function
+    "port_volume": (1, "cylinders"),  # m^3 of line per chamber
+    "head_node": (1, "cylinders"),
+    "rod_node": (1, "cylinders"),
+    "function": (1, "cylinders"),  # the cylinder's section (function index)
+    "node_volume": (1, "nodes"),  # m^3; 0 for the chambers, whose volumes follow the pistons
+    "displacement": (4, "nodes"),  # d(volume rate)/d(boom, stick, bucket velocity, swing rate)
+}
+CIRCUIT_EXTENTS = ("one", "nodes", "branches", "pumps", "functions", "cylinders")
+NUM_PUMPS, NUM_CYLINDERS = 2, 3
+# The buffer of one control period through the library's hexgym_circuit_period (the Python circuit model's call):
+# slot -> size; spools to load go in, state, rates and ext go in and come out, travel comes out.
+PERIOD_SLOTS: dict[str, int] = {
+    "spools": 4,  # m, swing boom stick bucket
+    "rates": 4,  # rad/s, the joints' rates
+    "ext": NUM_CYLINDERS,  # m, the cylinders' extensions
+    "arms": NUM_CYLINDERS,  # m/rad, the cylinders' moment arms
+    "mass": 16,  # the main joints' mass matrix, row-major
+    "load": 4,  # N m, the joints' loads
+    "travel": 4,  # rad, each joint's travel over the period
+    "state": CIRCUIT_STATE_SIZE,  # the circuit's state
 }
 CLEARANCE_PLUGIN_NAME = "hexgym.clearance"
 # The clearance sensor plugin's config keys (native/clearance_plugin.cc: one sensor value per instance).
@@ -66,16 +151,18 @@ _PACKAGE_DIR = Path(__file__).resolve().parents[1]  # the build puts the library
 HEADER = Path("native") / "plugin_interface.h"  # relative to the repository root
 
 
-def state_offsets() -> dict[str, int]:
-    """Each state slot's offset in the instance's plugin state."""
+def state_offsets(slots: dict[str, int] = STATE_SLOTS) -> dict[str, int]:
+    """Each slot's offset: of the instance's plugin state (default), or of other ``slots``."""
     offsets, at = {}, 0
-    for name, size in STATE_SLOTS.items():
+    for name, size in slots.items():
         offsets[name], at = at, at + size
     return offsets
 
 
 STATE_SIZE = sum(STATE_SLOTS.values())
 STATE = state_offsets()
+PERIOD = {name: slice(at, at + PERIOD_SLOTS[name]) for name, at in state_offsets(PERIOD_SLOTS).items()}
+PERIOD_SIZE = sum(PERIOD_SLOTS.values())
 
 
 def interface() -> dict:
@@ -96,6 +183,10 @@ def interface() -> dict:
         },
         "default_table_set": DEFAULT_TABLE_SET,
         "table_format_version": FORMAT_VERSION,
+        "circuit_laws": list(CIRCUIT_LAWS),
+        "circuit_fields": [[name, rows, per] for name, (rows, per) in CIRCUIT_FIELDS.items()],
+        "circuit_period": {name: [at, PERIOD_SLOTS[name]] for name, at in state_offsets(PERIOD_SLOTS).items()},
+        "circuit_counts": {"pumps": NUM_PUMPS, "cylinders": NUM_CYLINDERS, "functions": len(kinematics.JOINTS)},
     }
 
 
@@ -132,7 +223,10 @@ def header_text() -> str:
         f"constexpr int kTableFormatVersion = {FORMAT_VERSION};",
         "",
         "// Plugin state slots (offsets) and size",
-        *[f"constexpr int k{_camel(name)} = {STATE[name]};  // {size} value(s)" for name, size in STATE_SLOTS.items()],
+        *[
+            f"constexpr int k{_camel(name)} = {STATE[name]}, k{_camel(name)}Size = {size};"
+            for name, size in STATE_SLOTS.items()
+        ],
         f"constexpr int kStateSize = {STATE_SIZE};",
         "",
         "// Config keys, in the declared order",
@@ -176,6 +270,8 @@ def header_text() -> str:
         "};",
         f"constexpr char kDefaultTableSet[] = {quote(DEFAULT_TABLE_SET)};",
         "",
+        *_circuit_lines(),
+        "",
         "// All of the above as JSON, returned by hexgym_mbl_interface() for the Python side's check",
         f"constexpr char kInterfaceJson[] = {quote(interface_json())};",
         "",
@@ -185,6 +281,39 @@ def header_text() -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def _circuit_lines() -> list[str]:
+    """The circuit numbers' layout (:data:`CIRCUIT_LAWS`, :data:`CIRCUIT_FIELDS`) as C++ enums and a table."""
+    return [
+        '// The circuit model\'s numbers (config key "circuit"): nodes, branches, then these fields in order,',
+        "// each rows x extent numbers (C order of (extent, rows))",
+        f"constexpr int kNumPumps = {NUM_PUMPS};",
+        f"constexpr int kNumCylinders = {NUM_CYLINDERS};",
+        f"constexpr int kNumFunctions = {len(kinematics.JOINTS)};",
+        "// hexgym_circuit_period's buffer: slot offsets and size",
+        *[f"constexpr int kPeriod{_camel(name)} = {at};" for name, at in state_offsets(PERIOD_SLOTS).items()],
+        f"constexpr int kPeriodSize = {PERIOD_SIZE};",
+        "enum CircuitLaw {",
+        *[f"  kLaw{_camel(name)}," for name in CIRCUIT_LAWS],
+        "  kNumCircuitLaws",
+        "};",
+        "enum CircuitExtent {",
+        *[f"  kPer{_camel(name)}," for name in CIRCUIT_EXTENTS],
+        "};",
+        "enum CircuitFieldId {",
+        *[f"  kField{_camel(name)}," for name in CIRCUIT_FIELDS],
+        "  kNumCircuitFields",
+        "};",
+        "struct CircuitField {",
+        "  const char* name;",
+        "  int rows;",
+        "  CircuitExtent per;",
+        "};",
+        "constexpr CircuitField kCircuitFields[kNumCircuitFields] = {",
+        *[f"    {{{json.dumps(n)}, {rows}, kPer{_camel(per)}}}," for n, (rows, per) in CIRCUIT_FIELDS.items()],
+        "};",
+    ]
 
 
 def _native_sets() -> dict:

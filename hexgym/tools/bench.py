@@ -12,7 +12,7 @@
 - ``learned_realtime_factor_python`` / ``_native`` (one thread) and ``batch_realtime_factor_native``
   (64 rollouts on every core): simulated seconds per wall second of the learned machine model
   alone (targets: native >= 5,000x, batch >= 10,000x on 2 cores); ``circuit_realtime_factor_python``
-  the circuit model's (:mod:`hexgym.model.circuit_model`, Python only), and ``circuit_period_compiled_us`` what
+  the circuit model's (:mod:`hexgym.model.circuit_model`, Python only), and ``circuit_period_native_us`` what
   its compiled control period alone costs (:func:`circuit_period_us`): a floor for a native circuit model's
   period beside the native table model's whole period (25 ms over ``learned_realtime_factor_native``).
 """
@@ -281,7 +281,7 @@ def print_bench(result: dict, json_path: str | Path | None = None) -> None:
     for key in ("learned_realtime_factor_python", "circuit_realtime_factor_python", "learned_realtime_factor_native"):
         print(f"{key}: {result.get(key, float('nan')):.0f}x real time (one thread)")
     native_period = 25e3 / result.get("learned_realtime_factor_native", float("nan"))
-    print(f"circuit_period_compiled_us: {result['circuit_period_compiled_us']:.1f} us per 25 ms period (the native "
+    print(f"circuit_period_native_us: {result['circuit_period_native_us']:.1f} us per 25 ms period (the native "
           f"table model's whole period: {native_period:.1f} us)")  # fmt: skip
     if "batch_realtime_factor_native" in result:
         print(
@@ -427,7 +427,7 @@ def native_benchmark(seconds: float = 3.0) -> dict[str, float]:
     out = {
         "learned_realtime_factor_python": _timed(per_period(LearnedModel()), seconds),
         "circuit_realtime_factor_python": _timed(per_period(CircuitModel()), seconds),
-        "circuit_period_compiled_us": circuit_period_us(),
+        "circuit_period_native_us": circuit_period_us(),
     }
     if not native_available():
         return out
@@ -437,29 +437,18 @@ def native_benchmark(seconds: float = 3.0) -> dict[str, float]:
 
 
 def circuit_period_us(periods: int = 20_000) -> float:
-    """Microseconds of the circuit model's compiled control period alone (its five circuit steps and the joints'
-    coupling, :func:`hexgym.model.circuit_kernel.control_period`), called from compiled code: no Python in the
-    loop. Measured at Test 3's state 2 s in (swing, boom and bucket moving)."""
-    import numba
-
-    from hexgym.model import circuit_kernel
-
-    @numba.njit
-    def repeat(n: int, args: tuple) -> float:
-        total = 0.0
-        for _ in range(n):
-            total += circuit_kernel.control_period(*args)[1][0]
-        return total
-
+    """Microseconds of the circuit model's native control period (its five circuit steps and the joints' coupling,
+    native/circuit.cc, called through ctypes: a microsecond or two of the figure is the call). Measured at Test 3's
+    state 2 s in (swing, boom and bucket moving)."""
     _, pose = _test3()
     model = CircuitModel()
     model.reset(pose)
     for u in (_test3_controls(model) * 1e-3)[:80]:
         model.step(u)
     arms, mass, load = model._period_start()
-    args = (*model._constants, model.spools_m, model.state, model.rates, model.physics.cylinder_extensions(),
+    args = (model.spools_m, model.state, model.rates, model.physics.cylinder_extensions(),
             arms, mass, load, model.control_period / model.substeps, model.substeps)  # fmt: skip
-    repeat(10, args)  # compile
     start = time.perf_counter()
-    repeat(periods, args)
+    for _ in range(periods):
+        model._kernel.control_period(*args)
     return (time.perf_counter() - start) / periods * 1e6

@@ -1,0 +1,551 @@
+// The circuit model's control period (see circuit.h). Each function names the Python it mirrors.
+#include "circuit.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <utility>
+
+namespace hexgym {
+namespace {
+
+constexpr double kUniformRtol = 1e-9;  // an axis whose steps agree to this is looked up by its step (MBLTable)
+
+// ---- element laws (hexgym.hydraulics.circuit) -------------------------------------------------
+struct Smooth {
+  double value, slope;
+};
+
+// C1 ramp 0 -> 1 on z in [0, 1] and its derivative (smoothstep).
+Smooth Smoothstep(double z) {
+  z = std::fmin(std::fmax(z, 0.0), 1.0);
+  return {z * z * (3.0 - 2.0 * z), 6.0 * z * (1.0 - z)};
+}
+
+// sqrt(2|dp|/rho) sign(dp), regularised to laminar near 0, and its derivative (orifice_law).
+Smooth OrificeLaw(double dp, double laminar_sq, double sqrt_2_rho) {
+  double w = 1.0 / std::sqrt(std::sqrt(dp * dp + laminar_sq));
+  double w2 = w * w;
+  return {sqrt_2_rho * dp * w, sqrt_2_rho * (w2 * w2 * w) * (0.5 * dp * dp + laminar_sq)};
+}
+
+// The equivalent area of two turbulent orifices in series (series_area).
+double SeriesArea(double a1, double a2) { return a1 * a2 / std::sqrt(a1 * a1 + a2 * a2 + 1e-30); }
+
+// 1/beta(p) of oil with entrained air and d(1/beta)/dp, 0 on the vacuum floor (compliance).
+Smooth Compliance(const double* law, double pressure) {
+  double n = law[kLawPolytropic], pa = law[kLawAtmosphere];
+  double p_abs = pressure + pa;
+  bool floor = p_abs < law[kLawVacuum] + pa;
+  if (floor) p_abs = law[kLawVacuum] + pa;
+  double x = law[kLawAirFraction] * std::pow(pa / p_abs, 1.0 / n);
+  double dx = -x / (n * p_abs);
+  double num = 1.0 / law[kLawBulkModulus] + x / (n * p_abs);
+  double dnum = -x * (1.0 + 1.0 / n) / (n * p_abs * p_abs);
+  double c = num / (1.0 + x);
+  double dc = (dnum * (1.0 + x) - num * dx) / ((1.0 + x) * (1.0 + x));
+  return {c, floor ? 0.0 : dc};
+}
+
+// The outlet area left by the cushion spear `distance` (m) before a stroke end (HydraulicCircuit._cushion).
+double Cushion(const double* law, double count, double distance) {
+  double s = Smoothstep(distance / law[kLawCushionLength]).value;
+  return count * (law[kLawCushionArea] + (law[kLawCushionPortArea] - law[kLawCushionArea]) * s);
+}
+
+// ---- the valve (hexgym.mbl.valve.LearnedValve) -------------------------------------------------
+struct ValveAreas {
+  double passage[kNumPassages][kNumFunctions];
+  double pump_bypass[kNumPumps];
+};
+
+// A passage is closed in the dead band and on the other side of neutral; the pump's bypass combines its two
+// sections' tables in series (pump_bypass_area).
+ValveAreas Valve(const Circuit& k, const double* spools) {
+  ValveAreas a;
+  std::memset(&a, 0, sizeof(a));
+  const double* law = k.law;
+  for (int i = 0; i < kNumFunctions; ++i) {
+    double u = spools[i];
+    int open[3] = {kBypass, u > 0 ? kPa : kPb, u > 0 ? kBt : kAt};
+    for (int key : open) {
+      if (key != kBypass && std::fabs(u) < law[kLawDeadBand]) continue;
+      a.passage[key][i] = std::fmax(k.valve[key * kNumFunctions + i](u), 0.0);
+    }
+  }
+  for (int j = 0; j < kNumPumps; ++j) {
+    double first = std::fmax(a.passage[kBypass][k.sections[j][0]], law[kLawClosedArea]);
+    double second = std::fmax(a.passage[kBypass][k.sections[j][1]], law[kLawClosedArea]);
+    double resistance = 1.0 / (first * first) + 1.0 / (second * second) - k.inv_neutral_sq[j];
+    double smaller = std::fmin(first, second);
+    a.pump_bypass[j] = 1.0 / std::sqrt(std::fmax(resistance, 1.0 / (smaller * smaller)));
+  }
+  return a;
+}
+
+// ---- the circuit's ODE (HydraulicCircuit) ------------------------------------------------------
+struct Workspace {
+  double area[kMaxBranches], q[kMaxBranches], g[kMaxBranches];
+  double f[kMaxState], cap[kMaxNodes];
+  double jac[kMaxState][kMaxState];
+};
+
+// The geometric area (m^2) of every branch for these valve areas and cylinder extensions (branch_areas).
+void BranchAreas(const Circuit& k, const ValveAreas& v, const double* ext, double* area) {
+  for (int b = 0; b < k.branches; ++b) area[b] = k.area[b];
+  for (int i = 0; i < kNumFunctions; ++i) {
+    for (int key = kPa; key <= kBt; ++key) area[k.passage_branch[i][key - kPa]] = v.passage[key][i];
+  }
+  for (int c = 0; c < kNumCylinders; ++c) {  // a->T leaves the head end (retracting), b->T the rod end
+    int f = k.function[c];
+    area[k.passage_branch[f][kAt - kPa]] = SeriesArea(v.passage[kAt][f], Cushion(k.law, k.count[c], ext[c]));
+    area[k.passage_branch[f][kBt - kPa]] =
+        SeriesArea(v.passage[kBt][f], Cushion(k.law, k.count[c], k.stroke[c] - ext[c]));
+  }
+  for (int j = 0; j < kNumPumps; ++j) area[k.bypass_branch[j]] = v.pump_bypass[j];
+}
+
+// Oil volume (m^3) of every node at cylinder extensions `ext` (volumes).
+void Volumes(const Circuit& k, const double* ext, double* vol) {
+  for (int i = 0; i < k.nodes; ++i) vol[i] = k.node_volume[i];
+  for (int c = 0; c < kNumCylinders; ++c) {
+    double x = std::fmin(std::fmax(ext[c], 0.0), k.stroke[c]);
+    vol[k.head_node[c]] = k.port_volume[c] + k.head_area[c] * x;
+    vol[k.rod_node[c]] = k.port_volume[c] + k.rod_area[c] * (k.stroke[c] - x);
+  }
+}
+
+// d(state)/dt, its Jacobian and the nodes' capacities V/beta into w (_evaluate).
+void Evaluate(const Circuit& k, const double* y, const double* ext, const double* vel, double swing_rate,
+              Workspace& w) {
+  const double* law = k.law;
+  int nn = k.nodes, n = k.state_size;
+  for (int i = 0; i < n; ++i) {
+    for (int j = 0; j < n; ++j) w.jac[i][j] = 0.0;
+  }
+  double net[kMaxNodes] = {0.0};
+  for (int b = 0; b < k.branches; ++b) {  // each branch's flow and its incidence; the tank (node nn) has no row
+    int a = k.from[b], c = k.to[b];
+    double dp = (a < nn ? y[a] : 0.0) - (c < nn ? y[c] : 0.0);
+    Smooth r = OrificeLaw(dp, law[kLawLaminarSq], law[kLawSqrt2Rho]);
+    double opening = 1.0, dopening = 0.0;
+    if (k.inv_span[b] > 0.0) {  // a pressure-operated valve
+      Smooth s = Smoothstep((dp - k.crack[b]) * k.inv_span[b]);
+      opening = s.value, dopening = s.slope * k.inv_span[b];
+    }
+    double cda = law[kLawDischarge] * w.area[b];
+    double q = cda * opening * r.value + k.laminar[b] * dp;
+    double g = cda * (dopening * r.value + opening * r.slope) + k.laminar[b];
+    if (a < nn) net[a] -= q, w.jac[a][a] -= g;
+    if (c < nn) net[c] += q, w.jac[c][c] -= g;
+    if (a < nn && c < nn) w.jac[a][c] += g, w.jac[c][a] += g;
+  }
+  // pumps: NFC under the cross-sensing horsepower limit (pump_flows)
+  double p1 = y[k.pump_node[0]], p2 = y[k.pump_node[1]], total = p1 + p2;
+  double q_hp = total > 0.0 ? law[kLawPowerLimit] / total : INFINITY;
+  double dq_dd[kNumPumps];
+  for (int i = 0; i < kNumPumps; ++i) {
+    double nfc = law[kLawMaxFlow] * std::fmin(std::fmax(y[nn + i], 0.0), 1.0);
+    bool limited = nfc > q_hp;
+    int node = k.pump_node[i];
+    net[node] += limited ? q_hp : nfc;
+    dq_dd[i] = limited ? 0.0 : law[kLawMaxFlow];
+    if (limited && total > 0.0) {
+      double dq_dp = -law[kLawPowerLimit] / (total * total);
+      w.jac[node][k.pump_node[0]] += dq_dp;
+      w.jac[node][k.pump_node[1]] += dq_dp;
+    }
+  }
+  Volumes(k, ext, w.cap);
+  for (int i = 0; i < nn; ++i) {
+    Smooth c = Compliance(law, y[i]);
+    w.cap[i] *= c.value;
+    const double* d = &k.displacement[4 * i];
+    double rate = d[0] * vel[0] + d[1] * vel[1] + d[2] * vel[2] + d[3] * swing_rate;
+    w.f[i] = (net[i] - rate) / w.cap[i];
+    for (int j = 0; j < nn; ++j) w.jac[i][j] /= w.cap[i];
+    w.jac[i][i] -= w.f[i] * c.slope / c.value;
+  }
+  // the regulators: NFC through its lag, and d(pump pdot)/d(displacement)
+  double width = law[kLawNfcMinFlow] - law[kLawNfcFullFlow], drop = 1.0 - law[kLawIdleFraction];
+  double tau = law[kLawRegulatorTime];
+  for (int i = 0; i < kNumPumps; ++i) {
+    Smooth s = Smoothstep((y[k.signal_node[i]] - law[kLawNfcFullFlow]) / width);
+    w.f[nn + i] = (1.0 - drop * s.value - y[nn + i]) / tau;
+    w.jac[nn + i][k.signal_node[i]] = -drop * s.slope / width / tau;
+    w.jac[nn + i][nn + i] = -1.0 / tau;
+    w.jac[k.pump_node[i]][nn + i] = dq_dd[i] / w.cap[k.pump_node[i]];
+  }
+}
+
+// x of a x = b for b with m columns, by Gaussian elimination with partial pivoting, as LAPACK's LU does;
+// a (n x n, row stride sa) and b (n x m, row stride sb) are overwritten, x in b.
+void Solve(double* a, int sa, double* b, int sb, int n, int m) {
+  for (int col = 0; col < n; ++col) {
+    int pivot = col;
+    for (int r = col + 1; r < n; ++r) {
+      if (std::fabs(a[r * sa + col]) > std::fabs(a[pivot * sa + col])) pivot = r;
+    }
+    if (pivot != col) {
+      for (int j = 0; j < n; ++j) std::swap(a[col * sa + j], a[pivot * sa + j]);
+      for (int j = 0; j < m; ++j) std::swap(b[col * sb + j], b[pivot * sb + j]);
+    }
+    for (int r = col + 1; r < n; ++r) {
+      if (a[r * sa + col] == 0.0) continue;  // the circuit's matrix is sparse
+      double factor = a[r * sa + col] / a[col * sa + col];
+      for (int j = col + 1; j < n; ++j) a[r * sa + j] -= factor * a[col * sa + j];
+      for (int j = 0; j < m; ++j) b[r * sb + j] -= factor * b[col * sb + j];
+    }
+  }
+  for (int col = n - 1; col >= 0; --col) {
+    for (int j = 0; j < m; ++j) {
+      double s = b[col * sb + j];
+      for (int c = col + 1; c < n; ++c) s -= a[col * sa + c] * b[c * sb + j];
+      b[col * sb + j] = s / a[col * sa + col];
+    }
+  }
+}
+
+// Whether a step's pressure change is small enough for its linearisation (_trusted).
+bool Trusted(const double* law, const double* p0, const double* p1, int nn) {
+  for (int i = 0; i < nn; ++i) {
+    if ((p1[i] < 0.5 * p0[i] && p0[i] > law[kLawTrustFloor]) || p1[i] < law[kLawVacuum] ||
+        std::fabs(p1[i] - p0[i]) > law[kLawTrustJump]) {
+      return false;
+    }
+  }
+  return true;
+}
+
+// One linearly implicit Euler step of dt from y where the ODE gave w: the new state y1 and sensitivity s1,
+// (y, 0) + L^-1 (dt f, S - dt dV/dv / cap) with L = I - dt J.
+void ImplicitEuler(const Circuit& k, const double* y, const double* sens, double dt, const Workspace& w,
+                   double* y1, double* s1) {
+  int n = k.state_size, nn = k.nodes;
+  double lhs[kMaxState * kMaxState], rhs[kMaxState * 5];
+  for (int i = 0; i < n; ++i) {
+    for (int j = 0; j < n; ++j) lhs[i * n + j] = (i == j ? 1.0 : 0.0) - dt * w.jac[i][j];
+    rhs[i * 5] = dt * w.f[i];
+    for (int j = 0; j < 4; ++j) {
+      rhs[i * 5 + 1 + j] = sens[i * 4 + j] - (i < nn ? dt * k.displacement[4 * i + j] / w.cap[i] : 0.0);
+    }
+  }
+  Solve(lhs, n, rhs, 5, n, 5);
+  for (int i = 0; i < n; ++i) {
+    y1[i] = y[i] + rhs[i * 5];
+    for (int j = 0; j < 4; ++j) s1[i * 4 + j] = rhs[i * 5 + 1 + j];
+  }
+}
+
+// The state after dt, d(state)/d(velocities) into sens, and the splits taken (step_with_sensitivity): a step
+// the linearisation cannot be trusted with is split in halves, depth first, up to max_splits deep.
+int Advance(const Circuit& k, double* y, double dt, const double* ext, const double* vel, double swing_rate,
+            double* sens, Workspace& w) {
+  int n = k.state_size, nn = k.nodes, max_splits = static_cast<int>(k.law[kLawMaxSplits]);
+  for (int i = 0; i < n * 4; ++i) sens[i] = 0.0;
+  int pending[64], top = 1, splits = 0;  // depths of the intervals still to go, last is next
+  pending[0] = 0;
+  double y1[kMaxState], s1[kMaxState * 4];
+  Evaluate(k, y, ext, vel, swing_rate, w);
+  while (top > 0) {
+    int depth = pending[--top];
+    ImplicitEuler(k, y, sens, dt * std::ldexp(1.0, -depth), w, y1, s1);
+    if (depth < max_splits && !Trusted(k.law, y, y1, nn)) {
+      ++splits;
+      pending[top++] = depth + 1;
+      pending[top++] = depth + 1;
+      continue;
+    }
+    for (int i = 0; i < nn; ++i) {  // a last guard: oil cannot pull a vacuum
+      if (y1[i] < k.law[kLawVacuum]) {
+        y1[i] = k.law[kLawVacuum];
+        for (int j = 0; j < 4; ++j) s1[i * 4 + j] = 0.0;
+      }
+    }
+    std::memcpy(y, y1, sizeof(double) * n);
+    std::memcpy(sens, s1, sizeof(double) * n * 4);
+    if (top > 0) Evaluate(k, y, ext, vel, swing_rate, w);  // the second half of a split step: from the first's end
+  }
+  return splits;
+}
+
+// ---- the joints (hexgym.model.circuit_model.CircuitModel._substep) ----------------------------------
+// Cylinder forces (N) and the swing torque (N m) of state y, no end stops (actuator_forces).
+double OilLoads(const Circuit& k, const double* y, const double* vel, double swing_rate, double* force) {
+  const double* law = k.law;
+  for (int c = 0; c < kNumCylinders; ++c) {
+    double friction = law[kLawCoulomb] * std::tanh(vel[c] / law[kLawFrictionVelocity]);
+    force[c] = y[k.head_node[c]] * k.head_area[c] - y[k.rod_node[c]] * k.rod_area[c];
+    force[c] -= k.count[c] * (friction + law[kLawViscous] * vel[c]);
+  }
+  double omega = law[kLawSwingReduction] * swing_rate;
+  double ideal = law[kLawSwingDisplacement] * (y[static_cast<int>(law[kLawSwingA])] - y[static_cast<int>(law[kLawSwingB])]);
+  double loss = (1.0 - law[kLawSwingEfficiency]) * std::fabs(ideal) * std::tanh(omega / law[kLawSwingFrictionSpeed]);
+  return law[kLawSwingReduction] * (ideal - loss - law[kLawSwingViscous] * omega);
+}
+
+// d(force_i)/d(v_i) (N s/m) and d(swing torque)/d(swing rate) (N m s/rad) along a step of sensitivity sens
+// (coupling_derivatives).
+double Coupling(const Circuit& k, const double* sens, const double* vel, double* dforce) {
+  const double* law = k.law;
+  for (int c = 0; c < kNumCylinders; ++c) {
+    double dpressure = k.head_area[c] * sens[k.head_node[c] * 4 + c] - k.rod_area[c] * sens[k.rod_node[c] * 4 + c];
+    double t = std::tanh(vel[c] / law[kLawFrictionVelocity]);
+    double friction = law[kLawCoulomb] / law[kLawFrictionVelocity] * (1.0 - t * t) + law[kLawViscous];
+    dforce[c] = dpressure - k.count[c] * friction;
+  }
+  double ratio = law[kLawSwingReduction];
+  int a = static_cast<int>(law[kLawSwingA]), b = static_cast<int>(law[kLawSwingB]);
+  double dtorque = ratio * law[kLawSwingDisplacement] * (sens[a * 4 + 3] - sens[b * 4 + 3]);
+  return dtorque - ratio * ratio * law[kLawSwingViscous];
+}
+
+// The implicit step lhs (new - rates) = rhs with the held joints' new rates zero (_with_joints_held).
+void HeldSolve(const double* lhs, const double* rhs, const double* rates, const bool* held, double* out) {
+  int free[4], nf = 0;
+  for (int j = 0; j < 4; ++j) {
+    if (!held[j]) free[nf++] = j;
+  }
+  double a[16], b[4];
+  for (int r = 0; r < nf; ++r) {
+    double s = 0.0;
+    for (int j = 0; j < 4; ++j) {
+      if (held[j]) s += lhs[free[r] * 4 + j] * -rates[j];
+    }
+    b[r] = rhs[free[r]] - s;
+    for (int c = 0; c < nf; ++c) a[r * nf + c] = lhs[free[r] * 4 + free[c]];
+  }
+  Solve(a, nf, b, 1, nf, 1);
+  for (int j = 0; j < 4; ++j) out[j] = 0.0;
+  for (int r = 0; r < nf; ++r) out[free[r]] = rates[free[r]] + b[r];
+}
+
+// One circuit step of h s with the joints' rates implicit in the oil's torques (CircuitModel._substep).
+int Substep(const Circuit& k, double h, double* state, double* rates, double* ext, const double* arms,
+            const double* mass, const double* load, Workspace& w) {
+  double vel[kNumCylinders], sens[kMaxState * 4], force[kNumCylinders], dforce[kNumCylinders];
+  for (int c = 0; c < kNumCylinders; ++c) vel[c] = arms[c] * rates[c + 1];
+  int splits = Advance(k, state, h, ext, vel, rates[0], sens, w);  // state: the predicted one
+  double torque = OilLoads(k, state, vel, rates[0], force);
+  double dtorque = Coupling(k, sens, vel, dforce);
+  double lhs[16], rhs[4], a[16], b[4], next[4];
+  std::memcpy(lhs, mass, sizeof(lhs));
+  lhs[0] -= h * dtorque;
+  rhs[0] = h * (torque - load[0]);
+  for (int c = 0; c < kNumCylinders; ++c) {
+    lhs[(c + 1) * 5] -= h * (dforce[c] * (arms[c] * arms[c]));
+    rhs[c + 1] = h * (force[c] * arms[c] - load[c + 1]);
+  }
+  std::memcpy(a, lhs, sizeof(a));
+  std::memcpy(b, rhs, sizeof(b));
+  Solve(a, 4, b, 1, 4, 1);
+  for (int j = 0; j < 4; ++j) next[j] = rates[j] + b[j];
+  double new_ext[kNumCylinders], lo = k.law[kLawStopClearance];
+  bool held[4] = {false, false, false, false}, stopped = false;
+  for (int c = 0; c < kNumCylinders; ++c) {
+    new_ext[c] = ext[c] + arms[c] * next[c + 1] * h;
+    double v = arms[c] * next[c + 1];
+    held[c + 1] = (new_ext[c] > k.stroke[c] - lo && v > 0.0) || (new_ext[c] < lo && v < 0.0);
+    stopped |= held[c + 1];
+  }
+  if (stopped) {  // the stops hold those joints; their impulse reaches the others through M
+    HeldSolve(lhs, rhs, rates, held, next);
+    for (int c = 0; c < kNumCylinders; ++c) new_ext[c] = held[c + 1] ? ext[c] : ext[c] + arms[c] * next[c + 1] * h;
+  }
+  double dv[4];
+  for (int c = 0; c < kNumCylinders; ++c) dv[c] = arms[c] * (next[c + 1] - rates[c + 1]);
+  dv[3] = next[0] - rates[0];
+  for (int i = 0; i < k.state_size; ++i) {  // the pressures follow the rates the step reached
+    const double* s = &sens[i * 4];
+    state[i] += s[0] * dv[0] + s[1] * dv[1] + s[2] * dv[2] + s[3] * dv[3];
+  }
+  std::memcpy(rates, next, sizeof(next));
+  std::memcpy(ext, new_ext, sizeof(new_ext));
+  return splits;
+}
+
+// ---- reading the packed numbers ----------------------------------------------------------------
+int Extent(CircuitExtent per, int nodes, int branches) {
+  switch (per) {
+    case kPerOne: return 1;
+    case kPerNodes: return nodes;
+    case kPerBranches: return branches;
+    case kPerPumps: return kNumPumps;
+    case kPerFunctions: return kNumFunctions;
+    case kPerCylinders: return kNumCylinders;
+  }
+  return 0;
+}
+
+int Index(double v, int limit, const char* field) {
+  if (!(v >= 0 && v < limit && v == std::floor(v))) {
+    throw CircuitError(std::string("circuit field '") + field + "' holds " + std::to_string(v) +
+                       ", not an index below " + std::to_string(limit));
+  }
+  return static_cast<int>(v);
+}
+
+}  // namespace
+
+double ValveTable::operator()(double x) const {
+  int n = static_cast<int>(nodes.size());
+  double lo = nodes[0], hi = nodes[n - 1];
+  double v = x < lo ? lo : x > hi ? hi : x;
+  int i;
+  double t;
+  if (inv_step > 0.0) {  // an even axis: the cell from the spacing
+    double pos = (v - lo) * inv_step;
+    i = std::min(static_cast<int>(pos), n - 2);
+    t = pos - i;
+  } else {  // the last node at or below v
+    i = static_cast<int>(std::upper_bound(nodes.begin(), nodes.end(), v) - nodes.begin()) - 1;
+    i = std::min(std::max(i, 0), n - 2);
+    t = (v - nodes[i]) / (nodes[i + 1] - nodes[i]);
+  }
+  return values[i] + t * (values[i + 1] - values[i]);
+}
+
+ValveTable MakeValveTable(const double* nodes, const double* values, int n) {
+  if (n < 2) throw CircuitError("a valve table needs at least 2 nodes, got " + std::to_string(n));
+  ValveTable t;
+  t.nodes.assign(nodes, nodes + n);
+  t.values.assign(values, values + n);
+  double step = (nodes[n - 1] - nodes[0]) / (n - 1);
+  bool even = step > 0.0;
+  for (int i = 0; i + 1 < n; ++i) {
+    if (!(nodes[i + 1] > nodes[i])) throw CircuitError("a valve table's nodes must ascend");
+    even = even && std::fabs((nodes[i + 1] - nodes[i]) - (nodes[1] - nodes[0])) <= kUniformRtol * std::fabs(nodes[1] - nodes[0]);
+  }
+  t.inv_step = even ? (n - 1) / (nodes[n - 1] - nodes[0]) : 0.0;
+  return t;
+}
+
+Circuit::Circuit(const double* numbers, int count, std::vector<ValveTable> tables) {
+  if (count < 2) throw CircuitError("circuit numbers: fewer than the 2 counts (nodes, branches)");
+  nodes = static_cast<int>(numbers[0]), branches = static_cast<int>(numbers[1]);
+  if (!(numbers[0] == nodes && nodes >= 2 && nodes <= kMaxNodes && numbers[1] == branches && branches >= 1 &&
+        branches <= kMaxBranches)) {
+    throw CircuitError("circuit numbers: " + std::to_string(numbers[0]) + " nodes and " + std::to_string(numbers[1]) +
+                       " branches (at most " + std::to_string(kMaxNodes) + " and " + std::to_string(kMaxBranches) + ")");
+  }
+  state_size = nodes + kNumPumps;
+  const double* field[kNumCircuitFields];
+  int at = 2;
+  for (int i = 0; i < kNumCircuitFields; ++i) {
+    field[i] = numbers + at;
+    at += kCircuitFields[i].rows * Extent(kCircuitFields[i].per, nodes, branches);
+  }
+  if (at != count) {
+    throw CircuitError("circuit numbers: " + std::to_string(count) + " numbers where the layout of " +
+                       std::to_string(nodes) + " nodes and " + std::to_string(branches) + " branches needs " +
+                       std::to_string(at));
+  }
+  for (int i = 0; i < count; ++i) {
+    if (!std::isfinite(numbers[i])) throw CircuitError("circuit numbers: number " + std::to_string(i) + " is not finite");
+  }
+  std::memcpy(law, field[kFieldLaws], sizeof(law));
+  auto ints = [&](int id, int n, int limit, int* out) {
+    for (int i = 0; i < n; ++i) out[i] = Index(field[id][i], limit, kCircuitFields[id].name);
+  };
+  from.resize(branches), to.resize(branches);
+  ints(kFieldBranchFrom, branches, nodes + 1, from.data());
+  ints(kFieldBranchTo, branches, nodes + 1, to.data());
+  area.assign(field[kFieldBranchArea], field[kFieldBranchArea] + branches);
+  crack.assign(field[kFieldBranchCrack], field[kFieldBranchCrack] + branches);
+  inv_span.assign(field[kFieldBranchInvSpan], field[kFieldBranchInvSpan] + branches);
+  laminar.assign(field[kFieldBranchLaminar], field[kFieldBranchLaminar] + branches);
+  ints(kFieldPassageBranch, kNumFunctions * 4, branches, &passage_branch[0][0]);
+  ints(kFieldBypassBranch, kNumPumps, branches, bypass_branch);
+  ints(kFieldPumpNode, kNumPumps, nodes, pump_node);
+  ints(kFieldSignalNode, kNumPumps, nodes, signal_node);
+  ints(kFieldPumpSections, kNumPumps * 2, kNumFunctions, &sections[0][0]);
+  std::memcpy(head_area, field[kFieldHeadArea], sizeof(head_area));
+  std::memcpy(rod_area, field[kFieldRodArea], sizeof(rod_area));
+  std::memcpy(stroke, field[kFieldStroke], sizeof(stroke));
+  std::memcpy(this->count, field[kFieldCylinderCount], sizeof(this->count));
+  std::memcpy(port_volume, field[kFieldPortVolume], sizeof(port_volume));
+  ints(kFieldHeadNode, kNumCylinders, nodes, head_node);
+  ints(kFieldRodNode, kNumCylinders, nodes, rod_node);
+  ints(kFieldFunction, kNumCylinders, kNumFunctions, function);
+  node_volume.assign(field[kFieldNodeVolume], field[kFieldNodeVolume] + nodes);
+  displacement.assign(field[kFieldDisplacement], field[kFieldDisplacement] + 4 * nodes);
+  Index(law[kLawSwingA], nodes, "laws: swing_a");
+  Index(law[kLawSwingB], nodes, "laws: swing_b");
+  if (!(law[kLawMaxSplits] >= 0 && law[kLawMaxSplits] <= 30)) throw CircuitError("laws: max_splits must be 0 to 30");
+  if (static_cast<int>(tables.size()) != kNumPassages * kNumFunctions) {
+    throw CircuitError("the valve needs " + std::to_string(kNumPassages * kNumFunctions) + " tables, got " +
+                       std::to_string(tables.size()));
+  }
+  for (int i = 0; i < kNumPassages * kNumFunctions; ++i) valve[i] = std::move(tables[i]);
+  for (int j = 0; j < kNumPumps; ++j) {  // LearnedValve: the mean of its sections' bypass tables at neutral
+    double neutral = 0.5 * (valve[sections[j][0]](0.0) + valve[sections[j][1]](0.0));
+    if (!(neutral > 0.0)) {
+      throw CircuitError("the bypass tables give a closed centre at neutral on pump " + std::to_string(j + 1));
+    }
+    inv_neutral_sq[j] = 1.0 / (neutral * neutral);
+  }
+}
+
+void InitialState(const Circuit& k, const double* holding, double* y) {
+  const double* law = k.law;
+  double rest = law[kLawRestPressure];
+  for (int i = 0; i < k.nodes; ++i) y[i] = rest;
+  for (int j = 0; j < kNumPumps; ++j) {
+    y[k.pump_node[j]] = y[k.signal_node[j]] = law[kLawIdlePressure];
+    y[k.nodes + j] = law[kLawIdleFraction];
+  }
+  for (int c = 0; c < kNumCylinders; ++c) {
+    double f = holding[c];
+    bool push = f >= 0.0;
+    y[k.head_node[c]] = push ? (f + rest * k.rod_area[c]) / k.head_area[c] : rest;
+    y[k.rod_node[c]] = push ? rest : (-f + rest * k.head_area[c]) / k.rod_area[c];
+  }
+}
+
+int ControlPeriod(const Circuit& k, const double* spools, double* state, double* rates, double* ext,
+                  const double* arms, const double* mass, const double* load, double h, int substeps,
+                  double* travel) {
+  ValveAreas valve = Valve(k, spools);
+  Workspace w;
+  int splits = 0;
+  for (int j = 0; j < 4; ++j) travel[j] = 0.0;
+  for (int s = 0; s < substeps; ++s) {
+    BranchAreas(k, valve, ext, w.area);
+    splits += Substep(k, h, state, rates, ext, arms, mass, load, w);
+    for (int j = 0; j < 4; ++j) travel[j] += rates[j] * h;
+  }
+  return splits;
+}
+
+void BranchAreasAt(const Circuit& k, const double* spools, const double* ext, double* area) {
+  BranchAreas(k, Valve(k, spools), ext, area);
+}
+
+void Derivatives(const Circuit& k, const double* y, const double* spools, const double* ext, const double* vel,
+                 double swing_rate, double* f, double* jac) {
+  Workspace w;
+  BranchAreas(k, Valve(k, spools), ext, w.area);
+  Evaluate(k, y, ext, vel, swing_rate, w);
+  int n = k.state_size;
+  for (int i = 0; i < n; ++i) {
+    f[i] = w.f[i];
+    for (int j = 0; j < n; ++j) jac[i * n + j] = w.jac[i][j];
+  }
+}
+
+int Step(const Circuit& k, double* y, const double* spools, const double* ext, const double* vel, double swing_rate,
+         double dt, double* sens) {
+  Workspace w;
+  BranchAreas(k, Valve(k, spools), ext, w.area);
+  return Advance(k, y, dt, ext, vel, swing_rate, sens, w);
+}
+
+double OilForces(const Circuit& k, const double* y, const double* vel, double swing_rate, double* force) {
+  return OilLoads(k, y, vel, swing_rate, force);
+}
+
+double CouplingDerivatives(const Circuit& k, const double* sens, const double* vel, double* dforce) {
+  return Coupling(k, sens, vel, dforce);
+}
+
+}  // namespace hexgym

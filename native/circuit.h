@@ -1,0 +1,87 @@
+// The circuit model's control period: the open-centre circuit with the learned valve, coupled
+// implicitly to the main joints. The same law as hexgym/hydraulics/circuit.py (HydraulicCircuit,
+// the definition, which makes the training data) and hexgym/model/circuit_model.py's coupling, term
+// by term; the one fast implementation, run by the hexgym.mbl plugin and, through ctypes
+// (circuit_binding.cc), by the Python circuit model.
+//
+// The circuit is data: its nodes, branches, valve sections, pumps, cylinders, swing motor and scalar
+// laws come as numbers packed by hexgym.model.circuit_kernel.circuit_numbers in the layout that
+// hexgym/model/plugin.py defines (kCircuitFields, kCircuitLaws in the generated plugin_interface.h);
+// the valve is one 1-D table per passage and function.
+#ifndef HEXGYM_NATIVE_CIRCUIT_H_
+#define HEXGYM_NATIVE_CIRCUIT_H_
+
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "plugin_interface.h"
+
+namespace hexgym {
+
+// Circuit numbers or valve tables that cannot be used; what() says which and why.
+class CircuitError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+constexpr int kMaxNodes = 30;  // the workspace's capacity; a larger circuit is refused when packed
+constexpr int kMaxState = kMaxNodes + kNumPumps;
+constexpr int kMaxBranches = 160;
+constexpr int kNumPassages = 5;  // bypass, pump->a, pump->b, a->tank, b->tank (hexgym.mbl.schema.VALVE_PASSAGES)
+enum Passage { kBypass, kPa, kPb, kAt, kBt };
+
+// A valve table: linear between its nodes, clamped to its ends (MBLTable's lookup in one input).
+struct ValveTable {
+  std::vector<double> nodes, values;
+  double inv_step = 0.0;  // 1 / node spacing of an even axis; 0: searched
+  double operator()(double x) const;
+};
+// A table of n nodes at `nodes` (ascending) with `values`.
+ValveTable MakeValveTable(const double* nodes, const double* values, int n);
+
+struct Circuit {
+  int nodes = 0, branches = 0, state_size = 0;
+  double law[kNumCircuitLaws];
+  std::vector<int> from, to;  // the tank is node `nodes`
+  std::vector<double> area, crack, inv_span, laminar;
+  int passage_branch[kNumFunctions][4];  // pa, pb, at, bt
+  int bypass_branch[kNumPumps], pump_node[kNumPumps], signal_node[kNumPumps], sections[kNumPumps][2];
+  double head_area[kNumCylinders], rod_area[kNumCylinders], stroke[kNumCylinders], count[kNumCylinders];
+  double port_volume[kNumCylinders];
+  int head_node[kNumCylinders], rod_node[kNumCylinders], function[kNumCylinders];
+  std::vector<double> node_volume;   // (nodes): 0 for the cylinder chambers, whose volumes follow the pistons
+  std::vector<double> displacement;  // (nodes, 4): d(volume rate)/d(boom, stick, bucket velocity, swing rate)
+  ValveTable valve[kNumPassages * kNumFunctions];  // row passage * kNumFunctions + function
+  double inv_neutral_sq[kNumPumps];                // 1 / (each pump's bypass area at neutral)^2
+
+  // From `count` packed numbers and the valve's tables (kNumPassages * kNumFunctions, passage-major).
+  Circuit(const double* numbers, int count, std::vector<ValveTable> tables);
+};
+
+// The circuit's state at rest with idle pumps and chamber pressures holding `holding` (N per cylinder).
+void InitialState(const Circuit& k, const double* holding, double* state);
+
+// One control period: `substeps` circuit steps of `h` s at `spools` (m), the joints' rates implicit in the
+// oil's torques, with moment arms `arms` (3), the main joints' mass matrix `mass` (4x4, row-major) and loads
+// `load` (4). `state` (state_size), `rates` (4: swing, boom, stick, bucket) and `ext` (3) advance in place;
+// `travel` (4) gets each joint's travel (rad). Returns the steps split.
+int ControlPeriod(const Circuit& k, const double* spools, double* state, double* rates, double* ext,
+                  const double* arms, const double* mass, const double* load, double h, int substeps,
+                  double* travel);
+
+// The period's pieces, for the tests that hold them to the definition (hexgym_circuit_* in circuit_binding.cc):
+// the branches' areas (branches) at spools and extensions; d(state)/dt (state_size) and its Jacobian (row-major);
+// one circuit step of dt in place with d(state)/d(velocities) (state_size x 4), returning the splits; the oil's
+// cylinder forces (3) returning the swing torque; d(force)/d(velocity) (3) returning d(torque)/d(swing rate).
+void BranchAreasAt(const Circuit& k, const double* spools, const double* ext, double* area);
+void Derivatives(const Circuit& k, const double* y, const double* spools, const double* ext, const double* vel,
+                 double swing_rate, double* f, double* jac);
+int Step(const Circuit& k, double* y, const double* spools, const double* ext, const double* vel, double swing_rate,
+         double dt, double* sens);
+double OilForces(const Circuit& k, const double* y, const double* vel, double swing_rate, double* force);
+double CouplingDerivatives(const Circuit& k, const double* sens, const double* vel, double* dforce);
+
+}  // namespace hexgym
+
+#endif  // HEXGYM_NATIVE_CIRCUIT_H_
