@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import re
 from typing import Any
 
 MAX_SEED = 2**63 - 1  # numpy's and gymnasium's seeds are non-negative integers
@@ -46,13 +47,54 @@ def check_range(name: str, value: Any, lo: float, hi: float, unit: str = "") -> 
     return float(value)
 
 
-def parse_seeds(text: str) -> list[int]:
-    """``"A-B"`` (inclusive) or ``"A"`` -> seeds (``--seeds`` of the commands that run many)."""
-    try:
-        first, _, last = text.partition("-")
-        a, b = int(first), int(last or first)
-    except ValueError:
-        raise ValueError(f"--seeds must be A-B (integers, A <= B), got {text!r}") from None
-    if a < 0 or b < a:
-        raise ValueError(f"--seeds must be A-B with 0 <= A <= B, got {text!r}")
+# Numbers as a data file writes them: ASCII digits, an optional point and exponent. Python's float() and
+# int() also take '1_0' (10), ' 1 ', Unicode digits, 'nan' and 'infinity'; a data file holding those was
+# not written as a number and is refused, not read as something else.
+_DECIMAL = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
+_WHOLE = re.compile(r"[+-]?[0-9]+")
+_NUMBER_RULE = "digits, a point and an exponent only: no underscores, hex or words"
+MAX_SEEDS = 1_000_000  # seeds a --seeds range may name (each is an episode or a plan)
+
+
+def parse_float(text: str, what: str = "value", finite: bool = True) -> float:
+    """``text`` as a float, written as a data file writes numbers (see above); ValueError naming ``what``.
+
+    ``finite``: refuse NaN and infinity (also an exponent too large for a float); otherwise ``nan``,
+    ``inf`` and ``-inf`` (any case) are read too.
+    """
+    if not isinstance(text, str):
+        raise TypeError(f"{what} must be text, got {type(text).__name__}")
+    word = text.strip()
+    if _DECIMAL.fullmatch(word):
+        value = float(word)
+        if finite and not math.isfinite(value):
+            raise ValueError(f"{what}: {text[:40]!r} is too large for a number")
+        return value
+    if not finite and word.lower() in ("nan", "inf", "+inf", "-inf"):
+        return float(word)
+    kind = "a finite number" if finite else "a number"
+    raise ValueError(f"{what}: {text[:40]!r} is not {kind} ({_NUMBER_RULE})")
+
+
+def parse_int(text: str, what: str = "value") -> int:
+    """``text`` as a whole number (ASCII digits and a sign only); ValueError naming ``what``."""
+    if not isinstance(text, str):
+        raise TypeError(f"{what} must be text, got {type(text).__name__}")
+    if not _WHOLE.fullmatch(text.strip()) or len(text.strip()) > 30:
+        raise ValueError(f"{what}: {text[:40]!r} is not a whole number (digits and a sign only)")
+    return int(text.strip())
+
+
+def parse_seeds(text: str, option: str = "--seeds") -> list[int]:
+    """``"A-B"`` (inclusive) or ``"A"`` -> seeds (``--seeds`` of the commands that run many), at most
+    :data:`MAX_SEEDS` of them."""
+    first, dash, last = text.partition("-")
+    if not re.fullmatch(r"[0-9]+", first) or (dash and not re.fullmatch(r"[0-9]+", last)):
+        raise ValueError(f"{option} must be A-B (whole numbers, 0 <= A <= B), got {text!r}")
+    a, b = int(first), int(last or first)
+    if b < a:
+        raise ValueError(f"{option} must be A-B with 0 <= A <= B, got {text!r}")
+    check_seed(option, b)
+    if b - a + 1 > MAX_SEEDS:
+        raise ValueError(f"{option} {text}: {b - a + 1} seeds; at most {MAX_SEEDS} may be run at once")
     return list(range(a, b + 1))

@@ -12,8 +12,10 @@ marked read-only is respected even by root); unreadable likewise.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import shutil
 import stat
 import tempfile
 from collections.abc import Iterator
@@ -32,13 +34,129 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}")
     os.close(fd)
-    os.chmod(name, 0o644)  # mkstemp makes it owner-only; these are ordinary (often packaged) files
+    os.chmod(name, _mode_for(path))  # mkstemp makes it owner-only
     tmp = Path(name)
     try:
         yield tmp
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _mode_for(path: Path, directory: bool = False) -> int:
+    """The permission bits a replacement of ``path`` gets: those of the file it replaces (a private file
+    stays private), else what a new file gets under this process's umask."""
+    try:
+        return stat.S_IMODE(path.stat().st_mode)
+    except OSError:
+        return (0o777 if directory else 0o666) & ~_umask()
+
+
+@contextmanager
+def staged_dir(path: str | Path, keep: bool = True) -> Iterator[Path]:
+    """Yield a temporary directory beside ``path``; on success it replaces ``path`` as a whole.
+
+    For outputs made of several files (a table set, data sets, a validation report): a reader, or a run
+    interrupted or failed half way, sees the old set or the complete new one, never a mix. ``keep``: the
+    staging directory starts with ``path``'s files (hard links where possible, so a large folder costs
+    nothing; hexgym replaces files, it never writes into one), so files the command does not write
+    survive. On an exception (Ctrl-C included) the staging directory is removed and ``path`` is as it was.
+    The swap is one atomic exchange on Linux (``renameat2``), else two renames.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    try:
+        if keep and path.is_dir():
+            shutil.copytree(path, tmp, symlinks=True, dirs_exist_ok=True, copy_function=_link_or_copy)
+        os.chmod(tmp, _mode_for(path, directory=True))
+        yield tmp
+        _swap_in(tmp, path)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _link_or_copy(source: str, target: str) -> None:
+    try:
+        os.link(source, target)
+    except OSError:
+        shutil.copy2(source, target)
+
+
+def _swap_in(new: Path, path: Path) -> None:
+    """Put directory ``new`` at ``path``; the old ``path`` (if any) ends up at ``new`` (for removal)."""
+    if not os.path.lexists(path):
+        os.rename(new, path)
+        new.mkdir()
+        return
+    if _exchange(new, path):
+        return
+    old = new.with_name(new.name + ".old")
+    os.rename(path, old)
+    try:
+        os.rename(new, path)
+    except BaseException:
+        os.rename(old, path)
+        raise
+    os.rename(old, new)
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap ``a`` and ``b`` atomically (Linux ``renameat2(RENAME_EXCHANGE)``); False where unavailable."""
+    import ctypes
+    import ctypes.util
+
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        renameat2 = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    at_fdcwd, rename_exchange = -100, 2
+    if renameat2(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), rename_exchange) == 0:
+        return True
+    return False
+
+
+class RunDirectoryInUseError(RuntimeError):
+    """A run directory another process is writing (its lock file is held)."""
+
+
+@contextmanager
+def run_lock(directory: str | Path, what: str = "run directory") -> Iterator[Path]:
+    """Hold ``directory/.lock`` (an exclusive ``flock``) while a run writes ``directory``; a second run
+    into the same directory is refused with :class:`RunDirectoryInUseError`, not interleaved with the first. The
+    lock goes with the process: a killed run leaves nothing to clean up."""
+    import fcntl
+
+    directory = Path(directory)
+    made = [d for d in (directory, *directory.parents) if not os.path.lexists(d)]  # folders this lock makes
+    directory.mkdir(parents=True, exist_ok=True)
+    lock = directory / ".lock"
+    fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise RunDirectoryInUseError(
+                f"{what} {directory} is in use by another run (process holding {lock}); wait for it or give "
+                "another directory"
+            ) from None
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        yield directory
+    finally:
+        if made and os.listdir(directory) == [".lock"]:  # a run that wrote nothing leaves no folder behind
+            lock.unlink(missing_ok=True)
+            with contextlib.suppress(OSError):
+                for folder in made:
+                    folder.rmdir()
+        os.close(fd)
 
 
 def write_json(path: str | Path, data: object) -> Path:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import csv
 import math
+import os
 from pathlib import Path
 from typing import Any
 
@@ -22,26 +23,47 @@ SMOOTHING_ROLLOUTS = 5  # a run's curve is the mean of its last this many rollou
 FIGURE_PANELS = ("success_rate", "mean_return", "delivered_t")
 
 
+MAX_CURVE_BYTES = 64 * 2**20  # a curve.csv (a row per rollout: ~50 bytes; a long run has thousands)
+
+
 def read_curve(path: str | Path) -> dict[str, np.ndarray]:
     """One run's ``curve.csv`` (a run directory or the file) as columns (NaN where a rollout had no value);
-    ValueError naming the file if it is not one."""
+    ValueError naming the file, and the row and column, if it is not one: a truncated or damaged file, a
+    number not written as ``hexgym train`` writes them (``1_0``, ``0x1``, ``nan``), steps that do not increase."""
+    from hexgym.checks import parse_float
+    from hexgym.files import check_input_file
+
     path = Path(path)
     if path.is_dir():
         path = path / CURVE_FILE
-    if not path.is_file():
+    if not os.path.lexists(path):
         raise ValueError(f"{path}: no learning curve (hexgym train writes {CURVE_FILE} in its run directory)")
-    with path.open(newline="") as f:
-        rows = list(csv.reader(f))
+    path = check_input_file(path, "learning curve")
+    if path.stat().st_size > MAX_CURVE_BYTES:
+        raise ValueError(f"{path}: {path.stat().st_size} bytes is too large for a learning curve")
+    try:
+        with path.open(newline="", encoding="utf-8") as f:
+            rows = list(csv.reader(f))
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise ValueError(f"{path}: not a learning curve (not a CSV text file: {exc})") from None
     if not rows or tuple(rows[0]) != CURVE_COLUMNS:
         raise ValueError(f"{path}: not a learning curve (its header must be {','.join(CURVE_COLUMNS)})")
     if len(rows) < 2:
         raise ValueError(f"{path}: no rollout recorded yet")
-    try:
-        values = np.array([[float(v) if v else math.nan for v in row] for row in rows[1:]])
-    except ValueError as exc:
-        raise ValueError(f"{path}: a row is not numbers ({exc})") from None
-    if values.shape[1] != len(CURVE_COLUMNS) or not np.all(np.diff(values[:, 0]) > 0):
-        raise ValueError(f"{path}: rows must have {len(CURVE_COLUMNS)} fields and increasing steps")
+    values = np.full((len(rows) - 1, len(CURVE_COLUMNS)), math.nan)
+    for r, row in enumerate(rows[1:], start=1):
+        if len(row) != len(CURVE_COLUMNS):
+            raise ValueError(f"{path}: row {r} (line {r + 1}) has {len(row)} fields, not {len(CURVE_COLUMNS)} "
+                             "(a truncated or damaged file)")  # fmt: skip
+        for c, (name, text) in enumerate(zip(CURVE_COLUMNS, row, strict=True)):
+            if text or c == 0:  # empty: nothing ended in that rollout (steps are always written)
+                try:
+                    values[r - 1, c] = parse_float(text, f"row {r} (line {r + 1}), column {name!r}")
+                except ValueError as exc:
+                    raise ValueError(f"{path}: a row is not numbers: {exc}") from None
+        if r > 1 and not values[r - 1, 0] > values[r - 2, 0]:
+            raise ValueError(f"{path}: row {r} (line {r + 1}): steps {values[r - 1, 0]:g} do not increase (rows "
+                             "must have increasing steps)")  # fmt: skip
     return {name: values[:, k] for k, name in enumerate(CURVE_COLUMNS)}
 
 

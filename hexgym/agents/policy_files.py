@@ -92,6 +92,15 @@ class ObsNormalizer:
     ret_count: float = 1e-4
 
     def __post_init__(self) -> None:
+        for key in ("clip_obs", "clip_reward", "gamma", "epsilon", "obs_count", "ret_mean", "ret_var", "ret_count"):
+            value = getattr(self, key)
+            if not isinstance(value, (int, float, np.floating, np.integer)) or isinstance(value, bool):
+                raise TypeError(f"ObsNormalizer: {key} must be a number, got {value!r}")
+            if not math.isfinite(value):
+                raise ValueError(f"ObsNormalizer: {key} must be finite, got {value!r}")
+        if self.obs_dtype not in _DTYPES:
+            raise ValueError(f"ObsNormalizer: obs_dtype must be one of {_DTYPES}, got {self.obs_dtype!r}")
+        _check_normalizer("ObsNormalizer", self)
         arrays = (np.array(self.obs_mean, dtype=self.obs_dtype), np.array(self.obs_var, dtype=self.obs_dtype))
         object.__setattr__(self, "_arrays", arrays)
 
@@ -230,9 +239,10 @@ def _normalizer_from_json(path: Path, data: Any) -> ObsNormalizer:
                                                  for i, v in enumerate(value))  # fmt: skip
             else:
                 kwargs[f"{group}_{key}"] = _typed(where, f"{group}.{key}", value, float)
-    normalizer = ObsNormalizer(**kwargs)
-    _check_normalizer(where, normalizer)
-    return normalizer
+    try:
+        return ObsNormalizer(**kwargs)  # checks its numbers (clip_obs > 0, ...)
+    except (ValueError, TypeError) as exc:
+        raise PolicyFileError(f"{where}: {str(exc).removeprefix('ObsNormalizer: ')}") from None
 
 
 def _typed(where: str, key: str, value: Any, kind: type) -> Any:

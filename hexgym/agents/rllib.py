@@ -34,7 +34,7 @@ import numpy as np
 from hexgym.agents.policy_files import PolicyFileError
 from hexgym.checks import check_count, check_seed
 from hexgym.envs import ENV_ID
-from hexgym.files import check_input_file, check_output_dir
+from hexgym.files import check_input_file, check_output_dir, run_lock
 from hexgym.parallel import connect, import_ray
 
 RLLIB_ENV = "hexgym-rllib"  # the name the env creator is registered under in Ray's registry
@@ -137,7 +137,15 @@ def train_rllib(
     check_seed("seed", seed)
     check_count("checkpoint_every", checkpoint_every)
     run_dir = check_output_dir(Path(log_dir) / f"rllib_{algo}_{env_id}", "run directory")
-    run_dir.mkdir(parents=True, exist_ok=True)
+    with run_lock(run_dir):  # a second run into this directory is refused, not interleaved with this one
+        return _train_rllib(hp, env_id, total, seed, run_dir, num_env_runners, ray, checkpoint_every, verbose)
+
+
+def _train_rllib(
+    hp: dict[str, Any], env_id: str, total: int, seed: int, run_dir: Path, num_env_runners: int | None,
+    ray: str | None, checkpoint_every: int, verbose: bool,
+) -> Path:  # fmt: skip
+    """:func:`train_rllib` once its arguments are checked and its run directory is locked."""
     ray_module = import_ray()
     started = connect(ray or "local")
     try:

@@ -97,9 +97,18 @@ class LoaderSettings:
     @classmethod
     def load(cls, path: str | Path) -> LoaderSettings:
         """Settings from a JSON file of field values; unknown fields and out-of-range values are refused."""
+        from hexgym.files import check_input_file
+
+        path = check_input_file(path, "loader settings")  # a regular file: a pipe or a device would be read forever
+        if path.stat().st_size > 1 << 20:
+            raise ValueError(f"{path}: {path.stat().st_size} bytes is too large for loader settings")
+
+        def finite_only(name: str) -> float:
+            raise ValueError(f"{name} is not a finite number")
+
         try:
-            values = json.loads(Path(path).read_text())
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+            values = json.loads(path.read_bytes().decode("utf-8"), parse_constant=finite_only)
+        except (OSError, UnicodeDecodeError, ValueError, RecursionError) as error:
             raise ValueError(f"{path}: not a readable JSON file of loader settings ({error})") from None
         if not isinstance(values, dict):
             raise ValueError(f"{path}: expected a JSON object of loader settings, got {type(values).__name__}")

@@ -47,7 +47,7 @@ from hexgym.agents.policy_files import (
 )
 from hexgym.checks import check_count, check_range, check_seed
 from hexgym.envs import ENV_ID
-from hexgym.files import atomic_path, check_input_file, check_output_dir, check_output_file
+from hexgym.files import atomic_path, check_input_file, check_output_dir, check_output_file, run_lock
 
 if TYPE_CHECKING:
     from hexgym.agents.scripted import LoaderSettings
@@ -508,42 +508,43 @@ def train(
     if start is not None:
         check_start_model(start, algo)
     check_hyperparams(algo, hp, env_id)
-    tensorboard = str(run_dir / "tb") if importlib.util.find_spec("tensorboard") else None
-    venv = make_vec_env(env_id, n_envs, seed, hp.get("env_kwargs"), hp.get("env_wrapper"), batch=batch)
-    if start is not None:
-        # a fine-tune keeps the observation statistics its policy was fitted to: updated, they shift every input
-        # (a clone fine-tuned with them updating fell from 300 to 202 t/h in 20k steps, held at 296 without)
-        # a fine-tune learns with the YAML's settings (the saved model's would apply otherwise) and explores with its
-        # log_std_init (a clone's log_std is never fitted); a resumed run goes on as it was saved
-        tune = {} if resume else {k: v for k, v in algo_kwargs(hp).items() if k != "policy_kwargs"}
-        model = _load_into(start, algo_class, venv, update_statistics=init_from is None, tensorboard_log=tensorboard,
-                           seed=seed, **tune)  # fmt: skip
-        log_std = (hp.get("policy_kwargs") or {}).get("log_std_init")
-        if not resume and log_std is not None and hasattr(model.policy, "log_std"):
-            model.policy.log_std.data.fill_(float(log_std))
-        print(f"{'resuming' if resume else 'starting'} from {start} ({model.num_timesteps} steps done)")
-    else:
-        if hp["normalize"]:
-            venv = VecNormalize(venv, **hp["normalize"])
-        model = _new_model(algo_class, hp, venv, seed=seed, tensorboard_log=tensorboard)
-    remaining = total - model.num_timesteps if resume else total
-    callbacks = [
-        _checkpoint_callback(run_dir / "checkpoints", checkpoint_every),
-        _rollout_report_callback(print if report else None, run_dir / "curve.csv"),
-    ]
-    try:
-        if remaining > 0:
-            with _terminate_as_interrupt():
-                model.learn(remaining, callback=callbacks, progress_bar=progress_bar and _progress_bar_available(),
-                            reset_num_timesteps=resume is None, tb_log_name=algo)  # fmt: skip
-    except KeyboardInterrupt:
-        # a stopped run leaves its newest state as a usable model (with its normaliser), then stops
-        path = save_model(model, run_dir / "model.zip")
-        print(f"stopped at {model.num_timesteps} steps; saved {path}")
-        raise
-    finally:
-        venv.close()
-    return save_model(model, run_dir / "model.zip")
+    with run_lock(run_dir):  # a second run into this directory is refused, not interleaved with this one
+        tensorboard = str(run_dir / "tb") if importlib.util.find_spec("tensorboard") else None
+        venv = make_vec_env(env_id, n_envs, seed, hp.get("env_kwargs"), hp.get("env_wrapper"), batch=batch)
+        if start is not None:
+            # a fine-tune keeps the observation statistics its policy was fitted to: updated, they shift every input
+            # (a clone fine-tuned with them updating fell from 300 to 202 t/h in 20k steps, held at 296 without)
+            # a fine-tune learns with the YAML's settings (the saved model's would apply otherwise) and explores with
+            # its log_std_init (a clone's log_std is never fitted); a resumed run goes on as it was saved
+            tune = {} if resume else {k: v for k, v in algo_kwargs(hp).items() if k != "policy_kwargs"}
+            model = _load_into(start, algo_class, venv, update_statistics=init_from is None,
+                               tensorboard_log=tensorboard, seed=seed, **tune)  # fmt: skip
+            log_std = (hp.get("policy_kwargs") or {}).get("log_std_init")
+            if not resume and log_std is not None and hasattr(model.policy, "log_std"):
+                model.policy.log_std.data.fill_(float(log_std))
+            print(f"{'resuming' if resume else 'starting'} from {start} ({model.num_timesteps} steps done)")
+        else:
+            if hp["normalize"]:
+                venv = VecNormalize(venv, **hp["normalize"])
+            model = _new_model(algo_class, hp, venv, seed=seed, tensorboard_log=tensorboard)
+        remaining = total - model.num_timesteps if resume else total
+        callbacks = [
+            _checkpoint_callback(run_dir / "checkpoints", checkpoint_every),
+            _rollout_report_callback(print if report else None, run_dir / "curve.csv"),
+        ]
+        try:
+            if remaining > 0:
+                with _terminate_as_interrupt():
+                    model.learn(remaining, callback=callbacks, progress_bar=progress_bar and _progress_bar_available(),
+                                reset_num_timesteps=resume is None, tb_log_name=algo)  # fmt: skip
+        except KeyboardInterrupt:
+            # a stopped run leaves its newest state as a usable model (with its normaliser), then stops
+            path = save_model(model, run_dir / "model.zip")
+            print(f"stopped at {model.num_timesteps} steps; saved {path}")
+            raise
+        finally:
+            venv.close()
+        return save_model(model, run_dir / "model.zip")
 
 
 @contextlib.contextmanager

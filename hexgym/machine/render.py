@@ -120,16 +120,17 @@ def write_png(frame: np.ndarray, path: str | Path) -> Path:
 def write_mp4(frames: Iterable[np.ndarray], path: str | Path, fps: float) -> Path:
     """Encode frames (H.264, yuv420p so every player opens it) to an MP4, atomically.
 
-    No frames, an empty frame or a non-positive rate raise ValueError, and an encoder that wrote
-    nothing raises RuntimeError: in each case ``path`` keeps what it held.
+    No frames, an empty frame or a rate outside :data:`MIN_FPS`-:data:`MAX_FPS` raise ValueError, an encoder
+    that wrote nothing raises RuntimeError and one that could not write the whole file (a full disk) OSError:
+    in each case ``path`` keeps what it held.
     """
     import imageio.v2 as imageio
 
     frames = list(frames)
     if not frames:
         raise ValueError(f"no frames to write to {path}")
-    if not (np.isfinite(fps) and fps > 0):
-        raise ValueError(f"the frame rate must be finite and > 0, got {fps}")
+    if not (np.isfinite(fps) and MIN_FPS <= fps <= MAX_FPS):
+        raise ValueError(f"the frame rate must be from {MIN_FPS:g} to {MAX_FPS:g} frames/s, got {fps}")
     for frame in frames:
         _check_frame(frame, path)
     with atomic_path(path) as tmp:
@@ -140,7 +141,38 @@ def write_mp4(frames: Iterable[np.ndarray], path: str | Path, fps: float) -> Pat
                 w.append_data(frame)
         if tmp.stat().st_size == 0:
             raise RuntimeError(f"the video encoder wrote nothing for {path}")
+        _check_mp4(tmp, path)
     return Path(path)
+
+
+MIN_FPS, MAX_FPS = 0.1, 1000.0  # playback rates an MP4 is written at (outside: players show no video)
+
+
+def _check_mp4(tmp: Path, path: str | Path) -> None:
+    """OSError unless ``tmp`` is a whole MP4: top-level boxes that fill the file exactly, ``mdat`` and ``moov``
+    among them. The encoder runs in its own process and a write it could not finish (a full disk) is not
+    reported to Python: the file is then cut short, and must not replace ``path``."""
+    import errno
+
+    size, offset, kinds = tmp.stat().st_size, 0, set()
+    with tmp.open("rb") as f:
+        while offset < size:
+            f.seek(offset)
+            header = f.read(16)
+            if len(header) < 8:
+                break
+            length, kind = int.from_bytes(header[:4], "big"), header[4:8]
+            if length == 1 and len(header) == 16:
+                length = int.from_bytes(header[8:16], "big")
+            elif length == 0:
+                length = size - offset
+            if length < 8:
+                break
+            kinds.add(kind)
+            offset += length
+    if offset != size or not {b"mdat", b"moov"} <= kinds:
+        raise OSError(errno.EIO, "the video encoder could not write it whole (a full disk?); the old file is kept",
+                      str(path))  # fmt: skip
 
 
 def _check_frame(frame: np.ndarray, path: str | Path) -> None:

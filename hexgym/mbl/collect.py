@@ -83,10 +83,11 @@ from typing import Any
 
 import numpy as np
 
-from hexgym.files import atomic_path, check_output_dir
+from hexgym.files import atomic_path, check_output_dir, staged_dir
 from hexgym.hydraulics.circuit import HydraulicCircuit
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
+from hexgym.mbl.datafile import refuse_other_npz
 from hexgym.mbl.operator_logs import DT as OPERATOR_DT
 from hexgym.mbl.operator_logs import DURATION_S as OPERATOR_DURATION_S
 from hexgym.mbl.operator_logs import operator_log
@@ -816,6 +817,7 @@ def collect(
         raise ValueError(f"seed must be >= 0 and workers >= 1, got seed={seed}, workers={workers}")
     config = config or CollectConfig()
     out = check_output_dir(out_dir, "collection output directory")
+    refuse_other_npz(out, [t for g in config.groups() for t in config.tables(g)], "data set")
     check_output_dir(out / "chunks", "chunk directory")
     (out / "chunks").mkdir(parents=True, exist_ok=True)
     with executor(workers, ray=ray) as pool:  # first: a cluster that cannot run the chunks is refused at once
@@ -885,7 +887,7 @@ class _ProgressBar:
 def _write_datasets(
     out: Path, states: dict[str, _GroupState], seed: int, config: CollectConfig, fingerprint: str
 ) -> dict[str, Path]:
-    paths = {}
+    paths, sets = {}, {}
     for group, state in states.items():
         n_episodes = int(state.episodes_needed)
         chunks = [
@@ -916,7 +918,10 @@ def _write_datasets(
                 "meta": np.array(json.dumps(meta, sort_keys=True)),
             }
             paths[table] = out / f"{table}.npz"
-            _save_npz(paths[table], arrays)
+            sets[table] = arrays
+    with staged_dir(out) as staging:  # the data sets are replaced together or not at all
+        for table, arrays in sets.items():
+            _save_npz(staging / f"{table}.npz", arrays)
     return paths
 
 

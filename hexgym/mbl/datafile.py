@@ -18,6 +18,8 @@ import numpy as np
 
 from hexgym.files import check_input_file
 
+MIN_EPISODES = 2  # a fit selects on some episodes and measures on others
+
 
 def check_dataset_file(path: str | Path) -> int:
     """The number of samples in the data set at ``path``, or a ValueError naming the file and the problem."""
@@ -44,9 +46,40 @@ def check_dataset_file(path: str | Path) -> int:
         raise ValueError(f"data set {path}: 'episode' must be {n} integers, got {episode.dtype} {episode.shape}")
     if inputs.shape != (d,) or inputs.dtype.kind != "U" or output.shape != () or output.dtype.kind != "U":
         raise ValueError(f"data set {path}: 'inputs' must name the {d} columns of X and 'output' the output")
+    if len(np.unique(episode)) < MIN_EPISODES:
+        raise ValueError(f"data set {path}: {len(np.unique(episode))} episode(s); fitting holds out whole episodes "
+                         f"and needs at least {MIN_EPISODES} (collect more samples)")  # fmt: skip
     for name, values in (("X", X), ("y", y)):
         bad = np.argwhere(~np.isfinite(values))
         if bad.size:
             raise ValueError(f"data set {path}: {name!r} holds a non-finite number at row {bad[0][0]}"
                              f" ({len(bad)} in all)")  # fmt: skip
     return n
+
+
+def npz_kind(path: str | Path) -> str | None:
+    """What the ``.npz`` at ``path`` holds, from its member names alone: "data set" (``X``), "table"
+    (``meta`` and ``values``), None for anything else or no file."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as archive:
+            names = set(archive.namelist())
+    except (OSError, zipfile.BadZipFile, ValueError):
+        return None
+    if "X.npy" in names:
+        return "data set"
+    if {"meta.npy", "values.npy"} <= names:
+        return "table"
+    return None
+
+
+def refuse_other_npz(directory: str | Path, names: list[str] | tuple[str, ...], writes: str) -> None:
+    """ValueError when ``directory/<name>.npz`` holds something other than ``writes`` ("data set" or "table"):
+    collected data sets and fitted tables share their file names, and one must not replace the other."""
+    for name in names:
+        path = Path(directory) / f"{name}.npz"
+        kind = npz_kind(path) if path.is_file() else None
+        if kind is not None and kind != writes:
+            raise ValueError(f"{path} is a {'fitted table' if kind == 'table' else 'collected data set'}; this "
+                             f"command writes {writes}s and would replace it (give another --out)")  # fmt: skip

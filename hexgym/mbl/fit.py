@@ -52,9 +52,12 @@ class TableData:
 
 def load_table_data(path: str | Path, name: str, table_set: str = DEFAULT_TABLE_SET) -> TableData:
     """A collected data set, checked against the table's inputs and output in ``table_set``."""
+    from hexgym.mbl.datafile import check_dataset_file
+
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"data set for table {name!r} not found: {path} (run `hexgym collect`)")
+    check_dataset_file(path)  # arrays, shapes, finite numbers, two episodes at least: named, before the work
     with np.load(path, allow_pickle=False) as data:
         inputs, output = tuple(str(s) for s in data["inputs"]), str(data["output"])
         X, y = np.asarray(data["X"], dtype=float), np.asarray(data["y"], dtype=float)
@@ -101,12 +104,26 @@ def fit_all(
     names: tuple[str, ...] | None = None,
     table_set: str = DEFAULT_TABLE_SET,
 ) -> dict[str, Path]:
-    """Fit every table of ``table_set`` (or ``names``) from ``data_dir/<name>.npz``; write ``out_dir/<name>.npz``."""
-    written = {}
-    for name in names or tuple(TABLE_SETS[table_set]):
+    """Fit every table of ``table_set`` (or ``names``) from ``data_dir/<name>.npz``; write ``out_dir/<name>.npz``.
+
+    The tables are written together once all are fitted (:func:`hexgym.files.staged_dir`): a fit that fails or
+    is interrupted on one table leaves the folder's previous set as it was, never a mix of old and new. A
+    folder holding collected data sets of these names is refused (they would be replaced).
+    """
+    from hexgym.files import staged_dir
+    from hexgym.mbl.datafile import refuse_other_npz
+
+    names = names or tuple(TABLE_SETS[table_set])
+    directory = table_path(names[0], out_dir, table_set).parent
+    refuse_other_npz(directory, names, "table")
+    fitted = {}
+    for name in names:
         data = fitted_points(load_table_data(Path(data_dir) / f"{name}.npz", name, table_set), seed=seed)
-        written[name] = fit_table(name, data, seed=seed, table_set=table_set).save(table_path(name, out_dir))
-    return written
+        fitted[name] = fit_table(name, data, seed=seed, table_set=table_set)
+    with staged_dir(directory) as staging:
+        for name, table in fitted.items():
+            table.save(staging / f"{name}.npz")
+    return {name: directory / f"{name}.npz" for name in fitted}
 
 
 def fitted_points(data: TableData, seed: int = 0) -> TableData:

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hexgym.checks import parse_float
 from hexgym.files import atomic_path, check_input_file
 from hexgym.machine import parameters as p
 
@@ -79,8 +80,9 @@ def read_command_log(path: str | Path) -> CommandLog:
     counted) and, at the end, the file's line. Every problem is a ValueError (FileNotFoundError for a
     missing file) naming the file: a directory, an unreadable or binary file, a header without the
     five columns, a row with more fields than the header or a value missing, a value that is no
-    finite number, times that do not start at 0 or do not ascend, a spool beyond the stroke, more
-    than :data:`MAX_ROWS` rows or :data:`MAX_BYTES` bytes.
+    finite number (written as digits, a point and an exponent: ``1_0`` or ``0x1`` is refused, not read),
+    times that do not start at 0 or do not ascend, a spool beyond the stroke, more than :data:`MAX_ROWS`
+    rows or :data:`MAX_BYTES` bytes.
     """
     path = check_input_file(path, "command log")
     if path.stat().st_size > MAX_BYTES:
@@ -143,10 +145,7 @@ def _column_index(path: Path, header: list[str]) -> dict[str, int]:
 def _number(where: str, name: str, fields: list[str], i: int) -> float:
     if i >= len(fields) or not fields[i].strip():
         raise ValueError(f"{where}, column {name!r}: value missing")
-    try:
-        return float(fields[i])
-    except ValueError:
-        raise ValueError(f"{where}, column {name!r}: {fields[i][:40]!r} is not a number") from None
+    return parse_float(fields[i], f"{where}, column {name!r}", finite=False)  # NaN, inf: refused by the row check
 
 
 def write_command_log(path: str | Path, log: CommandLog) -> None:

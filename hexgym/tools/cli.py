@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 from pathlib import Path
@@ -383,8 +384,42 @@ _LOADER_SETTINGS_OPTION = {  # --loader-settings of the commands that run the sc
 }
 
 
+def _whole_number(text: str) -> int:
+    """An integer option's value: digits and a sign only (``int`` also takes ``1_0``)."""
+    from hexgym.checks import parse_int
+
+    try:
+        return parse_int(text, "value")
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid int value: {text!r} (a whole number: digits only)") from None
+
+
+def _decimal_number(text: str) -> float:
+    """A float option's value: digits, a point and an exponent (``float`` also takes ``1_0``, ``0x``-less hex
+    words, spaces); ``nan`` and ``inf`` are read, and refused by the option's range check, which names it."""
+    from hexgym.checks import parse_float
+
+    try:
+        return parse_float(text, "value", finite=False)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"invalid float value: {text!r} (digits, a point and an exponent: no underscores, hex or words)"
+        ) from None
+
+
+def _strict_numbers(parser: argparse.ArgumentParser) -> None:
+    """Every ``type=int``/``type=float`` option of ``parser`` and its subcommands parsed strictly."""
+    for action in parser._actions:
+        if action.type is int:
+            action.type = _whole_number
+        elif action.type is float:
+            action.type = _decimal_number
+        for sub in (action.choices or {}).values() if isinstance(action, argparse._SubParsersAction) else ():
+            _strict_numbers(sub)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    """The argument parser with all subcommands."""
+    """The argument parser with all subcommands (numbers parsed strictly: :func:`_strict_numbers`)."""
     from hexgym.mbl.collect import add_collect_parser
 
     parser = _Parser(prog="hexgym", description="A hydraulic excavator (Cat 325 class) simulator for robot learning.")
@@ -506,7 +541,25 @@ def build_parser() -> argparse.ArgumentParser:
 
     _add_agent_parsers(sub)
     _add_planning_parsers(sub)
+    _strict_numbers(parser)
     return parser
+
+
+def given_options(argv: list[str]) -> set[str]:
+    """The options (dest names) the command line ``argv`` gives, defaults aside."""
+    parser = build_parser()
+
+    def suppress(p: argparse.ArgumentParser) -> None:
+        for action in p._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for sub in action.choices.values():
+                    suppress(sub)
+            elif action.dest not in ("help", "command"):
+                action.default = argparse.SUPPRESS
+        p._defaults.clear()
+
+    suppress(parser)
+    return set(vars(parser.parse_args(argv))) - {"command", "func"}
 
 
 def _add_planning_parsers(sub: argparse._SubParsersAction) -> None:
@@ -667,7 +720,7 @@ _COUNTS = {"episodes": 1, "steps": 1, "samples": 1, "epochs": 1, "workers": 1, "
            "frames": 1, "dagger_episodes": 1, "checkpoint_every": 1, "suite": 0, "dagger_rounds": 0,
            "select_episodes": 0, "width": 1, "height": 1, "num_env_runners": 1}  # fmt: skip
 _SEEDS = ("seed", "suite_seed")
-_POSITIVE = {"seconds": "s", "fps": "frames/s", "dt_out": "s"}
+_POSITIVE = {"seconds": "s", "dt_out": "s"}
 # Paths, by (command, option): files and directories written, files and directories read.
 _OUTPUT_FILES = {("simulate", "out"), ("video", "out"), ("video", "snapshot"), ("evaluate", "json"),
                  ("bench", "json"), ("scripted", "json"), ("clone", "out"), ("view", "screenshot"),
@@ -677,13 +730,30 @@ _OUTPUT_FILES = {("simulate", "out"), ("video", "out"), ("video", "snapshot"), (
 _OUTPUT_DIRS = {("demo", "out"), ("reference-report", "out"), ("validate", "out"), ("collect", "out"),
                 ("fit", "out"), ("build-assets", "dir"), ("clone", "rounds_dir"), ("train", "log_dir")}  # fmt: skip
 _INPUT_FILES = {("simulate", "commands"), ("train", "hyperparams"), ("train", "init_from"), ("clone", "hyperparams"),
-                ("convert-normalizer", "pkl")}  # fmt: skip
+                ("convert-normalizer", "pkl"), ("scripted", "loader_settings"), ("evaluate", "loader_settings"),
+                ("clone", "loader_settings")}  # fmt: skip
+# Options that apply only in one mode: (command, option) -> (the mode's option, its value, what the option is for).
+# Given in another mode they are refused, not ignored.
+_ONLY_WITH = {
+    ("simulate", "tables"): ("model", "learned", "the learned model's tables"),
+    ("simulate", "backend"): ("model", "learned", "the learned model's backend"),
+    ("evaluate", "tables"): ("model", "learned", "the learned model's tables"),
+}
+# Options that cannot be given together: the second is ignored by the first.
+_EXCLUSIVE = {
+    ("evaluate", "ray", "workers"), ("validate", "ray", "workers"), ("collect", "ray", "workers"),
+    ("plan", "ray", "workers"),
+}  # fmt: skip
 _INPUT_DIRS = {("fit", "data"), ("tables", "dir"), ("tables", "bench")}
 _POLICY_NAMES = ("shipped", "scripted")
 
 
-def check_arguments(args: argparse.Namespace) -> None:
-    """Refuse bad option values and unusable paths before a command starts (ValueError, FileNotFoundError)."""
+def check_arguments(args: argparse.Namespace, given: set[str] | None = None) -> None:
+    """Refuse bad option values and unusable paths before a command starts (ValueError, FileNotFoundError).
+
+    ``given``: the options the command line gave (:func:`given_options`); an option that does not apply
+    with the others given is refused.
+    """
     from hexgym.checks import check_count, check_positive, check_range, check_seed
     from hexgym.files import check_input_dir, check_input_file, check_output_dir, check_output_file
     from hexgym.machine.physics import MAX_PAYLOAD_KG
@@ -699,9 +769,25 @@ def check_arguments(args: argparse.Namespace) -> None:
             check_positive(option, value, _POSITIVE[name])
         elif name == "payload_kg":
             check_range(option, value, 0.0, MAX_PAYLOAD_KG, "kg (a heaped bucket)")
+        elif name == "fps":
+            from hexgym.machine.render import MAX_FPS, MIN_FPS
+
+            if not (math.isfinite(value) and MIN_FPS <= value <= MAX_FPS):
+                raise ValueError(f"{option} must be a finite number > 0, from {MIN_FPS:g} to {MAX_FPS:g} frames/s "
+                                 f"(an MP4's playback rate), got {value!r}")  # fmt: skip
+        elif name == "ray" and not value.strip():
+            raise ValueError("--ray '': give HOST:PORT, ray://HOST:PORT or auto, or --ray alone for a Ray started here")
         elif name in ("noise", "success_level"):
             check_range(option, value, 0.0, 1.0, "(spool fraction)" if name == "noise" else "(a share of episodes)")
+        elif isinstance(value, float) and not math.isfinite(value):  # every other number option
+            raise ValueError(f"{option} must be a finite number, got {value!r}")
     command = args.command
+    for (cmd, name), (mode, wanted, what) in _ONLY_WITH.items():
+        if cmd == command and name in (given or ()) and values.get(mode) != wanted:
+            raise ValueError(f"--{name} ({what}) does not apply with --{mode} {values.get(mode)}")
+    for cmd, first, second in _EXCLUSIVE:
+        if cmd == command and {first, second} <= (given or set()) and values.get(first) is not None:
+            raise ValueError(f"--{second} does not apply with --{first}: the Ray cluster's cores run the tasks")
     policy = values.get("policy")  # checked where it is loaded, which says what a policy may be
     inputs = [policy] if policy is not None and policy not in _POLICY_NAMES else []
     for (cmd, name), check, what in (
@@ -746,9 +832,10 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("MUJOCO_GL", "egl")  # offscreen rendering without a display
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in argv or os.environ.get("HEXGYM_DEBUG", "") not in ("", "0")
-    args = build_parser().parse_args([a for a in argv if a != "--debug"])
+    argv = [a for a in argv if a != "--debug"]
+    args = build_parser().parse_args(argv)
     try:
-        check_arguments(args)
+        check_arguments(args, given_options(argv))
         return args.func(args)
     except KeyboardInterrupt:
         print(f"hexgym {args.command}: interrupted", file=sys.stderr)

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hexgym.files import save_figure, write_json
+from hexgym.files import save_figure, staged_dir, write_json
 from hexgym.hydraulics.reference import ReferenceModel
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
@@ -264,6 +264,9 @@ def _suite_entry(result: dict[str, object], description: dict[str, object]) -> d
     }
 
 
+REPORT_FILES = ("test1.png", "test2.png", "test3.png", "interactions.png", "suite_worst.png", "summary.json")
+
+
 def run_validation(
     out_dir: str | Path,
     learned: LearnedModel | None = None,
@@ -290,41 +293,44 @@ def run_validation(
     workers = (os.cpu_count() or 1) if workers is None else workers
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    learned = learned or make_learned_model("python", tables_dir, table_set=table_set)
-    summary: dict[str, object] = {"tables": learned.table_set}
-    if not suite_only:
-        reference = ReferenceModel()
-        for name, (log, pose) in scenarios().items():
-            result = run_test(name, log, pose, reference, learned)
-            plot_test(result, out_dir / f"{name}.png")
-            summary[name] = _tip_error_figures(result)
-            if name == "test3":
-                summary["speed"] = _speed(result, learned.table_set)
-    interactions = {} if suite_only else interaction_cases()
-    logs = {f"suite log {i} (seed {suite_seed})": suite_log(suite_seed, i, suite_duration_s) for i in range(suite)}
-    jobs = [(name, *case) for name, case in interactions.items()]
-    jobs += [(name, CommandLog(o.t, o.spools_mm), o.start_pose, o.payload_kg) for name, o in logs.items()]
-    results = run_jobs(jobs, learned, workers, ray)
-    if interactions:
-        summary["interactions"] = {name: _interaction_summary(name, results[name]) for name in interactions}
-        plot_interactions(results, out_dir / "interactions.png")
-    if suite:
-        per_log = [
-            _suite_entry(results[name], {"index": i, "seed": suite_seed, **o.describe()})
-            for i, (name, o) in enumerate(logs.items())
-        ]
-        means = [entry["mean_tip_error_m"] for entry in per_log]
-        worst = int(np.argmax(means))
-        summary["suite"] = {
-            "seed": suite_seed,
-            "n": suite,
-            "median_mean_tip_error_m": float(np.median(means)),
-            "worst_mean_tip_error_m": means[worst],
-            "worst_index": worst,
-            "per_log": per_log,
-        }
-        plot_test(results[list(logs)[worst]], out_dir / "suite_worst.png", error_panels=True)
-    write_json(out_dir / "summary.json", summary)
+    # the report (plots and summary) is replaced as a whole: an interrupted run leaves the previous one
+    with staged_dir(Path(out_dir)) as staging:
+        out_dir = staging
+        for old in REPORT_FILES:  # an earlier report's files go: the new report is one run's, whole
+            (out_dir / old).unlink(missing_ok=True)
+        learned = learned or make_learned_model("python", tables_dir, table_set=table_set)
+        summary: dict[str, object] = {"tables": learned.table_set}
+        if not suite_only:
+            reference = ReferenceModel()
+            for name, (log, pose) in scenarios().items():
+                result = run_test(name, log, pose, reference, learned)
+                plot_test(result, out_dir / f"{name}.png")
+                summary[name] = _tip_error_figures(result)
+                if name == "test3":
+                    summary["speed"] = _speed(result, learned.table_set)
+        interactions = {} if suite_only else interaction_cases()
+        logs = {f"suite log {i} (seed {suite_seed})": suite_log(suite_seed, i, suite_duration_s) for i in range(suite)}
+        jobs = [(name, *case) for name, case in interactions.items()]
+        jobs += [(name, CommandLog(o.t, o.spools_mm), o.start_pose, o.payload_kg) for name, o in logs.items()]
+        results = run_jobs(jobs, learned, workers, ray)
+        if interactions:
+            summary["interactions"] = {name: _interaction_summary(name, results[name]) for name in interactions}
+            plot_interactions(results, out_dir / "interactions.png")
+        if suite:
+            per_log = [
+                _suite_entry(results[name], {"index": i, "seed": suite_seed, **o.describe()})
+                for i, (name, o) in enumerate(logs.items())
+            ]
+            means = [entry["mean_tip_error_m"] for entry in per_log]
+            worst = int(np.argmax(means))
+            summary["suite"] = {
+                "seed": suite_seed,
+                "n": suite,
+                "median_mean_tip_error_m": float(np.median(means)),
+                "worst_mean_tip_error_m": means[worst],
+                "worst_index": worst,
+                "per_log": per_log,
+            }
+            plot_test(results[list(logs)[worst]], out_dir / "suite_worst.png", error_panels=True)
+        write_json(out_dir / "summary.json", summary)
     return summary
