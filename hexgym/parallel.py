@@ -27,6 +27,7 @@ import multiprocessing
 import os
 import pickle
 import platform
+import signal
 import socket
 import uuid
 from collections.abc import Callable, Iterable, Iterator
@@ -68,8 +69,23 @@ class Executor:
     def __enter__(self) -> Executor:
         return self
 
-    def __exit__(self, *exc: object) -> None:
+    def abort(self) -> None:
+        """Stop the workers now, their tasks unfinished (an error or Ctrl-C in the caller)."""
         self.close()
+
+    def __exit__(self, *exc: object) -> None:
+        if exc[0] is None:
+            self.close()
+        else:
+            self.abort()
+
+
+def ignore_interrupts(initializer: Callable[..., None] | None = None, *initargs: Any) -> None:
+    """A worker process's start: Ctrl-C, which the terminal sends to every process of the command, is left to
+    the parent (it stops the workers and ends in one line), then ``initializer(*initargs)``."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if initializer is not None:
+        initializer(*initargs)
 
 
 class LocalPool(Executor):
@@ -93,7 +109,7 @@ class LocalPool(Executor):
             return None
         if self._pool is None:
             context = multiprocessing.get_context("spawn")  # fork would copy MuJoCo and thread state
-            self._pool = context.Pool(min(self.workers, n), self._initializer, self._initargs)
+            self._pool = context.Pool(min(self.workers, n), ignore_interrupts, (self._initializer, *self._initargs))
         return self._pool
 
     def map_unordered(self, function: Callable[[Any], Any], items: Iterable[Any]) -> Iterator[Any]:
@@ -101,17 +117,33 @@ class LocalPool(Executor):
         pool = self._prepare(len(items))
         if pool is None:
             yield from map(function, items)
-        else:
+            return
+        try:
             yield from pool.imap_unordered(function, items)
+        except BaseException:  # Ctrl-C or an error: the workers stop now, not after their tasks
+            self.abort()
+            raise
 
     def map(self, function: Callable[[Any], Any], items: Iterable[Any]) -> list[Any]:
         items = list(items)
         pool = self._prepare(len(items))
-        return list(map(function, items)) if pool is None else pool.map(function, items)
+        if pool is None:
+            return list(map(function, items))
+        try:
+            return pool.map(function, items)
+        except BaseException:
+            self.abort()
+            raise
 
     def close(self) -> None:
         if self._pool is not None:
             self._pool.close()
+            self._pool.join()
+            self._pool = None
+
+    def abort(self) -> None:
+        if self._pool is not None:
+            self._pool.terminate()
             self._pool.join()
             self._pool = None
 
@@ -175,7 +207,13 @@ class RayExecutor(Executor):
                 self._ray.cancel(ref, force=True)
 
     def map(self, function: Callable[[Any], Any], items: Iterable[Any]) -> list[Any]:
-        return self._ray.get(self._submit(function, items))
+        refs = self._submit(function, items)
+        try:
+            return self._ray.get(refs)
+        except BaseException:  # Ctrl-C or a task's error: the other tasks stop, not run on in the cluster
+            for ref in refs:
+                self._ray.cancel(ref, force=True)
+            raise
 
     def close(self) -> None:
         if self._started and self._ray.is_initialized():
@@ -214,12 +252,38 @@ def _check_reachable(address: str) -> None:
     if not host or not port.isdigit():
         raise ClusterError(f"Ray address {address!r} is not HOST:PORT, ray://HOST:PORT, 'auto' or 'local'")
     try:
-        socket.create_connection((host, int(port)), timeout=CONNECT_TIMEOUT_S).close()
+        connection = socket.create_connection((host, int(port)), timeout=CONNECT_TIMEOUT_S)
     except OSError as exc:
         raise ClusterError(
             f"no Ray cluster at {address}: {exc.strerror or exc or 'no answer'} within {CONNECT_TIMEOUT_S:g} s "
             "(start one with `ray start --head`, or give --ray local)"
         ) from None
+    with connection:
+        if not _answers_grpc(connection):  # ray.init would wait on it for minutes
+            raise ClusterError(
+                f"{address} answers but is no Ray cluster: no gRPC reply within {CONNECT_TIMEOUT_S:g} s (a Ray head's "
+                "address is HOST:6379, its client server's ray://HOST:10001)"
+            )
+
+
+_HTTP2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])  # + an empty SETTINGS
+
+
+def _answers_grpc(connection: socket.socket) -> bool:
+    """Whether the server on ``connection`` speaks HTTP/2 as every Ray endpoint (gRPC) does: it answers the
+    client preface with a SETTINGS frame within ``CONNECT_TIMEOUT_S``."""
+    try:
+        connection.settimeout(CONNECT_TIMEOUT_S)
+        connection.sendall(_HTTP2_PREFACE)
+        header = b""
+        while len(header) < 9:
+            chunk = connection.recv(9 - len(header))
+            if not chunk:
+                return False
+            header += chunk
+    except OSError:
+        return False
+    return header[3] == 4  # the frame's type: SETTINGS
 
 
 def connect(address: str = "local", runtime_env: dict[str, Any] | None = None) -> bool:

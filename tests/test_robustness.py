@@ -1156,6 +1156,150 @@ def _(tmp):
     return _train_yaml(tmp, TINY_YAML + "  env_wrapper: evilmod.Wrapper\n")
 
 
+# -- strict numbers: as a data file writes them -----------------------------------------------------
+for _name, _body, _match in (
+    ("a spool with an underscore", LOG.replace("0.2,5,", "0.2,1_0,"), r"row 2, column 'swing': '1_0' is not a number"),
+    ("a hex time", LOG.replace("0.4,", "0x1,"), r"row 3, column 't': '0x1' is not a number"),
+    ("a Unicode digit", LOG.replace("0.2,5,", "0.2,\u0665,"), r"column 'swing': '\u0665' is not a number"),
+):
+    case("command log", _name, _match)(lambda tmp, body=_body: simulate(tmp, body))
+
+for _argv, _match in (
+    (["simulate", "--commands", "log.csv", "--out", "t.csv", "--payload-kg", "1_0"], r"invalid float value: '1_0'"),
+    (["evaluate", "--episodes", "1_0"], r"argument --episodes: invalid int value: '1_0'"),
+    (["evaluate", "--seed", "0x10"], r"argument --seed: invalid int value: '0x10'"),
+    (["plan", "--task", "dump", "--w-fuel", "nan"], r"--w-fuel must be a finite number, got nan"),
+    (["plan", "--task", "dump", "--seeds", "0-100000000000"], r"100000000001 seeds; at most 1000000"),
+    (["plan", "--task", "dump", "--seeds", "1_0-12"], r"--seeds must be A-B \(whole numbers"),
+    (["tune-loader", "--out", "s.json", "--seeds", "0-"], r"--seeds must be A-B"),
+):
+    case("option", " ".join(_argv[:1] + _argv[-2:]), _match)(lambda tmp, argv=_argv: argv)
+
+
+def _curve(tmp: Path, rows: str | bytes) -> list[str]:
+    from hexgym.agents.training import CURVE_COLUMNS
+
+    rows = rows if isinstance(rows, bytes) else rows.encode()
+    write(tmp / "run" / "curve.csv", (",".join(CURVE_COLUMNS) + "\n").encode() + rows)
+    return ["curves", str(tmp / "run"), "--out", str(tmp / "c.png")]
+
+
+for _name, _rows, _match in (
+    ("truncated", "64,1.0,2,0.5,0.5,1.0\n128,2.0,3", r"curve.csv: row 2 \(line 3\) has 3 fields, not 6"),
+    ("an underscore", "6_4,1.0,2,0.5,0.5,1.0\n", r"a row is not numbers: row 1 \(line 2\), column 'steps': '6_4'"),
+    ("nan in a number", "64,nan,2,0.5,0.5,1.0\n", r"column 'wall_s': 'nan' is not a finite number"),
+    ("binary", b"64,1.0,\xff\xfe\n", r"not a learning curve \(not a CSV text file"),
+):
+    case("learning curve", _name, _match)(lambda tmp, rows=_rows: _curve(tmp, rows))
+
+
+@case("learning curve", "a named pipe", r"learning curve .*curve.csv is not a regular file")
+def _(tmp):
+    (tmp / "run").mkdir()
+    os.mkfifo(tmp / "run" / "curve.csv")
+    return ["curves", str(tmp / "run"), "--out", str(tmp / "c.png")]
+
+
+@case("option", "scripted --loader-settings a named pipe", r"--loader-settings .*s.json is not a regular file")
+def _(tmp):
+    os.mkfifo(tmp / "s.json")
+    return ["scripted", "--loader-settings", str(tmp / "s.json")]
+
+
+@case("option", "evaluate --loader-settings a device", r"--loader-settings /dev/zero is not a regular file")
+def _(tmp):
+    return ["evaluate", "--policy", "scripted", "--loader-settings", "/dev/zero"]
+
+
+@case("option", "loader settings with NaN", r"s.json: not a readable JSON file of loader settings \(NaN is not")
+def _(tmp):
+    write(tmp / "s.json", '{"dig_depth": NaN}')
+    return ["scripted", "--loader-settings", str(tmp / "s.json")]
+
+
+# -- options that do not apply are refused, not ignored ----------------------------------------------
+for _argv, _match in (
+    (["simulate", "--tables", "circuit"], r"--tables \(the learned model's tables\) does not apply with --model refer"),
+    (["simulate", "--backend", "native"], r"--backend .* does not apply with --model reference"),
+    (["simulate", "--model", "reference", "--tables", "paper"], r"--tables .* does not apply with --model reference"),
+):
+    case("option", "simulate " + " ".join(_argv[1:]), _match)(lambda tmp, argv=_argv: simulate(tmp, LOG, *argv[1:]))
+
+for _argv, _match in (
+    (["evaluate", "--model", "reference", "--tables", "circuit"], r"--tables .* does not apply with --model reference"),
+    (["evaluate", "--ray="], r"--ray '': give HOST:PORT"),
+    (["validate", "--ray", " "], r"--ray '': give HOST:PORT"),
+    (["validate", "--ray", "auto", "--workers", "2"], r"--workers does not apply with --ray"),
+    (["collect", "--ray", "--workers", "3"], r"--workers does not apply with --ray"),
+    (["demo", "--fps", "1e-6"], r"--fps must be a finite number > 0, from 0.1 to 1000 frames/s"),
+    (["demo", "--fps", "1e9"], r"--fps must be a finite number > 0, from 0.1 to 1000"),
+):
+    case("option", " ".join(_argv), _match)(lambda tmp, argv=_argv: argv)
+
+
+@case("API argument", "ObsNormalizer(clip_obs=-1)", r"'clip_obs' must be > 0, got -1", error=ValueError)
+def _(tmp):
+    from hexgym.agents.policy_files import ObsNormalizer
+
+    return lambda: ObsNormalizer(clip_obs=-1)
+
+
+@case("API argument", "ObsNormalizer(epsilon='1')", r"epsilon must be a number, got '1'", error=TypeError)
+def _(tmp):
+    from hexgym.agents.policy_files import ObsNormalizer
+
+    return lambda: ObsNormalizer(epsilon="1")
+
+
+@case("API argument", "write_mp4 at 1e-6 frames/s", r"the frame rate must be from 0.1 to 1000", error=ValueError)
+def _(tmp):
+    from hexgym.machine.render import write_mp4
+
+    return lambda: write_mp4([np.zeros((8, 8, 3), np.uint8)] * 2, tmp / "v.mp4", fps=1e-6)
+
+
+@case("API argument", "a wrapper registered without a name", r"register_wrapper needs a name", error=TypeError)
+def _(tmp):
+    from hexgym.agents.training import register_wrapper
+
+    return lambda: register_wrapper("", print)
+
+
+# -- errors name their input -----------------------------------------------------------------------
+@case("data set", "fit, a data set of one episode", r"boom.npz: 1 episode\(s\); fitting holds out whole episodes")
+def _(tmp):
+    return [*_dataset(tmp, episode=np.zeros(5, np.int64)), "--tables", "paper"]
+
+
+@case("data set", "tables --bench, a data set of one episode", r"boom.npz: 1 episode\(s\)")
+def _(tmp):
+    _dataset(tmp, episode=np.zeros(5, np.int64))
+    return ["tables", "--bench", str(tmp / "data"), "--tables", "paper"]
+
+
+@case("policy zip", "a data record nested 200000 deep", r"policy.zip is not a Stable-Baselines3 model zip \(its data "
+      "record is nested too deeply")  # fmt: skip
+def _(tmp):
+    return _evaluate(_rewrite_zip(_policy(tmp), lambda m: m.update(data=b"[" * 200_000 + b"]" * 200_000)))
+
+
+@case("output path", "fit --out a folder of data sets", r"fitted/boom.npz is a collected data set; this command "
+      "writes tables")  # fmt: skip
+def _(tmp):
+    argv = _dataset(tmp)
+    shutil.copytree(tmp / "data", tmp / "fitted")
+    return [*argv, "--tables", "paper"]
+
+
+@case("output path", "collect --out a folder of tables", r"tables/boom.npz is a fitted table; this command writes "
+      "data sets")  # fmt: skip
+def _(tmp):
+    from hexgym.mbl.table import packaged_tables_dir
+
+    shutil.copytree(packaged_tables_dir("paper"), tmp / "tables")
+    return ["collect", "--out", str(tmp / "tables"), "--samples", "10", "--workers", "1", "--tables", "paper"]
+
+
 # -- running the corpus ----------------------------------------------------------------------------
 def snapshot(root: Path) -> dict[str, tuple[str, int]]:
     """Every path under ``root``: its content's digest (or kind) and permission bits."""
@@ -1166,6 +1310,8 @@ def snapshot(root: Path) -> dict[str, tuple[str, int]]:
             digest = "link:" + os.readlink(path)
         elif path.is_dir():
             digest = "dir"
+        elif not stat.S_ISREG(info.st_mode):  # a named pipe: opening it would wait for a writer
+            digest = "special"
         else:
             digest = hashlib.sha256(path.read_bytes()).hexdigest()
         out[str(path.relative_to(root))] = (digest, stat.S_IMODE(info.st_mode))
@@ -1482,6 +1628,172 @@ def test_an_unexpected_error_is_one_line_and_debug_shows_the_traceback(workdir, 
     monkeypatch.setenv("HEXGYM_DEBUG", "1")
     with pytest.raises(ValueError, match="no keyframe"):
         cli.main([*argv, "--start", "nosuch"])
+
+
+# -- multi-file outputs, full disk, concurrency, Ctrl-C with workers, a Ray address that is no Ray ----------
+FAULTS += ["a fit failing on its third table", "Ctrl-C in a staged output", "a private file replaced",
+           "a video cut short by a full disk", "two runs into one directory", "Ctrl-C with worker processes",
+           "a Ray address that answers but is no Ray"]  # fmt: skip
+
+
+def test_a_fit_failing_on_its_third_table_keeps_the_old_set(tmp_path, monkeypatch):
+    from hexgym.mbl import fit
+
+    out = tmp_path / "tables"
+    for name in ("boom", "bucket", "stick", "swing"):
+        write(out / f"{name}.npz", f"old {name}")
+    write(out / "notes.txt", "mine")
+    before = snapshot(tmp_path)
+
+    class Fitted:
+        def __init__(self, name: str) -> None:
+            self.name = name
+
+        def save(self, path: Path) -> Path:
+            return write(path, f"new {self.name}")
+
+    fitted: list[str] = []
+
+    def fit_table(name: str, *args: Any, **kwargs: Any) -> Fitted:
+        fitted.append(name)
+        if len(fitted) == 3:
+            raise ValueError(f"cannot fit {name}")
+        return Fitted(name)
+
+    monkeypatch.setattr(fit, "load_table_data", lambda *a, **k: None)
+    monkeypatch.setattr(fit, "fitted_points", lambda data, seed=0: data)
+    monkeypatch.setattr(fit, "fit_table", fit_table)
+    with pytest.raises(ValueError, match="cannot fit stick"):
+        fit.fit_all(tmp_path, out, table_set="paper")
+    assert snapshot(tmp_path) == before  # no new table beside old ones, no staging folder left
+    fitted.clear()
+    monkeypatch.setattr(fit, "fit_table", lambda name, *a, **k: Fitted(name))
+    fit.fit_all(tmp_path, out, table_set="paper")
+    assert [(out / f"{n}.npz").read_text() for n in ("boom", "swing")] == ["new boom", "new swing"]
+    assert (out / "notes.txt").read_text() == "mine" and sorted(p.name for p in tmp_path.iterdir()) == ["tables"]
+
+
+def test_ctrl_c_in_a_staged_output_keeps_the_old_set_and_permissions(tmp_path):
+    from hexgym.files import atomic_path, staged_dir
+
+    out = tmp_path / "report"
+    write(out / "summary.json", "old", mode=0o600)
+    write(out / "plot.png", "old plot")
+    before = snapshot(tmp_path)
+    with pytest.raises(KeyboardInterrupt), staged_dir(out) as staging:
+        with atomic_path(staging / "plot.png") as tmp:
+            tmp.write_text("new plot")
+        raise KeyboardInterrupt
+    assert snapshot(tmp_path) == before
+    with staged_dir(out) as staging, atomic_path(staging / "summary.json") as tmp:
+        tmp.write_text("new")
+    assert (out / "summary.json").read_text() == "new" and (out / "plot.png").read_text() == "old plot"
+    assert stat.S_IMODE((out / "summary.json").stat().st_mode) == 0o600  # a private file stays private
+
+
+def test_a_replaced_file_keeps_its_permissions(workdir, capsys):
+    from hexgym.tools import cli
+
+    argv = simulate(workdir)
+    write(workdir / "traj.csv", "old trajectory\n", mode=0o600)
+    assert cli.main(argv) == 0, capsys.readouterr().err
+    assert stat.S_IMODE((workdir / "traj.csv").stat().st_mode) == 0o600
+    assert (workdir / "traj.csv").read_text().startswith("t,")
+
+
+def test_a_video_cut_short_by_a_full_disk_keeps_the_old_one(tmp_path):
+    write(tmp_path / "v.mp4", "the old video")
+    code = (
+        "import numpy as np, sys\nfrom hexgym.machine.render import write_mp4\n"
+        "frames = [np.random.default_rng(i).integers(0, 255, (128, 128, 3), dtype=np.uint8) for i in range(40)]\n"
+        "try:\n    write_mp4(frames, sys.argv[1], fps=10)\nexcept OSError as exc:\n    print('refused:', exc)\n"
+    )
+
+    def limit() -> None:
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (20_000, 20_000))
+
+    result = subprocess.run([sys.executable, "-c", code, str(tmp_path / "v.mp4")], capture_output=True, text=True,
+                            preexec_fn=limit, cwd=tmp_path, timeout=60)  # fmt: skip
+    assert "refused:" in result.stdout and "could not write it whole" in result.stdout, result.stdout + result.stderr
+    assert (tmp_path / "v.mp4").read_text() == "the old video"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["v.mp4"]
+
+
+def test_two_runs_into_one_directory_are_refused(workdir, capsys):
+    from hexgym.files import run_lock
+    from hexgym.tools import cli
+
+    write(workdir / "h.yml", TINY_YAML)
+    with run_lock(workdir / "logs" / "ppo_HexLoading-v0"):
+        before = snapshot(workdir)
+        code = cli.main(["train", "--hyperparams", str(workdir / "h.yml"), "-f", str(workdir / "logs"),
+                         "--n-envs", "1", "--no-progress"])  # fmt: skip
+        err = capsys.readouterr().err.strip()
+        assert code == 2 and err.count("\n") == 0 and "is in use by another run" in err, err
+        assert snapshot(workdir) == before
+
+
+_POOL_SCRIPT = """
+import sys, time
+from hexgym.parallel import LocalPool
+try:
+    with LocalPool(2) as pool:
+        print("started", flush=True)
+        list(pool.map_unordered(time.sleep, [60, 60, 60]))
+except KeyboardInterrupt:
+    print("interrupted", flush=True)
+    sys.exit(130)
+"""
+
+
+def test_ctrl_c_ends_worker_processes_at_once_without_tracebacks(tmp_path):
+    """Ctrl-C reaches every process of the command (the terminal signals its process group): the workers
+    leave it to the parent, which stops them and ends at once, without a traceback from any of them."""
+    import time
+
+    process = subprocess.Popen([sys.executable, "-c", _POOL_SCRIPT], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True, start_new_session=True, cwd=tmp_path)  # fmt: skip
+    assert process.stdout.readline().strip() == "started"
+    time.sleep(2.5)  # the workers start (spawned: a fresh interpreter each) and sleep in their tasks
+    start = time.monotonic()
+    os.killpg(process.pid, signal.SIGINT)
+    try:
+        out, err = process.communicate(timeout=10)
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+    assert process.returncode == 130 and "interrupted" in out, (out, err)
+    assert time.monotonic() - start < 5 and "Traceback" not in err, err
+
+
+@pytest.mark.parametrize("reply", [b"HTTP/1.1 400 Bad Request\r\n\r\n", b""], ids=["HTTP", "silent"])
+def test_a_ray_address_that_answers_but_is_no_ray_is_refused_in_seconds(reply, monkeypatch):
+    import socket
+    import threading
+    import time
+
+    from hexgym import parallel
+
+    server = socket.create_server(("127.0.0.1", 0))
+    port = server.getsockname()[1]
+    held = []
+
+    def serve() -> None:
+        connection, _ = server.accept()
+        held.append(connection)
+        if reply:
+            connection.sendall(reply)
+
+    threading.Thread(target=serve, daemon=True).start()
+    monkeypatch.setattr(parallel, "CONNECT_TIMEOUT_S", 1.0)
+    start = time.monotonic()
+    with pytest.raises(parallel.ClusterError, match=rf"127.0.0.1:{port} answers but is no Ray cluster"):
+        parallel._check_reachable(f"127.0.0.1:{port}")
+    assert time.monotonic() - start < 3
+    server.close()
+    for connection in held:
+        connection.close()
 
 
 def corpus_counts() -> dict[str, int]:

@@ -396,6 +396,9 @@ def read_model_data(path: str | Path) -> dict[str, Any]:
             names = set(archive.namelist())
     except (zipfile.BadZipFile, KeyError, ValueError, UnicodeDecodeError, EOFError, OSError) as exc:
         raise PolicyFileError(f"{path} is not a Stable-Baselines3 model zip ({exc})") from None
+    except RecursionError:
+        raise PolicyFileError(f"{path} is not a Stable-Baselines3 model zip (its data record is nested too "
+                              "deeply to be one)") from None  # fmt: skip
     if not isinstance(data, dict) or "policy.pth" not in names:
         raise PolicyFileError(f"{path} is not a Stable-Baselines3 model zip (no policy data or weights)")
     return data

@@ -123,8 +123,11 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     unknown = set(names) - set(tables)
     if unknown:
         raise ValueError(f"--only: unknown table(s) {sorted(unknown)}; the {args.tables} tables are {list(tables)}")
-    _check_data_files(args.data, names)
     out = args.out or packaged_tables_dir(args.tables)
+    from hexgym.mbl.datafile import refuse_other_npz
+
+    refuse_other_npz(out, names, "table")  # data sets where the tables go: refused before anything is read
+    _check_data_files(args.data, names)
     for name, path in fit_all(args.data, out, seed=args.seed, names=names, table_set=args.tables).items():
         print(f"{name}: {path}")
     return 0
