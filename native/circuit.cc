@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <cstring>
 #include <utility>
 
@@ -88,6 +89,7 @@ struct Workspace {
   double area[kMaxBranches], q[kMaxBranches], g[kMaxBranches];
   double f[kMaxState], cap[kMaxNodes];
   double jac[kMaxState][kMaxState];
+  uint64_t pattern[kMaxState];  // each Jacobian row's possibly nonzero columns (bits), the diagonal's too
 };
 
 // The geometric area (m^2) of every branch for these valve areas and cylinder extensions (branch_areas).
@@ -122,23 +124,30 @@ void Evaluate(const Circuit& k, const double* y, const double* ext, const double
   int nn = k.nodes, n = k.state_size;
   for (int i = 0; i < n; ++i) {
     for (int j = 0; j < n; ++j) w.jac[i][j] = 0.0;
+    w.pattern[i] = uint64_t{1} << i;
   }
   double net[kMaxNodes] = {0.0};
   for (int b = 0; b < k.branches; ++b) {  // each branch's flow and its incidence; the tank (node nn) has no row
     int a = k.from[b], c = k.to[b];
     double dp = (a < nn ? y[a] : 0.0) - (c < nn ? y[c] : 0.0);
-    Smooth r = OrificeLaw(dp, law[kLawLaminarSq], law[kLawSqrt2Rho]);
     double opening = 1.0, dopening = 0.0;
     if (k.inv_span[b] > 0.0) {  // a pressure-operated valve
       Smooth s = Smoothstep((dp - k.crack[b]) * k.inv_span[b]);
       opening = s.value, dopening = s.slope * k.inv_span[b];
     }
     double cda = law[kLawDischarge] * w.area[b];
-    double q = cda * opening * r.value + k.laminar[b] * dp;
-    double g = cda * (dopening * r.value + opening * r.slope) + k.laminar[b];
+    double q = k.laminar[b] * dp, g = k.laminar[b];
+    if (cda != 0.0 && (opening != 0.0 || dopening != 0.0)) {  // closed passages and valves pass their leak only
+      Smooth r = OrificeLaw(dp, law[kLawLaminarSq], law[kLawSqrt2Rho]);
+      q += cda * opening * r.value;
+      g += cda * (dopening * r.value + opening * r.slope);
+    }
     if (a < nn) net[a] -= q, w.jac[a][a] -= g;
     if (c < nn) net[c] += q, w.jac[c][c] -= g;
-    if (a < nn && c < nn) w.jac[a][c] += g, w.jac[c][a] += g;
+    if (a < nn && c < nn && g != 0.0) {
+      w.jac[a][c] += g, w.jac[c][a] += g;
+      w.pattern[a] |= uint64_t{1} << c, w.pattern[c] |= uint64_t{1} << a;
+    }
   }
   // pumps: NFC under the cross-sensing horsepower limit (pump_flows)
   double p1 = y[k.pump_node[0]], p2 = y[k.pump_node[1]], total = p1 + p2;
@@ -154,6 +163,7 @@ void Evaluate(const Circuit& k, const double* y, const double* ext, const double
       double dq_dp = -law[kLawPowerLimit] / (total * total);
       w.jac[node][k.pump_node[0]] += dq_dp;
       w.jac[node][k.pump_node[1]] += dq_dp;
+      w.pattern[node] |= (uint64_t{1} << k.pump_node[0]) | (uint64_t{1} << k.pump_node[1]);
     }
   }
   Volumes(k, ext, w.cap);
@@ -162,8 +172,9 @@ void Evaluate(const Circuit& k, const double* y, const double* ext, const double
     w.cap[i] *= c.value;
     const double* d = &k.displacement[4 * i];
     double rate = d[0] * vel[0] + d[1] * vel[1] + d[2] * vel[2] + d[3] * swing_rate;
-    w.f[i] = (net[i] - rate) / w.cap[i];
-    for (int j = 0; j < nn; ++j) w.jac[i][j] /= w.cap[i];
+    double inv_cap = 1.0 / w.cap[i];
+    w.f[i] = (net[i] - rate) * inv_cap;
+    for (int j = 0; j < nn; ++j) w.jac[i][j] *= inv_cap;
     w.jac[i][i] -= w.f[i] * c.slope / c.value;
   }
   // the regulators: NFC through its lag, and d(pump pdot)/d(displacement)
@@ -175,34 +186,64 @@ void Evaluate(const Circuit& k, const double* y, const double* ext, const double
     w.jac[nn + i][k.signal_node[i]] = -drop * s.slope / width / tau;
     w.jac[nn + i][nn + i] = -1.0 / tau;
     w.jac[k.pump_node[i]][nn + i] = dq_dd[i] / w.cap[k.pump_node[i]];
+    w.pattern[nn + i] |= uint64_t{1} << k.signal_node[i];
+    w.pattern[k.pump_node[i]] |= uint64_t{1} << (nn + i);
   }
 }
 
-// x of a x = b for b with m columns, by Gaussian elimination with partial pivoting, as LAPACK's LU does;
-// a (n x n, row stride sa) and b (n x m, row stride sb) are overwritten, x in b.
-void Solve(double* a, int sa, double* b, int sb, int n, int m) {
+// x of a x = b for b with m columns, by Gaussian elimination with partial pivoting, as LAPACK's LU does (the
+// pivot's reciprocal scales its column); a (n x n, row stride sa) and b (n x m, row stride sb) are overwritten,
+// x in b. The circuit's matrix is sparse (a dozen nodes, each on a few branches): each row's possibly nonzero
+// columns are tracked as bits (`pattern`, or found), fill-in included, and only they are visited.
+void Solve(double* a, int sa, double* b, int sb, int n, int m, const uint64_t* pattern = nullptr) {
+  static_assert(kMaxState <= 64, "a row's nonzeros are the bits of one 64-bit word");
+  uint64_t mask[kMaxState];
+  for (int r = 0; r < n; ++r) {
+    mask[r] = 0;
+    if (pattern) {
+      mask[r] = pattern[r];
+      continue;
+    }
+    for (int j = 0; j < n; ++j) mask[r] |= static_cast<uint64_t>(a[r * sa + j] != 0.0) << j;  // no branches
+  }
   for (int col = 0; col < n; ++col) {
+    uint64_t bit = uint64_t{1} << col;
     int pivot = col;
     for (int r = col + 1; r < n; ++r) {
-      if (std::fabs(a[r * sa + col]) > std::fabs(a[pivot * sa + col])) pivot = r;
+      if ((mask[r] & bit) && std::fabs(a[r * sa + col]) > std::fabs(a[pivot * sa + col])) pivot = r;
     }
     if (pivot != col) {
       for (int j = 0; j < n; ++j) std::swap(a[col * sa + j], a[pivot * sa + j]);
       for (int j = 0; j < m; ++j) std::swap(b[col * sb + j], b[pivot * sb + j]);
+      std::swap(mask[col], mask[pivot]);
     }
+    const double* top = a + col * sa;
+    const double* btop = b + col * sb;
+    uint64_t right = mask[col] & ~((bit << 1) - 1);  // the pivot row's nonzeros right of the diagonal
+    double inv = 1.0 / top[col];
     for (int r = col + 1; r < n; ++r) {
-      if (a[r * sa + col] == 0.0) continue;  // the circuit's matrix is sparse
-      double factor = a[r * sa + col] / a[col * sa + col];
-      for (int j = col + 1; j < n; ++j) a[r * sa + j] -= factor * a[col * sa + j];
-      for (int j = 0; j < m; ++j) b[r * sb + j] -= factor * b[col * sb + j];
+      if (!(mask[r] & bit)) continue;
+      double* row = a + r * sa;
+      double factor = row[col] * inv;
+      for (uint64_t cols = right; cols; cols &= cols - 1) {
+        int j = __builtin_ctzll(cols);
+        row[j] -= factor * top[j];
+      }
+      mask[r] |= right;
+      double* brow = b + r * sb;
+      for (int j = 0; j < m; ++j) brow[j] -= factor * btop[j];
     }
   }
   for (int col = n - 1; col >= 0; --col) {
-    for (int j = 0; j < m; ++j) {
-      double s = b[col * sb + j];
-      for (int c = col + 1; c < n; ++c) s -= a[col * sa + c] * b[c * sb + j];
-      b[col * sb + j] = s / a[col * sa + col];
+    const double* row = a + col * sa;
+    double* brow = b + col * sb;
+    uint64_t bit = uint64_t{1} << col;
+    for (uint64_t cols = mask[col] & ~((bit << 1) - 1); cols; cols &= cols - 1) {
+      int c = __builtin_ctzll(cols);
+      const double* x = b + c * sb;
+      for (int j = 0; j < m; ++j) brow[j] -= row[c] * x[j];
     }
+    for (int j = 0; j < m; ++j) brow[j] /= row[col];
   }
 }
 
@@ -230,7 +271,7 @@ void ImplicitEuler(const Circuit& k, const double* y, const double* sens, double
       rhs[i * 5 + 1 + j] = sens[i * 4 + j] - (i < nn ? dt * k.displacement[4 * i + j] / w.cap[i] : 0.0);
     }
   }
-  Solve(lhs, n, rhs, 5, n, 5);
+  Solve(lhs, n, rhs, 5, n, 5, w.pattern);
   for (int i = 0; i < n; ++i) {
     y1[i] = y[i] + rhs[i * 5];
     for (int j = 0; j < 4; ++j) s1[i * 4 + j] = rhs[i * 5 + 1 + j];

@@ -20,6 +20,13 @@
 // equality forces are part of it), the last swing acceleration, the place in the control period
 // and the targets held within it (the swing's unclipped rate) are the plugin state (mjSTATE_PLUGIN).
 // So mj_getState/mj_setState (mjSTATE_FULLPHYSICS) restore a step exactly.
+//
+// With table_set "circuit" a query runs the circuit model's control period instead of the tables
+// (hexgym.model.circuit_model.CircuitModel._control_period; circuit.cc): the joints' loads, moment arms and
+// mass matrix at the period's start, the circuit's steps at the spools, the joints' mean rates over the period
+// as the servos' targets. The circuit's structure comes from config key "circuit" (numbers packed by
+// hexgym.model.circuit_kernel), its valve from the tables; its pressures, pump displacements and the joints'
+// rates are plugin state too (kHydraulics, kRates), so a saved state restores the circuit exactly.
 #include <dlfcn.h>
 #include <limits.h>
 #include <sys/stat.h>
@@ -38,6 +45,7 @@
 
 #include <mujoco/mujoco.h>
 
+#include "circuit.h"
 #include "clearance_plugin.h"
 #include "linkage.h"
 #include "mbl_table.h"
@@ -120,6 +128,7 @@ std::shared_ptr<const LoadedTables> LoadTables(const std::string& directory, con
   return set;
 }
 
+// Every number of config key `key` (count: how many it must hold; 0: any number of them).
 std::vector<double> Numbers(const mjModel* m, int instance, const char* key, size_t count) {
   const char* text = mj_getPluginConfig(m, instance, key);
   if (!text || !text[0]) throw SetupError(std::string("config key '") + key + "' is missing");
@@ -133,11 +142,38 @@ std::vector<double> Numbers(const mjModel* m, int instance, const char* key, siz
     if (*end || !std::isfinite(v)) throw SetupError(std::string("config key '") + key + "': '" + word + "' is not a number");
     out.push_back(v);
   }
-  if (out.size() != count) {
+  if (count && out.size() != count) {
     throw SetupError(std::string("config key '") + key + "' needs " + std::to_string(count) + " numbers, got " +
                      std::to_string(out.size()));
   }
   return out;
+}
+
+// The circuit of config key "circuit" with the valve of the loaded tables (one copy per numbers and tables).
+std::shared_ptr<const Circuit> LoadCircuit(const mjModel* m, int instance, std::shared_ptr<const LoadedTables> tables) {
+  static std::mutex mutex;
+  static std::map<std::pair<const LoadedTables*, std::vector<double>>, std::shared_ptr<const Circuit>> cache;
+  std::vector<double> numbers = Numbers(m, instance, "circuit", 0);
+  std::lock_guard<std::mutex> lock(mutex);
+  auto key = std::make_pair(tables.get(), numbers);
+  auto it = cache.find(key);
+  if (it != cache.end()) return it->second;
+  std::vector<ValveTable> valve;
+  for (const MblTable& t : tables->tables) {
+    if (t.dims() != 1) throw SetupError("a circuit table must have one input");
+    valve.push_back(MakeValveTable(t.axis_nodes(0).data(), t.values().data(), static_cast<int>(t.values().size())));
+  }
+  try {
+    auto circuit = std::make_shared<const Circuit>(numbers.data(), static_cast<int>(numbers.size()), std::move(valve));
+    if (circuit->state_size != kHydraulicsSize) {
+      throw SetupError("config key 'circuit': a circuit of " + std::to_string(circuit->state_size) +
+                       " states where the plugin state holds " + std::to_string(kHydraulicsSize));
+    }
+    cache[key] = circuit;  // the tables stay alive in the instance that holds them with this circuit
+    return circuit;
+  } catch (const CircuitError& e) {
+    throw SetupError(std::string("config key 'circuit': ") + e.what());
+  }
 }
 
 double Number(const mjModel* m, int instance, const char* key) { return Numbers(m, instance, key, 1)[0]; }
@@ -150,6 +186,10 @@ Triangle ReadTriangle(const mjModel* m, int instance, const char* key) {
 // Everything one instance needs: model indices, geometry, limits (per mjData, read-only in steps).
 struct Instance {
   std::shared_ptr<const LoadedTables> tables;
+  std::shared_ptr<const Circuit> circuit;  // table_set circuit: the circuit model (else null)
+  int substeps = 1;                       // the circuit's steps per control period
+  int mass_adr[4][4];                     // the main dofs' entries in d->M (CSR, lower triangle), -1: none
+  double next_hydraulics[kHydraulicsSize], next_rates[4], next_fault = 0.0;
   int boom_table, bucket_table, stick_table, swing_table;
   std::vector<std::pair<int, int>> feeding;  // (table, quantity): tables whose output is a quantity, looked up first
   bool swing_torque;  // the swing table gives the motor torque (else the acceleration)
@@ -178,6 +218,15 @@ struct Instance {
     const char* dir = mj_getPluginConfig(m, instance, "tables");
     tables = LoadTables(dir && dir[0] ? std::string(dir) : LibraryDirectory() + "/mbl_tables/" + table_set.name,
                         table_set);
+    ReadMachine(m, instance);
+    if (std::strcmp(table_set.name, "circuit") == 0) {
+      circuit = LoadCircuit(m, instance, tables);
+      double n = Number(m, instance, "substeps");
+      if (!(n >= 1 && n <= 1000 && n == std::floor(n))) throw SetupError("config key 'substeps' must be a whole number >= 1");
+      substeps = static_cast<int>(n);
+      FindMass(m);
+      return;
+    }
     boom_table = tables->Find("boom"), bucket_table = tables->Find("bucket"), stick_table = tables->Find("stick");
     swing_table = tables->Find("swing");
     if (boom_table < 0 || bucket_table < 0 || stick_table < 0 || swing_table < 0) {
@@ -188,6 +237,18 @@ struct Instance {
         if (std::strcmp(table_set.tables[t].output, kQuantityNames[q]) == 0) feeding.emplace_back(t, q);
       }
     }
+    const TableSchema& swing_spec = table_set.tables[swing_table];
+    swing_torque = std::strcmp(swing_spec.output, "swing_torque_nm") == 0;
+    int rate_axis = 0;
+    while (rate_axis < swing_spec.num_inputs && swing_spec.inputs[rate_axis] != kQSwingRateRadps) ++rate_axis;
+    if (rate_axis == swing_spec.num_inputs) throw SetupError("the swing table does not read the swing rate");
+    const MblTable& swing = tables->tables[swing_table];
+    slowest_swing = swing.axis_lo(rate_axis);
+    fastest_swing = swing.axis_hi(rate_axis);
+  }
+
+  // The linkage, limits, control period and actuators: what both kinds of query need.
+  void ReadMachine(const mjModel* m, int instance) {
     linkage.boom = ReadTriangle(m, instance, "boom_triangle");
     linkage.stick = ReadTriangle(m, instance, "stick_triangle");
     std::vector<double> f = Numbers(m, instance, "bucket_four_bar", 11);
@@ -206,14 +267,6 @@ struct Instance {
     swing_torque_limit = Number(m, instance, "swing_torque_limit");
     dead_band = Number(m, instance, "dead_band");
     swing_rest_rate = Number(m, instance, "swing_rest_rate");
-    const TableSchema& swing_spec = table_set.tables[swing_table];
-    swing_torque = std::strcmp(swing_spec.output, "swing_torque_nm") == 0;
-    int rate_axis = 0;
-    while (rate_axis < swing_spec.num_inputs && swing_spec.inputs[rate_axis] != kQSwingRateRadps) ++rate_axis;
-    if (rate_axis == swing_spec.num_inputs) throw SetupError("the swing table does not read the swing rate");
-    const MblTable& swing = tables->tables[swing_table];
-    slowest_swing = swing.axis_lo(rate_axis);
-    fastest_swing = swing.axis_hi(rate_axis);
     const char* period_text = mj_getPluginConfig(m, instance, "control_period");
     double wanted = period_text && period_text[0] ? Number(m, instance, "control_period") : m->opt.timestep;
     // steps per period, rounded to a multiple of 2^-20 so that the phase arithmetic is exact
@@ -225,6 +278,19 @@ struct Instance {
     period = wanted;
     FindActuators(m, instance);
     stateadr = m->plugin_stateadr[instance];
+  }
+
+  // Where each pair of main dofs sits in d->M (its lower triangle in CSR rows).
+  void FindMass(const mjModel* m) {
+    for (int i = 0; i < 4; ++i) {
+      for (int j = 0; j < 4; ++j) {
+        int r = std::max(dadr[i], dadr[j]), c = std::min(dadr[i], dadr[j]);
+        mass_adr[i][j] = -1;
+        for (int a = m->M_rowadr[r]; a < m->M_rowadr[r] + m->M_rownnz[r]; ++a) {
+          if (m->M_colind[a] == c) mass_adr[i][j] = a;
+        }
+      }
+    }
   }
 
   void FindActuators(const mjModel* m, int instance) {
@@ -288,7 +354,9 @@ struct Instance {
   void Compute(const mjModel* m, mjData* d) {
     const mjtNum* state = d->plugin_state + stateadr;
     queried = state[kPhase] < 1.0;  // the first step at or after a period boundary
-    if (queried) {
+    if (queried && circuit) {
+      QueryCircuit(m, d, state);
+    } else if (queried) {
       Query(m, d, state + kLoad);
     } else {  // between queries the servos hold the last targets (the Python path holds its ctrl)
       next_rate = state[kTargets];
@@ -367,7 +435,62 @@ struct Instance {
       new_rate = 0.0;  // braked by the crossover reliefs: it stops, it does not turn back
     }
     double wanted[4] = {new_rate, v_boom / arms[0], v_stick / arms[1], v_bucket / arms[2]};
-    StallAtContacts(m, d, wanted);
+    bool blocked[4];
+    StallAtContacts(m, d, wanted, blocked);
+    next_rate = wanted[0];
+    if (!integrated) d->act_dot[swing_actadr] = (next_rate - rate) / m->opt.timestep;
+    for (int k = 0; k < 4; ++k) target[k] = std::fmin(std::fmax(wanted[k], rate_lo[k]), rate_hi[k]);
+  }
+
+  // The circuit model's control period (CircuitModel._control_period): the joints' rate targets (clipped to the
+  // servo ranges) from their travel over the period, the circuit's state and the rates at its end staged.
+  void QueryCircuit(const mjModel* m, mjData* d, const mjtNum* state) {
+    double load[4], spools[4], arms[3], ext[3], mass[16], rates[4], travel[4] = {0, 0, 0, 0};
+    for (int k = 0; k < 4; ++k) {
+      int v = dadr[k];
+      load[k] = d->qfrc_bias[v] - d->qfrc_passive[v] - d->qfrc_applied[v] - state[kLoad + k];
+      double mm = d->ctrl[m->actuator_ctrladr[actuator[k]]];
+      spools[k] = std::isfinite(mm) ? mm / kCtrlPerSpoolMetre : 0.0;
+      for (int j = 0; j < 4; ++j) mass[4 * k + j] = mass_adr[k][j] < 0 ? 0.0 : d->M[mass_adr[k][j]];
+    }
+    for (int c = 0; c < 3; ++c) {
+      double length;
+      linkage.Cylinder(c, d->qpos[qadr[c + 1]], &length, &arms[c]);
+      ext[c] = length - retracted[c];
+    }
+    double ready = state[kCircuitReady];
+    next_fault = state[kCircuitFault];
+    std::memcpy(next_hydraulics, state + kHydraulics, sizeof(next_hydraulics));
+    std::memcpy(rates, state + kRates, sizeof(rates));
+    if (ready == 0.0) {  // after a reset: the chambers hold the loads, the joints at rest
+      double holding[3] = {load[1] / arms[0], load[2] / arms[1], load[3] / arms[2]};
+      InitialState(*circuit, holding, next_hydraulics);
+      for (double& r : rates) r = 0.0;
+    }
+    if (ready >= 0.0 && next_fault == 0.0) {  // ready -1: the reset's settling step, held still
+      double y[kHydraulicsSize];
+      std::memcpy(y, next_hydraulics, sizeof(y));
+      ControlPeriod(*circuit, spools, y, rates, ext, arms, mass, load, period / substeps, substeps, travel);
+      bool finite = true;
+      for (double v : y) finite = finite && std::isfinite(v);
+      for (int k = 0; k < 4; ++k) finite = finite && std::isfinite(rates[k]) && std::isfinite(travel[k]);
+      if (finite) {
+        std::memcpy(next_hydraulics, y, sizeof(y));
+      } else {  // the machine holds still; the Python side raises, naming the state
+        next_fault = 1.0;
+        mju_warning("hexgym.mbl: the circuit's state went non-finite; the machine holds still");
+      }
+    }
+    if (next_fault != 0.0 || ready < 0.0) {
+      for (int k = 0; k < 4; ++k) rates[k] = travel[k] = 0.0;
+    }
+    double wanted[4];
+    for (int k = 0; k < 4; ++k) wanted[k] = travel[k] / period;
+    bool blocked[4];
+    StallAtContacts(m, d, wanted, blocked);
+    for (int k = 0; k < 4; ++k) next_rates[k] = blocked[k] ? 0.0 : rates[k];
+    double rate = integrated ? state[kTargets] : d->act[swing_actadr];
+    swing_acceleration = next_inertia = 0.0;  // the circuit integrates the swing itself
     next_rate = wanted[0];
     if (!integrated) d->act_dot[swing_actadr] = (next_rate - rate) / m->opt.timestep;
     for (int k = 0; k < 4; ++k) target[k] = std::fmin(std::fmax(wanted[k], rate_lo[k]), rate_hi[k]);
@@ -382,9 +505,9 @@ struct Instance {
   }
 
   // LearnedModel.blocked_by_contact: a joint whose rate would move a contact point of the machine
-  // along the contact normal into the other body (ground, truck) stalls (its rate becomes 0).
-  void StallAtContacts(const mjModel* m, mjData* d, double* rates) {
-    bool blocked[4] = {false, false, false, false};
+  // along the contact normal into the other body (ground, truck) stalls (its rate becomes 0; blocked says which).
+  void StallAtContacts(const mjModel* m, mjData* d, double* rates, bool* blocked) {
+    for (int k = 0; k < 4; ++k) blocked[k] = false;
     for (int i = 0; i < d->ncon; ++i) {
       const mjContact& c = d->contact[i];
       if (c.dist >= 0.0) continue;  // not touching
@@ -421,6 +544,12 @@ struct Instance {
       for (int k = 0; k < 4; ++k) state[kTargets + k] = target[k];
       state[kTargets] = next_rate;  // the swing's rate, unclipped (the servo clips it when used)
       state[kInertia] = next_inertia;
+      if (circuit) {
+        std::memcpy(state + kHydraulics, next_hydraulics, sizeof(next_hydraulics));
+        std::memcpy(state + kRates, next_rates, sizeof(next_rates));
+        state[kCircuitReady] = state[kCircuitReady] < 0.0 ? 0.0 : 1.0;
+        state[kCircuitFault] = next_fault;
+      }
     }
     // whole periods are subtracted, not the phase zeroed: a period of 12.5 steps alternates 13 and 12
     double phase = state[kPhase] + 1.0;

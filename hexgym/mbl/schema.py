@@ -20,7 +20,7 @@ per passage (each section's centre bypass, pump to port a or b, port a or b to t
 orifice area against the spool, identified from the pressures, pump flows and velocities of
 operator-like motion (:mod:`hexgym.mbl.valve`). The circuit model (:mod:`hexgym.model.circuit_model`)
 runs the open-centre circuit's structure from the machine's data sheet with these areas. The native
-plugin runs the ``paper`` and ``extended`` sets (``NATIVE_TABLE_SETS``).
+plugin runs every set (``NATIVE_TABLE_SETS``).
 
 Quantity names carry their SI unit as a suffix: ``_m`` m, ``_n`` N, ``_nm`` N m, ``_kgm2`` kg m^2,
 ``_radps`` rad/s, ``_mps`` m/s, ``_radps2`` rad/s^2, ``_pa`` Pa, ``_m2`` m^2. ``stick_drive_force_n`` is the stick
@@ -117,8 +117,8 @@ TABLE_SETS["circuit"] = _tables(
         for f in JOINTS  # the spool order
     ]
 )
-NATIVE_TABLE_SETS = ("paper", "extended")  # the sets the native plugin runs
-DEFAULT_TABLE_SET = "paper"
+NATIVE_TABLE_SETS = ("circuit", "paper", "extended")  # the sets the native plugin runs
+DEFAULT_TABLE_SET = "circuit"
 
 
 def check_table_schema(

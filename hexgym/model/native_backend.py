@@ -17,13 +17,16 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from hexgym.hydraulics.circuit import validate_spools
+from hexgym.hydraulics.circuit import STATE_NAMES as CIRCUIT_STATE_NAMES
+from hexgym.hydraulics.circuit import STATE_SIZE as CIRCUIT_STATE_SIZE
+from hexgym.hydraulics.circuit import HydraulicCircuit, fuel_rate, validate_spools
 from hexgym.machine import kinematics
 from hexgym.machine.assets import AssetError, asset_path
 from hexgym.machine.physics import ExcavatorPhysics, contiguous_index
 from hexgym.mbl.schema import DEFAULT_TABLE_SET
 from hexgym.mbl.table import require_packaged
 from hexgym.model.base import LearnedModelBase
+from hexgym.model.circuit_model import CIRCUIT_DTYPE
 from hexgym.model.plugin import CTRL_PER_SPOOL_M, STATE, STATE_SIZE, plugin_config_values, require_plugin
 
 
@@ -107,6 +110,10 @@ class NativeLearnedModel(LearnedModelBase):
         load = self._state.start + STATE["load"]
         self._load_slots = slice(load, load + 4)  # the constraint loads, N m
         self.spools_m = np.zeros(4)
+        self.table_set = plugin_config_values(m, instance)["table_set"] or DEFAULT_TABLE_SET
+        # the circuit model's state in the plugin state: the circuit's pressures and pump displacements
+        self._hydraulics = self._state.start + STATE["hydraulics"] + np.arange(CIRCUIT_STATE_SIZE)
+        self._circuit = HydraulicCircuit() if self.table_set == "circuit" else None
 
     @property
     def control_period(self) -> float:
@@ -127,10 +134,13 @@ class NativeLearnedModel(LearnedModelBase):
         d.plugin_state[self._state] = 0.0
         self.spools_m = np.zeros(4)
         d.ctrl[self._ctrl] = 0.0
+        d.plugin_state[self._state.start + STATE["circuit_ready"]] = -1.0  # the circuit holds this settling step
         self.physics.step()  # as LearnedModel.reset: one step so the constraint forces exist
-        # the next step starts a control period; as LearnedModel, no table has been asked yet
+        # the next step starts a control period; as LearnedModel, no table has been asked yet (and the circuit's
+        # state is set there to hold the loads)
         d.plugin_state[self._state.start + STATE["phase"]] = 0.0
         d.plugin_state[self._state.start + STATE["acceleration"]] = 0.0
+        d.plugin_state[self._state.start + STATE["circuit_ready"]] = 0.0
         d.time = 0.0
         self._periods = self._steps = 0
 
@@ -142,6 +152,25 @@ class NativeLearnedModel(LearnedModelBase):
         end = math.ceil(self._periods * self._steps_per_period - 1e-9)
         self.physics.step(end - self._steps)
         self._steps = end
+        if self._circuit is not None and self.physics.data.plugin_state[self._state.start + STATE["circuit_fault"]]:
+            raise ValueError(
+                f"hydraulic state must be {CIRCUIT_STATE_SIZE} finite numbers ({CIRCUIT_STATE_NAMES}): the circuit's"
+                f" state went non-finite by t = {self.physics.time:.3f} s"
+            )
+
+    @property
+    def hydraulic_state(self) -> np.ndarray:
+        """The circuit model's state (a copy): pressures (Pa) and pump displacements (``STATE_NAMES``)."""
+        return self.physics.data.plugin_state[self._hydraulics].copy()
+
+    def observe(self) -> np.ndarray:
+        """One trajectory row; the circuit model's also its pumps' power and fuel rate (``CIRCUIT_DTYPE``, as
+        :class:`~hexgym.model.circuit_model.CircuitModel`)."""
+        row = super().observe()
+        if self._circuit is None:
+            return row
+        _, hydraulic, brake = self._circuit.pump_power(self.hydraulic_state)
+        return np.array((*row.tolist(), hydraulic, fuel_rate(brake)), dtype=CIRCUIT_DTYPE)
 
     def joint_loads(self) -> np.ndarray:
         """Torque each main joint's actuator must supply to hold the present motion (N m).

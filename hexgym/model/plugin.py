@@ -48,6 +48,7 @@ CONFIG_KEYS: dict[str, str] = {
     "control_period": "s between table queries, >= one step (default: one step)",
     "table_set": "which table set the tables directory holds: circuit, paper or extended (default: the default set)",
     "circuit": "the circuit's numbers (nodes, branches, then CIRCUIT_FIELDS), for table_set circuit",
+    "substeps": "the circuit's steps per control period, for table_set circuit",
 }
 # Plugin state slots (mjSTATE_PLUGIN, so mj_getState/mj_setState restore a step exactly): name -> size.
 STATE_SLOTS: dict[str, int] = {
