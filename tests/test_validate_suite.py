@@ -9,7 +9,7 @@ from hexgym.machine import kinematics
 from hexgym.mbl import operator_logs as ol
 from hexgym.mbl.schema import DEFAULT_TABLE_SET
 from hexgym.tools.cli import main
-from hexgym.tools.validate import interaction_cases, run_validation
+from hexgym.tools.validate import INTERACTIONS, interaction_cases, run_validation
 
 LOGS = [ol.suite_log(7, i) for i in range(50)]
 
@@ -117,11 +117,43 @@ def _check_suite_block(suite: dict, n: int, seed: int) -> None:
 def test_suite_block_on_a_short_real_run(tmp_path):
     """One 6 s log replayed on both models, in this process."""
     summary = run_validation(tmp_path, suite=1, suite_seed=5, workers=1, suite_only=True, suite_duration_s=6.0)
-    assert list(summary) == ["tables", "suite"] and summary["tables"] == DEFAULT_TABLE_SET
+    assert list(summary) == ["tables", "model", "payload_kg", "suite"] and summary["tables"] == DEFAULT_TABLE_SET
+    assert summary["payload_kg"] is None and summary["model"]["table_set"] == DEFAULT_TABLE_SET
+    assert summary["model"]["tables_dir"] == "packaged" and len(summary["model"]["tables_sha256"]) == 64
     _check_suite_block(summary["suite"], 1, 5)
     assert summary["suite"]["per_log"][0]["duration_s"] == 6.0
+    assert summary["suite"]["per_log"][0]["payload_kg"] == ol.suite_log(5, 0, 6.0).payload_kg  # as drawn
     assert json.loads((tmp_path / "summary.json").read_text()) == summary
     assert (tmp_path / "suite_worst.png").stat().st_size > 0
+
+
+def test_payload_goes_into_every_suite_log_in_worker_processes(tmp_path):
+    """``payload_kg`` replaces each suite log's drawn payload; two workers build their own circuit model."""
+    summary = run_validation(
+        tmp_path, suite=2, suite_seed=5, workers=2, suite_only=True, suite_duration_s=3.0, payload_kg=1500.0
+    )
+    assert summary["payload_kg"] == 1500.0
+    assert [entry["payload_kg"] for entry in summary["suite"]["per_log"]] == [1500.0, 1500.0]
+    assert json.loads((tmp_path / "summary.json").read_text())["payload_kg"] == 1500.0
+
+
+def test_interaction_cases_at_one_payload():
+    cases = interaction_cases((2000.0,))
+    assert sorted(cases) == sorted(f"{name}_2t" for name in INTERACTIONS)
+    assert {payload for _, _, payload in cases.values()} == {2000.0}
+
+
+@pytest.mark.parametrize("payload", ["-1", "nan", "inf", "2500"])
+def test_validate_refuses_a_bad_payload_in_one_line(tmp_path, capsys, payload):
+    assert main(["validate", "--out", str(tmp_path), "--payload-kg", payload]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "--payload-kg" in err and len(err.splitlines()) == 1
+
+
+@pytest.mark.parametrize("payload", [-1.0, float("nan"), 1e4])
+def test_run_validation_refuses_a_bad_payload(tmp_path, payload):
+    with pytest.raises(ValueError, match="payload_kg"):
+        run_validation(tmp_path, suite=1, suite_only=True, payload_kg=payload)
 
 
 def test_validate_refuses_bad_suite_arguments(tmp_path, capsys):
@@ -136,7 +168,8 @@ def test_full_validation_with_two_suite_logs(tmp_path, capsys):
     """``hexgym validate --suite 2``: the tests, the interactions and two full-length logs, in workers."""
     assert main(["validate", "--out", str(tmp_path), "--suite", "2", "--suite-seed", "1", "--workers", "2"]) == 0
     summary = json.loads((tmp_path / "summary.json").read_text())
-    assert set(summary) == {"tables", "test1", "test2", "test3", "speed", "interactions", "suite"}
+    tests = {"test1", "test2", "test3"}
+    assert set(summary) == {"tables", "model", "payload_kg", *tests, "speed", "interactions", "suite"}
     assert set(summary["interactions"]) == set(interaction_cases())
     _check_suite_block(summary["suite"], 2, 1)
     for name in ("test1", "test2", "test3", "interactions", "suite_worst"):

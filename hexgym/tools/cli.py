@@ -167,6 +167,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
         table_set=args.tables,
         tables_dir=args.tables_dir,
         ray=args.ray,
+        payload_kg=args.payload_kg,
     )
     print(json.dumps(summary, indent=2))
     plots = [] if args.suite_only else ["test1.png", "test2.png", "test3.png", "interactions.png"]
@@ -522,6 +523,13 @@ def build_parser() -> argparse.ArgumentParser:
     add_ray_option(validate, "the interactions and the suite")
     validate.add_argument("--tables", **_TABLES_OPTION)
     validate.add_argument("--tables-dir", default=None, help="the tables' directory (default: the packaged ones)")
+    validate.add_argument(
+        "--payload-kg",
+        type=float,
+        default=None,
+        help="material in the bucket, kg, for every run of both models: the tests, the interactions and each suite "
+        "log (default: the tests empty, the interactions at 0 and 2 t, each suite log its drawn 0, 1 or 2 t)",
+    )
     validate.set_defaults(func=_cmd_validate)
 
     build = sub.add_parser("build-assets", help="regenerate assets/meshes and assets/cat325.xml (developers)")

@@ -15,16 +15,26 @@ Beyond the paper: ``interactions`` holds the actuator interactions in both direc
 with an empty bucket and with 2 t (8 s logs, ``interactions.png``): the swing slowed by the
 stick moving in and moving out (pump 2), the boom held back by the bucket curling and dumping
 (pump 1). With ``suite=N`` the ``suite`` block holds the generalisation suite: N seeded random
-operator-like logs (:mod:`hexgym.tools.operator_logs`, 30-60 s, start poses and payloads
+operator-like logs (:mod:`hexgym.mbl.operator_logs`, 30-60 s, start poses and payloads
 varied) that no table was tuned on, each log's tip errors, their median and worst; the worst
 log is plotted as Test 3 (``suite_worst.png``). The reference runs at only a few times real
 time, so the interactions and the suite run in worker processes.
+
+``payload_kg`` puts that much material in the bucket for every run of both models: Tests 1-3,
+the interactions (then at that payload only) and every suite log (in place of its drawn
+payload). Left at ``None``, the tests run empty, the interactions at 0 and 2 t and each suite
+log with its drawn payload. ``summary.json`` records it (``payload_kg``, ``null`` for the
+drawn payloads) and the learned model (``model``: its table set, whether its circuit steps
+run natively, where its tables came from and their content hashes' digest).
 """
 
 from __future__ import annotations
 
+import hashlib
+import math
 import os
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -33,9 +43,11 @@ from hexgym.files import save_figure, staged_dir, write_json
 from hexgym.hydraulics.reference import ReferenceModel
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
+from hexgym.machine.physics import MAX_PAYLOAD_KG
 from hexgym.mbl.operator_logs import pose_from_fractions, suite_log
 from hexgym.mbl.schema import DEFAULT_TABLE_SET, NATIVE_TABLE_SETS
 from hexgym.model.backend import make_learned_model
+from hexgym.model.circuit_model import CircuitModel
 from hexgym.model.commandlog import CommandLog
 from hexgym.model.python_backend import LearnedModel
 from hexgym.model.replay import replay
@@ -55,8 +67,11 @@ INTERACTION_PAYLOADS_KG = (0.0, 2000.0)
 INTERACTION_WINDOW_S = (1.0, 6.0)  # both spools fully open
 
 
-def interaction_cases() -> dict[str, tuple[CommandLog, np.ndarray, float]]:
-    """Case name (``<interaction>_<payload>t``) -> (command log, start pose, payload kg)."""
+def interaction_cases(
+    payloads_kg: tuple[float, ...] = INTERACTION_PAYLOADS_KG,
+) -> dict[str, tuple[CommandLog, np.ndarray, float]]:
+    """Case name (``<interaction>_<payload>t``) -> (command log, start pose, payload kg), each interaction at
+    each of ``payloads_kg``."""
     full = p.SPOOL_STROKE * 1e3
     cases = {}
     for name, (slowed, partner, sign, fractions) in INTERACTIONS.items():
@@ -64,7 +79,7 @@ def interaction_cases() -> dict[str, tuple[CommandLog, np.ndarray, float]]:
         spools[kinematics.JOINTS.index(slowed)] = full
         spools[kinematics.JOINTS.index(partner)] = sign * full
         log = ramped_log([(0.0, 0, 0, 0, 0), (0.5, *spools), (6.0, 0, 0, 0, 0), (8.0, 0, 0, 0, 0)], ramp=0.3)
-        for payload in INTERACTION_PAYLOADS_KG:
+        for payload in payloads_kg:
             cases[f"{name}_{payload / 1000:g}t"] = (log, pose_from_fractions(0.0, np.array(fractions)), payload)
     return cases
 
@@ -177,15 +192,19 @@ def _speed(test3: dict[str, object], table_set: str) -> dict[str, float]:
     }
 
 
-def plot_interactions(results: dict[str, dict[str, object]], path: Path) -> Path:
-    """Each interaction case: the slowed function's and its partner's joint rates, reference vs learned."""
+def plot_interactions(
+    results: dict[str, dict[str, object]], path: Path, payloads_kg: tuple[float, ...] = INTERACTION_PAYLOADS_KG
+) -> Path:
+    """Each interaction case at each of ``payloads_kg``: the slowed function's and its partner's joint rates,
+    reference vs learned."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    payloads = INTERACTION_PAYLOADS_KG
-    fig, axes = plt.subplots(len(INTERACTIONS), len(payloads), figsize=(12, 2.6 * len(INTERACTIONS)), sharex=True)
+    payloads = payloads_kg
+    size = (6 * len(payloads), 2.6 * len(INTERACTIONS))
+    fig, axes = plt.subplots(len(INTERACTIONS), len(payloads), figsize=size, sharex=True, squeeze=False)
     for row, (name, (slowed, partner, _, _)) in enumerate(INTERACTIONS.items()):
         for col, payload in enumerate(payloads):
             result, ax = results[f"{name}_{payload / 1000:g}t"], axes[row, col]
@@ -220,10 +239,25 @@ def _interaction_summary(name: str, result: dict[str, object]) -> dict[str, obje
 _worker_models: dict[str, object] = {}
 
 
-def _init_worker(learned: LearnedModel | None) -> None:
-    """Build this process's reference model, and take or build its learned model (once per worker)."""
+def _worker_recipe(learned: LearnedModel | None) -> object:
+    """What a worker process needs to build ``learned`` itself: a circuit model's tables, control period and
+    substeps (its native kernel is a library handle, which cannot be pickled); any other model as it is."""
+    if isinstance(learned, CircuitModel):
+        return ("circuit", learned.tables, learned.control_period, learned.substeps)
+    return learned
+
+
+def _init_worker(recipe: object) -> None:
+    """Build this process's reference model, and build or take its learned model (once per worker) from
+    :func:`_worker_recipe`'s recipe (``None``: the packaged default tables' model)."""
     _worker_models["reference"] = ReferenceModel()
-    _worker_models["learned"] = learned if learned is not None else LearnedModel()
+    if recipe is None:
+        _worker_models["learned"] = make_learned_model("python")
+    elif isinstance(recipe, tuple) and recipe[0] == "circuit":
+        _, tables, control_period, substeps = recipe
+        _worker_models["learned"] = CircuitModel(tables, control_period=control_period, substeps=substeps)
+    else:
+        _worker_models["learned"] = recipe
 
 
 def _run_job(job: tuple[str, CommandLog, np.ndarray, float]) -> dict[str, object]:
@@ -245,7 +279,8 @@ def run_jobs(
     ``ray``: as Ray tasks instead (:mod:`hexgym.parallel`: "local" or a cluster's address).
     """
     jobs = sorted(jobs, key=lambda job: -job[1].duration)
-    with executor(min(workers, max(len(jobs), 1)), ray, initializer=_init_worker, initargs=(learned,)) as pool:
+    recipe = _worker_recipe(learned)
+    with executor(min(workers, max(len(jobs), 1)), ray, initializer=_init_worker, initargs=(recipe,)) as pool:
         return {result["name"]: result for result in pool.map_unordered(_run_job, jobs)}
 
 
@@ -264,6 +299,32 @@ def _suite_entry(result: dict[str, object], description: dict[str, object]) -> d
     }
 
 
+def check_payload(payload_kg: float | None) -> None:
+    """Refuse a payload that is not a finite mass from 0 to a heaped bucket (``None``: the drawn payloads)."""
+    if payload_kg is not None and not (
+        isinstance(payload_kg, int | float) and math.isfinite(payload_kg) and 0.0 <= payload_kg <= MAX_PAYLOAD_KG
+    ):
+        raise ValueError(
+            f"payload_kg must be a finite mass from 0 to {MAX_PAYLOAD_KG:.0f} kg (a heaped bucket), got {payload_kg!r}"
+        )
+
+
+def model_record(learned: LearnedModel, tables_dir: str | Path | None = None) -> dict[str, object]:
+    """The learned model a report was made with: its table set, whether its circuit steps ran natively (the
+    circuit model), where its tables came from and a digest of their content hashes (sorted by name)."""
+    tables = getattr(learned, "tables", {}) or {}
+    digest = hashlib.sha256("".join(f"{n}:{t.content_hash()};" for n, t in sorted(tables.items())).encode())
+    record: dict[str, object] = {
+        "table_set": learned.table_set,
+        "class": type(learned).__name__,
+        "tables_dir": str(tables_dir) if tables_dir is not None else "packaged",
+        "tables_sha256": digest.hexdigest(),
+    }
+    if learned.table_set == "circuit":
+        record["circuit_kernel"] = "native" if getattr(learned, "_kernel", None) is not None else "python"
+    return record
+
+
 REPORT_FILES = ("test1.png", "test2.png", "test3.png", "interactions.png", "suite_worst.png", "summary.json")
 
 
@@ -278,6 +339,7 @@ def run_validation(
     table_set: str = DEFAULT_TABLE_SET,
     tables_dir: str | Path | None = None,
     ray: str | None = None,
+    payload_kg: float | None = None,
 ) -> dict[str, object]:
     """The three tests, the interactions and ``suite`` random operator logs; plots and ``summary.json``
     in ``out_dir``; returns the summary.
@@ -286,8 +348,11 @@ def run_validation(
     ``workers``: processes for the interactions and the suite (default: one per CPU);
     ``suite_only``: the suite alone; ``suite_duration_s``: every suite log this long (default 30-60 s);
     ``table_set``, ``tables_dir``: the learned model's tables (default: the packaged ones of the set), unless
-    ``learned`` is given; ``ray``: the interactions and the suite as Ray tasks ("local" or a cluster's address).
+    ``learned`` is given; ``ray``: the interactions and the suite as Ray tasks ("local" or a cluster's address);
+    ``payload_kg``: material in the bucket for every run (default ``None``: the tests empty, the interactions at
+    0 and 2 t, each suite log its drawn payload).
     """
+    check_payload(payload_kg)
     if suite < 0 or (suite_only and suite == 0):
         raise ValueError(f"suite must be a number of logs >= 0 (> 0 with suite_only), got {suite}")
     workers = (os.cpu_count() or 1) if workers is None else workers
@@ -299,23 +364,31 @@ def run_validation(
         for old in REPORT_FILES:  # an earlier report's files go: the new report is one run's, whole
             (out_dir / old).unlink(missing_ok=True)
         learned = learned or make_learned_model("python", tables_dir, table_set=table_set)
-        summary: dict[str, object] = {"tables": learned.table_set}
+        summary: dict[str, object] = {
+            "tables": learned.table_set,
+            "model": model_record(learned, tables_dir),
+            "payload_kg": payload_kg,
+        }
+        test_payload = 0.0 if payload_kg is None else float(payload_kg)
         if not suite_only:
             reference = ReferenceModel()
             for name, (log, pose) in scenarios().items():
-                result = run_test(name, log, pose, reference, learned)
+                result = run_test(name, log, pose, reference, learned, test_payload)
                 plot_test(result, out_dir / f"{name}.png")
-                summary[name] = _tip_error_figures(result)
+                summary[name] = {**_tip_error_figures(result), "payload_kg": test_payload}
                 if name == "test3":
                     summary["speed"] = _speed(result, learned.table_set)
-        interactions = {} if suite_only else interaction_cases()
+        interaction_payloads = INTERACTION_PAYLOADS_KG if payload_kg is None else (float(payload_kg),)
+        interactions = {} if suite_only else interaction_cases(interaction_payloads)
         logs = {f"suite log {i} (seed {suite_seed})": suite_log(suite_seed, i, suite_duration_s) for i in range(suite)}
+        if payload_kg is not None:
+            logs = {name: replace(o, payload_kg=float(payload_kg)) for name, o in logs.items()}
         jobs = [(name, *case) for name, case in interactions.items()]
         jobs += [(name, CommandLog(o.t, o.spools_mm), o.start_pose, o.payload_kg) for name, o in logs.items()]
         results = run_jobs(jobs, learned, workers, ray)
         if interactions:
             summary["interactions"] = {name: _interaction_summary(name, results[name]) for name in interactions}
-            plot_interactions(results, out_dir / "interactions.png")
+            plot_interactions(results, out_dir / "interactions.png", interaction_payloads)
         if suite:
             per_log = [
                 _suite_entry(results[name], {"index": i, "seed": suite_seed, **o.describe()})
