@@ -71,6 +71,40 @@ def test_over_fifty_logs_every_direction_payload_and_phase_kind_occurs():
     assert swing_alone >= 10 and swing_with_stick >= 10
 
 
+def _bucket_stick_phases(drawn: ol.OperatorLog) -> list[tuple[ol.Stroke, ol.Stroke]]:
+    """(bucket stroke at full spool, stick stroke overlapping it) pairs of a log."""
+    return [
+        (b, s)
+        for b in drawn.strokes
+        if b.function == "bucket" and abs(b.level_mm) == 11.0
+        for s in drawn.strokes
+        if s.function == "stick" and abs(s.start_s - b.start_s) <= 0.5 + 1e-9
+    ]
+
+
+def test_operator_logs_hold_the_bucket_at_full_spool_while_the_stick_moves():
+    pairs = [pair for drawn in LOGS for pair in _bucket_stick_phases(drawn)]
+    assert len(pairs) >= 25
+    assert {np.sign(b.level_mm) for b, _ in pairs} == {-1.0, 1.0}  # curl and dump
+    assert {np.sign(s.level_mm) for _, s in pairs} == {-1.0, 1.0}  # stick in and out
+    loaded = {drawn.payload_kg > 0 for drawn in LOGS if _bucket_stick_phases(drawn)}
+    assert loaded == {False, True}
+
+
+def test_the_bucket_stick_style_draws_only_that_motion():
+    drawn = [ol.suite_log(3, i, style="bucket_stick") for i in range(5)]
+    for log in drawn:
+        buckets = [s for s in log.strokes if s.function == "bucket"]
+        assert buckets and all(abs(s.level_mm) == 11.0 for s in buckets)
+        assert len(_bucket_stick_phases(log)) == len(buckets)
+        assert {s.function for s in log.strokes} <= {"boom", "stick", "bucket"}
+    assert np.mean([_driven_at_a_stroke_end(log) for log in drawn]) > 0.05  # stops are reached
+
+
+def test_the_sweep_style_has_no_bucket_stick_phases():
+    assert ol.STYLES["sweep"].p_bucket_stick == 0.0
+
+
 def _driven_at_a_stroke_end(drawn: ol.OperatorLog) -> float:
     """Share of the time a cylinder's spool is open that it is at an end, at the nominal full-spool speeds."""
     driven = at_end = 0
@@ -130,9 +164,16 @@ def test_suite_block_on_a_short_real_run(tmp_path):
 def test_payload_goes_into_every_suite_log_in_worker_processes(tmp_path):
     """``payload_kg`` replaces each suite log's drawn payload; two workers build their own circuit model."""
     summary = run_validation(
-        tmp_path, suite=2, suite_seed=5, workers=2, suite_only=True, suite_duration_s=3.0, payload_kg=1500.0
+        tmp_path,
+        suite=2,
+        suite_seed=5,
+        workers=2,
+        suite_only=True,
+        suite_duration_s=4.0,
+        payload_kg=1500.0,
+        suite_style="bucket_stick",
     )
-    assert summary["payload_kg"] == 1500.0
+    assert summary["payload_kg"] == 1500.0 and summary["suite"]["style"] == "bucket_stick"
     assert [entry["payload_kg"] for entry in summary["suite"]["per_log"]] == [1500.0, 1500.0]
     assert json.loads((tmp_path / "summary.json").read_text())["payload_kg"] == 1500.0
 
@@ -160,6 +201,8 @@ def test_validate_refuses_bad_suite_arguments(tmp_path, capsys):
     assert main(["validate", "--out", str(tmp_path), "--suite", "-1"]) == 2
     assert main(["validate", "--out", str(tmp_path), "--suite-only"]) == 2
     assert main(["validate", "--out", str(tmp_path), "--suite", "1", "--workers", "0"]) == 2
+    with pytest.raises(SystemExit):  # argparse's choices
+        main(["validate", "--out", str(tmp_path), "--suite", "1", "--suite-style", "sweep"])
     assert "error" in capsys.readouterr().err
 
 

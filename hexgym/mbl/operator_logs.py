@@ -13,6 +13,14 @@ These logs are drawn afresh from a seed, as an operator would move the joysticks
   of its stroke (the further it is from one end, the likelier it moves that way), and most
   holds are cut short where the cylinder would reach its end, as estimated from its nominal
   full-spool speed (``NOMINAL_SPEED_MPS``); an end is still reached now and then, as operators do.
+- **Bucket at full spool with the stick moving** in about one phase in ten (``Style.p_bucket_stick``: 15 %
+  of the phases that are not long swings):
+  the bucket curls or dumps with its joystick at the stop (±11 mm) while the stick moves in or
+  out (joining within 0.5 s), as in digging and in the curl that closes a pass; the boom joins in
+  a third of them. Here the stick and the bucket run on to their stroke ends half of the time
+  (``P_RUN_TO_END``): an operator crowds the stick and curls the bucket to their stops. This is
+  where a learned model's bucket, near its curled end (where the linkage turns a few millimetres
+  of cylinder into a tenth of a radian), is most sensitive to what reaches it from the stick.
 - **Start poses** with each cylinder 15-85 % out (inside the joint ranges,
   :func:`hexgym.machine.kinematics.joint_range`), any swing angle; **payload** 0, 1 or 2 t.
 
@@ -21,7 +29,9 @@ its own: :func:`suite_log` seeds it from ``np.random.SeedSequence([suite_seed, i
 
 The ``sweep`` style (:data:`STYLES`) moves the joysticks as someone learning the valve would: partial
 levels anywhere from the dead band up and slow ramps, so that every spool position is passed and
-held, where an operator mostly pushes the stick to its stop.
+held, where an operator mostly pushes the stick to its stop; it has no bucket-with-stick phases. The
+``bucket_stick`` style draws only those phases: the dedicated suite of that motion
+(``hexgym validate --suite-style bucket_stick``).
 """
 
 from __future__ import annotations
@@ -50,19 +60,25 @@ P_FULL = 0.6  # a joystick pushed to its stop
 
 @dataclass(frozen=True)
 class Style:
-    """How the joysticks move: the chance of a full stroke, partial levels (mm) and ramp times (s)."""
+    """How the joysticks move: the chance of a full stroke, partial levels (mm), ramp times (s) and the
+    chance that a phase is the bucket at full spool with the stick moving."""
 
     p_full: float
     partial_mm: tuple[float, float]
     ramp_s: tuple[float, float]
+    p_bucket_stick: float = 0.0
 
 
-STYLES = {
-    "operator": Style(P_FULL, PARTIAL_MM, RAMP_S),
-    "sweep": Style(0.2, (p.SPOOL_DEAD_BAND * 1e3, SPOOL_LIMIT_MM), (0.5, 3.0)),
-}
 P_SWING_PHASE = 0.35
+P_BUCKET_STICK_PHASE = 0.15  # of an operator's phases (drawn from those that are not a long swing)
+STYLES = {
+    "operator": Style(P_FULL, PARTIAL_MM, RAMP_S, P_BUCKET_STICK_PHASE),
+    "sweep": Style(0.2, (p.SPOOL_DEAD_BAND * 1e3, SPOOL_LIMIT_MM), (0.5, 3.0)),
+    "bucket_stick": Style(P_FULL, PARTIAL_MM, RAMP_S, 1.0),
+}
 P_STOP_AT_END = 0.85  # a hold that would run the cylinder into its end is cut short
+P_RUN_TO_END = 0.5  # in a bucket-with-stick phase: the stick and the bucket are run on to their stops
+P_BOOM_JOINS = 1.0 / 3.0  # in a bucket-with-stick phase: the boom moves too
 
 
 @dataclass(frozen=True)
@@ -132,9 +148,19 @@ def pose_from_fractions(swing: float, fractions: np.ndarray) -> np.ndarray:
     return np.array(q)
 
 
-def _stroke(rng: np.random.Generator, function: str, start: float, fractions: dict[str, float], style: Style) -> Stroke:
-    """One joystick movement of ``function``; moves the estimated stroke fraction in ``fractions``."""
-    level = SPOOL_LIMIT_MM if rng.random() < style.p_full else float(rng.uniform(*style.partial_mm))
+def _stroke(
+    rng: np.random.Generator,
+    function: str,
+    start: float,
+    fractions: dict[str, float],
+    style: Style,
+    full: bool = False,
+    p_stop_at_end: float = P_STOP_AT_END,
+) -> Stroke:
+    """One joystick movement of ``function`` (``full``: at the stop); moves the estimated stroke fraction in
+    ``fractions``; a hold that would reach the stroke's end is cut short with probability ``p_stop_at_end``."""
+    drawn_full = rng.random() < style.p_full
+    level = SPOOL_LIMIT_MM if full or drawn_full else float(rng.uniform(*style.partial_mm))
     ramp_up, ramp_down = (_grid(rng.uniform(*style.ramp_s)) for _ in range(2))
     if function == "swing":
         level *= float(rng.choice([-1.0, 1.0]))
@@ -144,7 +170,7 @@ def _stroke(rng: np.random.Generator, function: str, start: float, fractions: di
     speed = NOMINAL_SPEED_MPS[function][0 if extend else 1] * level / SPOOL_LIMIT_MM / p.CYLINDERS[function].stroke
     room_s = (1.0 - f if extend else f) / speed - (ramp_up + ramp_down) / 2
     hold = rng.uniform(*HOLD_S)
-    if hold > room_s and rng.random() < P_STOP_AT_END:
+    if hold > room_s and rng.random() < p_stop_at_end:
         hold = max(HOLD_S[0], room_s)
     hold = _grid(hold)
     travel = speed * (hold + (ramp_up + ramp_down) / 2)
@@ -152,13 +178,35 @@ def _stroke(rng: np.random.Generator, function: str, start: float, fractions: di
     return Stroke(function, level if extend else -level, start, ramp_up, hold, ramp_down)
 
 
+def _bucket_stick_phase(
+    rng: np.random.Generator, start: float, fractions: dict[str, float], style: Style
+) -> list[Stroke]:
+    """The bucket curling or dumping at full spool while the stick moves (and, a third of the time, the boom);
+    the stick and the bucket run on to their stops half of the time."""
+    p_stop = 0.0 if rng.random() < P_RUN_TO_END else P_STOP_AT_END
+    first, second = ("bucket", "stick") if rng.random() < 0.5 else ("stick", "bucket")
+    strokes = [
+        _stroke(rng, first, start, fractions, style, full=first == "bucket", p_stop_at_end=p_stop),
+        _stroke(rng, second, _grid(start + rng.uniform(0.0, 0.5)), fractions, style, second == "bucket", p_stop),
+    ]
+    if rng.random() < P_BOOM_JOINS:
+        strokes.append(_stroke(rng, "boom", _grid(start + rng.uniform(0.0, 1.0)), fractions, style))
+    return strokes
+
+
 def _phase(rng: np.random.Generator, start: float, fractions: dict[str, float], style: Style) -> list[Stroke]:
-    """The strokes of one phase: a long swing (alone or with the stick), or 1-3 functions."""
-    if rng.random() < P_SWING_PHASE:
+    """The strokes of one phase: a long swing (alone or with the stick), the bucket at full spool with the
+    stick moving (:func:`_bucket_stick_phase`), or 1-3 functions."""
+    kind = rng.random()
+    if style.p_bucket_stick >= 1.0:
+        return _bucket_stick_phase(rng, start, fractions, style)
+    if kind < P_SWING_PHASE:
         swing = _stroke(rng, "swing", start, fractions, style)
         if rng.random() < 0.5:
             return [swing]
         return [swing, _stroke(rng, "stick", _grid(start + rng.uniform(0.0, 2.0)), fractions, style)]
+    if kind < P_SWING_PHASE + (1.0 - P_SWING_PHASE) * style.p_bucket_stick:
+        return _bucket_stick_phase(rng, start, fractions, style)
     k = rng.choice([1, 2, 3], p=[0.35, 0.4, 0.25])
     functions = rng.choice(kinematics.JOINTS, size=k, replace=False)
     return [
@@ -196,6 +244,6 @@ def operator_log(rng: np.random.Generator, duration_s: float | None = None, styl
     return OperatorLog(times, np.round(spools, 2), pose, payload, tuple(strokes))
 
 
-def suite_log(suite_seed: int, index: int, duration_s: float | None = None) -> OperatorLog:
-    """Log ``index`` of suite ``suite_seed``: reproducible on its own."""
-    return operator_log(np.random.default_rng(np.random.SeedSequence([suite_seed, index])), duration_s)
+def suite_log(suite_seed: int, index: int, duration_s: float | None = None, style: str = "operator") -> OperatorLog:
+    """Log ``index`` of suite ``suite_seed`` in ``style`` (a key of :data:`STYLES`): reproducible on its own."""
+    return operator_log(np.random.default_rng(np.random.SeedSequence([suite_seed, index])), duration_s, style)

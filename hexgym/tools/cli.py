@@ -168,6 +168,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
         tables_dir=args.tables_dir,
         ray=args.ray,
         payload_kg=args.payload_kg,
+        suite_style=args.suite_style,
     )
     print(json.dumps(summary, indent=2))
     plots = [] if args.suite_only else ["test1.png", "test2.png", "test3.png", "interactions.png"]
@@ -520,6 +521,13 @@ def build_parser() -> argparse.ArgumentParser:
     validate.add_argument("--suite-seed", type=int, default=0, help="seed of the suite's logs (default: 0)")
     validate.add_argument("--workers", type=int, default=None, help="processes (default: one per CPU)")
     validate.add_argument("--suite-only", action="store_true", help="run the suite alone (no tests, interactions)")
+    validate.add_argument(
+        "--suite-style",
+        choices=("operator", "bucket_stick"),
+        default="operator",
+        help="the suite's logs: operator-like, or only the bucket at full spool with the stick moving (default: "
+        "operator)",
+    )
     add_ray_option(validate, "the interactions and the suite")
     validate.add_argument("--tables", **_TABLES_OPTION)
     validate.add_argument("--tables-dir", default=None, help="the tables' directory (default: the packaged ones)")

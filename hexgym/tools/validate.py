@@ -17,7 +17,9 @@ stick moving in and moving out (pump 2), the boom held back by the bucket curlin
 (pump 1). With ``suite=N`` the ``suite`` block holds the generalisation suite: N seeded random
 operator-like logs (:mod:`hexgym.mbl.operator_logs`, 30-60 s, start poses and payloads
 varied) that no table was tuned on, each log's tip errors, their median and worst; the worst
-log is plotted as Test 3 (``suite_worst.png``). The reference runs at only a few times real
+log is plotted as Test 3 (``suite_worst.png``). ``suite_style="bucket_stick"`` draws a suite of
+only the bucket at full spool with the stick moving (the motion a learned model's bucket is most
+sensitive in). The reference runs at only a few times real
 time, so the interactions and the suite run in worker processes.
 
 ``payload_kg`` puts that much material in the bucket for every run of both models: Tests 1-3,
@@ -44,7 +46,7 @@ from hexgym.hydraulics.reference import ReferenceModel
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.machine.physics import MAX_PAYLOAD_KG
-from hexgym.mbl.operator_logs import pose_from_fractions, suite_log
+from hexgym.mbl.operator_logs import STYLES, pose_from_fractions, suite_log
 from hexgym.mbl.schema import DEFAULT_TABLE_SET, NATIVE_TABLE_SETS
 from hexgym.model.backend import make_learned_model
 from hexgym.model.circuit_model import CircuitModel
@@ -340,6 +342,7 @@ def run_validation(
     tables_dir: str | Path | None = None,
     ray: str | None = None,
     payload_kg: float | None = None,
+    suite_style: str = "operator",
 ) -> dict[str, object]:
     """The three tests, the interactions and ``suite`` random operator logs; plots and ``summary.json``
     in ``out_dir``; returns the summary.
@@ -350,9 +353,13 @@ def run_validation(
     ``table_set``, ``tables_dir``: the learned model's tables (default: the packaged ones of the set), unless
     ``learned`` is given; ``ray``: the interactions and the suite as Ray tasks ("local" or a cluster's address);
     ``payload_kg``: material in the bucket for every run (default ``None``: the tests empty, the interactions at
-    0 and 2 t, each suite log its drawn payload).
+    0 and 2 t, each suite log its drawn payload); ``suite_style``: how the suite's logs move the joysticks (a key
+    of :data:`hexgym.mbl.operator_logs.STYLES`: "operator", or "bucket_stick" for the bucket at full spool with
+    the stick moving in every phase).
     """
     check_payload(payload_kg)
+    if suite_style not in STYLES:
+        raise ValueError(f"suite_style must be one of {tuple(STYLES)}, got {suite_style!r}")
     if suite < 0 or (suite_only and suite == 0):
         raise ValueError(f"suite must be a number of logs >= 0 (> 0 with suite_only), got {suite}")
     workers = (os.cpu_count() or 1) if workers is None else workers
@@ -380,7 +387,10 @@ def run_validation(
                     summary["speed"] = _speed(result, learned.table_set)
         interaction_payloads = INTERACTION_PAYLOADS_KG if payload_kg is None else (float(payload_kg),)
         interactions = {} if suite_only else interaction_cases(interaction_payloads)
-        logs = {f"suite log {i} (seed {suite_seed})": suite_log(suite_seed, i, suite_duration_s) for i in range(suite)}
+        logs = {
+            f"suite log {i} (seed {suite_seed})": suite_log(suite_seed, i, suite_duration_s, suite_style)
+            for i in range(suite)
+        }
         if payload_kg is not None:
             logs = {name: replace(o, payload_kg=float(payload_kg)) for name, o in logs.items()}
         jobs = [(name, *case) for name, case in interactions.items()]
@@ -398,6 +408,7 @@ def run_validation(
             worst = int(np.argmax(means))
             summary["suite"] = {
                 "seed": suite_seed,
+                "style": suite_style,
                 "n": suite,
                 "median_mean_tip_error_m": float(np.median(means)),
                 "worst_mean_tip_error_m": means[worst],
