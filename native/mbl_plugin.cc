@@ -477,8 +477,9 @@ struct Instance {
       if (finite) {
         std::memcpy(next_hydraulics, y, sizeof(y));
       } else {  // the machine holds still; the Python side raises, naming the state
-        next_fault = 1.0;
-        mju_warning("hexgym.mbl: the circuit's state went non-finite; the machine holds still");
+        next_fault = 1.0;  // said once on stderr (mju_warning would write MUJOCO_LOG.TXT into the working directory)
+        std::fprintf(stderr, "hexgym.mbl: the circuit's state went non-finite at t = %g s; the machine holds still\n",
+                     d->time);
       }
     }
     if (next_fault != 0.0 || ready < 0.0) {

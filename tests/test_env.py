@@ -193,7 +193,7 @@ def test_digging_lowers_the_rendered_pile():
 
 def test_hard_contacts_with_the_ground_are_penalised():
     env = HexLoadingEnv()
-    env.reset(seed=2)
+    env.reset(seed=1)
     contact = 0.0
     for _ in range(40):  # boom down, stick in: the bucket is driven into the ground
         _, _, _, _, info = env.step(np.array([0.0, -1.0, 1.0, 0.0], np.float32))
@@ -358,7 +358,7 @@ def test_clear_periods_shortcut_agrees_with_the_period_by_period_definition():
 
 def test_hard_contact_force_sums_only_tool_contacts_as_numpy_would():
     env = HexLoadingEnv()
-    env.reset(seed=0)
+    env.reset(seed=1)
     d, world = env.physics.data, env.world
     rng = np.random.default_rng(0)
     others = pressed = 0

@@ -30,12 +30,12 @@ def data_dir(tmp_path_factory):
 @pytest.fixture(scope="module")
 def fitted(data_dir, tmp_path_factory):
     out = tmp_path_factory.mktemp("tables")
-    fit.fit_all(data_dir, out, seed=0)
+    fit.fit_all(data_dir, out, seed=0, table_set="paper")
     return out
 
 
 def test_fit_writes_every_table_with_its_metrics(fitted):
-    summary = {t["name"]: t for t in fit.tables_summary(fitted)}
+    summary = {t["name"]: t for t in fit.tables_summary(fitted, table_set="paper")}
     assert set(summary) == set(TABLES)
     for name, t in summary.items():
         assert (tuple(t["inputs"]), t["output"]) == (TABLES[name].inputs, TABLES[name].output)
@@ -46,12 +46,12 @@ def test_fit_writes_every_table_with_its_metrics(fitted):
 
 
 def test_fit_is_deterministic(data_dir, fitted, tmp_path):
-    fit.fit_all(data_dir, tmp_path, seed=0, names=("boom",))
+    fit.fit_all(data_dir, tmp_path, seed=0, names=("boom",), table_set="paper")
     assert (tmp_path / "boom.npz").read_bytes() == (fitted / "boom.npz").read_bytes()
 
 
 def test_tables_answer_queries(fitted):
-    tables = fit.load_tables(fitted)
+    tables = fit.load_tables(fitted, table_set="paper")
     boom = tables["boom"]
     value, confidence = boom.lookup(np.array([[0.011, 0.0, 1e5, 1e4]]), return_confidence=True)
     assert np.isfinite(value).all() and confidence.shape == (1,)
@@ -61,9 +61,9 @@ def test_tables_answer_queries(fitted):
 
 def test_wrong_or_missing_data_is_named(data_dir, tmp_path):
     with pytest.raises(FileNotFoundError, match="nothing.npz"):
-        fit.load_table_data(tmp_path / "nothing.npz", "boom")
+        fit.load_table_data(tmp_path / "nothing.npz", "boom", table_set="paper")
     with pytest.raises(ValueError, match="swing.npz"):
-        fit.load_table_data(data_dir / "swing.npz", "boom")
+        fit.load_table_data(data_dir / "swing.npz", "boom", table_set="paper")
 
 
 def test_fitted_points_subsample_only_above_the_limit():

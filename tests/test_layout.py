@@ -97,8 +97,8 @@ def test_interface_differences_name_each_side():
 
 def test_a_table_that_differs_from_the_schema_is_refused_naming_file_and_difference(tmp_path):
     for name in TABLE_SETS["paper"]:
-        shutil.copy(table_path(name), tmp_path / f"{name}.npz")
-    boom = load_table(table_path("boom", packaged_tables_dir()))
+        shutil.copy(table_path(name, table_set="paper"), tmp_path / f"{name}.npz")
+    boom = load_table(table_path("boom", packaged_tables_dir("paper")))
     order = (1, 0, 2, 3)
     swapped = MBLTable(
         boom.name,
@@ -116,15 +116,15 @@ def test_a_table_that_differs_from_the_schema_is_refused_naming_file_and_differe
     with pytest.raises(
         ValueError, match=r"boom\.npz: table 'boom' does not match the 'paper' schema: inputs in the order"
     ):
-        load_tables(tmp_path)
+        load_tables(tmp_path, "paper")
 
 
 def test_schema_check_names_missing_extra_and_output():
     spec = TABLE_SETS["paper"]["swing"]
     with pytest.raises(ValueError, match=r"f\.npz: .*missing inputs \['swing_rate_radps'\]"):
-        check_table_schema("f.npz", "swing", spec.inputs[:-1], spec.output)
+        check_table_schema("f.npz", "swing", spec.inputs[:-1], spec.output, "paper")
     with pytest.raises(ValueError, match=r"extra inputs \['boom_force_n'\].*output 'x'"):
-        check_table_schema("f.npz", "swing", (*spec.inputs, "boom_force_n"), "x")
+        check_table_schema("f.npz", "swing", (*spec.inputs, "boom_force_n"), "x", "paper")
 
 
 def test_interface_json_round_trips():

@@ -50,7 +50,9 @@ def test_committed_mbl_model_matches_generator(name, full):
 
 @needs_plugin
 def test_mbl_model_compiles_and_a_boom_spool_lifts_the_boom():
-    """What the viewer shows: cat325_mbl.xml, ctrl = spools in mm."""
+    """What the viewer shows: cat325_mbl.xml (the circuit model), ctrl = spools in mm. The other joints give only
+    what their closed chambers' oil springs let the boom's acceleration move them (as the reference does); with
+    the spools closed the boom rings down on its oil and then holds."""
     m = mujoco.MjModel.from_xml_path(str(asset_path(MBL_MODEL_FILE)))
     d = mujoco.MjData(m)
     mujoco.mj_resetDataKeyframe(m, d, m.key("home").id)
@@ -60,12 +62,14 @@ def test_mbl_model_compiles_and_a_boom_spool_lifts_the_boom():
         mujoco.mj_step(m, d)
     dq = d.qpos - q0
     assert dq[m.joint("boom").qposadr[0]] > 0.05
-    assert np.abs(np.delete(dq, m.joint("boom").qposadr[0])).max() < 1e-6
-    d.ctrl[:] = 0.0  # spools closed: the boom holds
+    assert np.abs(np.delete(dq, m.joint("boom").qposadr[0])).max() < 2e-3
+    d.ctrl[:] = 0.0  # spools closed: the boom rings down, then holds
+    for _ in range(80):
+        mujoco.mj_step(m, d)
     q1 = d.qpos.copy()
     for _ in range(40):
         mujoco.mj_step(m, d)
-    assert np.abs(d.qpos - q1).max() < 1e-5
+    assert np.abs(d.qpos - q1).max() < 2e-3
 
 
 _JOINT_FOR_SPOOL = {"swing": 0, "boom": 1, "stick": 2, "bucket": 3}
@@ -112,8 +116,11 @@ def test_full_machine_plugin_equals_the_python_learned_model_on_it():
     """The plugin's loads on the closed chains (equality forces included, joint limits not) are the
     Python path's: the same trajectory on the full machine (at 50 ms, a whole number of its 2 ms steps)."""
     log, pose = scenarios()["test1"]
-    python = replay(LearnedModel(model=load_model(), control_period=0.05), log, start=pose, duration=4.0)
-    full = native_backend.NativeLearnedModel(model=native_backend.load_mbl_model(full=True, control_period=0.05))
+    python = replay(
+        LearnedModel(model=load_model(), control_period=0.05, table_set="paper"), log, start=pose, duration=4.0
+    )
+    full_model = native_backend.load_mbl_model(full=True, control_period=0.05, table_set="paper")
+    full = native_backend.NativeLearnedModel(model=full_model)
     native_rows = replay(full, log, start=pose, duration=4.0)
     assert full.physics.model.neq == 4  # the closed chains are there
     np.testing.assert_allclose(_tip(native_rows), _tip(python), atol=1e-9)
@@ -132,17 +139,19 @@ def test_full_machine_follows_the_lean_machine():
     err = np.linalg.norm(_tip(full) - _tip(lean), axis=1)
     print(f"full vs lean machine, Test 1: max tip difference {err.max():.3f} m, rms {np.sqrt(np.mean(err**2)):.3f} m")
     assert full["t"][-1] == pytest.approx(8.0)
-    assert err.max() < 0.2 and np.sqrt(np.mean(err**2)) < 0.06
+    assert err.max() < 0.25 and np.sqrt(np.mean(err**2)) < 0.06
     assert np.ptp(_tip(lean), axis=0).max() > 4.0
 
 
 @needs_plugin
 @pytest.mark.parametrize("test", ["test1", "test2", "test3"])
-def test_native_and_python_give_the_same_trajectory(test):
-    """One source of truth: the same tables, loads and logic (validate's command logs, up to 50 s)."""
+@pytest.mark.parametrize("table_set", ["circuit", "paper"])
+def test_native_and_python_give_the_same_trajectory(test, table_set):
+    """One source of truth: the same tables, loads and logic (validate's command logs, up to 50 s); for the
+    circuit model the same kernel in the plugin and behind the Python model (1 mm: the target)."""
     log, pose = scenarios()[test]
-    python = replay(LearnedModel(), log, start=pose)
-    native_rows = replay(native_backend.NativeLearnedModel(), log, start=pose)
+    python = replay(backend.python_learned_model(table_set), log, start=pose)
+    native_rows = replay(native_backend.NativeLearnedModel(table_set=table_set), log, start=pose)
     err = np.linalg.norm(_tip(python) - _tip(native_rows), axis=1)
     print(f"{test}: {log.duration:g} s, max tip difference {err.max():.3e} m")
     assert err.max() < 1e-3
@@ -152,8 +161,9 @@ def test_native_and_python_give_the_same_trajectory(test):
 @needs_plugin
 def test_native_holds_targets_over_a_longer_control_period():
     log, pose = scenarios()["test1"]
-    python = replay(LearnedModel(control_period=0.05), log, start=pose, dt_out=0.1)
-    native_rows = replay(native_backend.NativeLearnedModel(control_period=0.05), log, start=pose, dt_out=0.1)
+    python = replay(LearnedModel(control_period=0.05, table_set="paper"), log, start=pose, dt_out=0.1)
+    native = native_backend.NativeLearnedModel(control_period=0.05, table_set="paper")
+    native_rows = replay(native, log, start=pose, dt_out=0.1)
     assert np.linalg.norm(_tip(python) - _tip(native_rows), axis=1).max() < 1e-3
 
 
@@ -172,7 +182,7 @@ def test_state_round_trip_reproduces_the_trajectory_exactly():
     """mj_getState/mj_setState capture the plugin's state: the swing's rate target (act), the
     targets held within a control period and the step's place in it (plugin state)."""
     log, pose = scenarios()["test3"]
-    model = native_backend.NativeLearnedModel(control_period=0.05)  # two steps per table query
+    model = native_backend.NativeLearnedModel(control_period=0.05, table_set="paper")  # two steps per query
     m, d = model.physics.model, model.physics.data
     model.reset(pose)
     k_save = 301  # mid-period, swinging and lifting (7 mm swing, 9 mm boom)
@@ -192,9 +202,77 @@ def test_state_round_trip_reproduces_the_trajectory_exactly():
         assert np.abs(_run_steps(model, log, k_save, k_save + 400) - first).max() > 1e-6, field
 
 
+@needs_plugin
+def test_circuit_state_round_trip_is_exact_to_the_bit():
+    """The circuit model's pressures, pump displacements and joint rates are plugin state: save mid-episode, run
+    on, restore, run again: identical to the bit; without the circuit's state the run differs."""
+    log, pose = scenarios()["test3"]
+    model = native_backend.NativeLearnedModel()
+    assert model.table_set == "circuit"
+    m, d = model.physics.model, model.physics.data
+    model.reset(pose)
+    k_save = 301
+    _run_steps(model, log, 0, k_save)
+    kind = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    saved = np.empty(mujoco.mj_stateSize(m, kind))
+    mujoco.mj_getState(m, d, saved, kind)
+    assert model.hydraulic_state[0] > 5e6  # a pump working
+    first = _run_steps(model, log, k_save, k_save + 400)
+    hydraulics = model.hydraulic_state
+    mujoco.mj_setState(m, d, saved, kind)
+    again = _run_steps(model, log, k_save, k_save + 400)
+    np.testing.assert_array_equal(first, again)
+    np.testing.assert_array_equal(hydraulics, model.hydraulic_state)
+    copy = mujoco.MjData(m)  # a copy of the data (a planner's rollout start) runs on the same way
+    mujoco.mj_setState(m, d, saved, kind)
+    mujoco.mj_copyData(copy, m, d)
+    mujoco.mj_step(m, d)
+    mujoco.mj_step(m, copy)
+    np.testing.assert_array_equal(d.qpos, copy.qpos)
+    mujoco.mj_setState(m, d, saved, kind)
+    slots = slice(model._state.start + plugin.STATE["hydraulics"], model._state.start + plugin.STATE["rates"] + 4)
+    d.plugin_state[slots] = 0.0
+    assert np.abs(_run_steps(model, log, k_save, k_save + 400) - first).max() > 1e-6
+
+
+@needs_plugin
+def test_a_diverging_circuit_state_is_refused_naming_it():
+    model = native_backend.NativeLearnedModel()
+    model.reset("home")
+    model.step(np.array([0.0, 0.008, 0.0, 0.0]), n=4)
+    d = model.physics.data
+    d.plugin_state[model._state.start + plugin.STATE["hydraulics"] + 4] = np.nan  # the boom's head pressure
+    q = d.qpos.copy()
+    with pytest.raises(ValueError, match="hydraulic state must be 14 finite numbers"):
+        model.step(np.array([0.0, 0.008, 0.0, 0.0]))
+    assert np.all(np.isfinite(d.qpos)) and np.abs(d.qpos - q).max() < 0.01  # held still, no NaN in MuJoCo
+
+
+@needs_plugin
+def test_circuit_tables_that_cannot_be_used_fail_loading_naming_the_file(tmp_path):
+    """A plugin MJCF naming circuit tables that are missing, of another set, or whose hash does not match."""
+    directory = tmp_path / "tables"
+    shutil.copytree(packaged_tables_dir("circuit"), directory)
+    meshes = assets_dir() / "meshes"
+    xml = tmp_path / "cat325_mbl.xml"
+    xml.write_text(mbl_model_xml(directory).replace('meshdir="meshes"', f'meshdir="{meshes}"', 1))
+    mujoco.MjModel.from_xml_path(str(xml))  # loads as it is
+    path = directory / "boom_pa.npz"
+    _rewrite_meta(path, params={"bandwidth": 0.5, "input_scales": [1.0]})  # the content hash no longer matches
+    with pytest.raises(ValueError, match=f"MBL table file {path}"):
+        mujoco.MjModel.from_xml_path(str(xml))
+    path.unlink()
+    with pytest.raises(ValueError, match=f"MBL table file {path} does not exist"):
+        mujoco.MjModel.from_xml_path(str(xml))
+    paper = tmp_path / "paper"
+    shutil.copytree(packaged_tables_dir("paper"), paper)
+    with pytest.raises(ValueError, match="swing_bypass.npz does not exist"):
+        native_backend.load_mbl_model(paper)  # the paper's tables where the circuit's are named
+
+
 def _copy_tables(tmp_path: Path) -> Path:
     directory = tmp_path / "tables"
-    shutil.copytree(packaged_tables_dir(), directory)
+    shutil.copytree(packaged_tables_dir("paper"), directory)
     return directory
 
 
@@ -211,7 +289,7 @@ def _rewrite_meta(path: Path, **changes: object) -> None:
 @needs_plugin
 def test_other_tables_directory_is_used(tmp_path):
     directory = _copy_tables(tmp_path)
-    model = native_backend.NativeLearnedModel(tables_dir=directory)
+    model = native_backend.NativeLearnedModel(tables_dir=directory, table_set="paper")
     assert plugin.plugin_config_values(model.physics.model)["tables"] == str(directory.resolve())
     model.reset()
     model.step(np.array([0.0, 0.008, 0.0, 0.0]), n=10)
@@ -268,12 +346,13 @@ def test_bad_table_file_fails_model_loading_naming_file_and_problem(tmp_path, da
     spoil(path)
     xml = tmp_path / "cat325_mbl.xml"
     meshes = assets_dir() / "meshes"
-    xml.write_text(mbl_model_xml(directory).replace('meshdir="meshes"', f'meshdir="{meshes}"', 1))
+    text = mbl_model_xml(directory, table_set="paper")
+    xml.write_text(text.replace('meshdir="meshes"', f'meshdir="{meshes}"', 1))
     with pytest.raises(ValueError) as info:
         mujoco.MjModel.from_xml_path(str(xml))
     assert f"MBL table file {path}" in str(info.value) and message in str(info.value), str(info.value)
     with pytest.raises(ValueError, match="MBL table file"):
-        native_backend.load_mbl_model(directory)  # the Python face says the same
+        native_backend.load_mbl_model(directory, table_set="paper")  # the Python face says the same
 
 
 @needs_plugin
@@ -292,7 +371,7 @@ def test_randomly_damaged_table_files_fail_cleanly(tmp_path):
             data[i] ^= int(rng.integers(1, 256))
         path.write_bytes(bytes(data))
         try:
-            native_backend.load_mbl_model(directory)
+            native_backend.load_mbl_model(directory, table_set="paper")
         except ValueError as exc:
             assert f"MBL table file {path}" in str(exc), str(exc)
             failed += 1
@@ -337,13 +416,15 @@ def test_make_learned_model_backends():
 
 
 @needs_plugin
-def test_both_backends_stall_at_the_ground_alike_without_kicks():
+@pytest.mark.parametrize("table_set", ["circuit", "paper"])
+def test_both_backends_stall_at_the_ground_alike_without_kicks(table_set):
     """Driving the bucket into the ground: it stops within a step, no joint is flung, both backends agree."""
     from hexgym.envs.world import build_world_model
 
+    machine = mbl_model_xml(table_set=table_set)
     models = {
-        "python": LearnedModel(model=build_world_model(asset_path("scene_lean.xml"))),
-        "native": native_backend.NativeLearnedModel(model=build_world_model(None, machine_file=MBL_MODEL_FILE)),
+        "python": backend.python_learned_model(table_set, model=build_world_model(asset_path("scene_lean.xml"))),
+        "native": native_backend.NativeLearnedModel(model=build_world_model(None, machine_xml=machine)),
     }
     rows = {}
     for name, model in models.items():

@@ -173,7 +173,7 @@ def test_settings_files_round_trip_and_bad_ones_are_refused_by_name(tmp_path):
     bad = {
         "unknown.json": ('{"full_fraction": 0.6, "speed": 2}', "unknown loader settings ['speed']"),
         "range.json": ('{"full_fraction": 1.5}', "full_fraction=1.5 must be a number in [0.5, 0.95]"),
-        "nan.json": ('{"dig_depth": NaN}', "dig_depth=nan must be a number"),
+        "nan.json": ('{"dig_depth": NaN}', "NaN is not a finite number"),
         "text.json": ('{"dig_depth": "0.4"}', "dig_depth='0.4' must be a number"),
         "bool.json": ('{"dig_depth": true}', "dig_depth=True must be a number"),
         "list.json": ("[0.6]", "expected a JSON object of loader settings, got list"),
@@ -184,7 +184,7 @@ def test_settings_files_round_trip_and_bad_ones_are_refused_by_name(tmp_path):
         with pytest.raises(ValueError) as error:
             LoaderSettings.load(tmp_path / name)
         assert str(error.value).startswith(str(tmp_path / name)) and message in str(error.value), name
-    with pytest.raises(ValueError, match="not a readable JSON file"):
+    with pytest.raises(FileNotFoundError, match="missing.json does not exist"):
         LoaderSettings.load(tmp_path / "missing.json")
 
 

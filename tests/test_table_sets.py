@@ -121,12 +121,12 @@ def test_a_torque_table_keeps_the_swings_angular_momentum(extended_dir, tmp_path
 @needs_plugin
 @pytest.mark.parametrize("table_set", NATIVE_TABLE_SETS)
 def test_python_and_native_agree_on_each_set(table_set, extended_dir):
+    from hexgym.model.backend import python_learned_model
     from hexgym.model.native_backend import NativeLearnedModel
-    from hexgym.model.python_backend import LearnedModel
 
-    directory = None if table_set == "paper" else extended_dir
+    directory = extended_dir if table_set == "extended" else None
     log, pose = scenarios()["test3"]
-    python = replay(LearnedModel(load_tables(directory, table_set)), log, start=pose, duration=20.0)
+    python = replay(python_learned_model(table_set, directory), log, start=pose, duration=20.0)
     native = replay(NativeLearnedModel(tables_dir=directory, table_set=table_set), log, start=pose, duration=20.0)
     tip = [np.column_stack([r["tip_x"], r["tip_y"], r["tip_z"]]) for r in (python, native)]
     assert np.abs(tip[0] - tip[1]).max() < 1e-6

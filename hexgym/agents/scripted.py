@@ -213,7 +213,7 @@ def _joint_rates(q: np.ndarray, target: np.ndarray, feed: np.ndarray | None) -> 
 def _packaged_tables() -> dict[str, MBLTable]:
     from hexgym.mbl.table import load_tables
 
-    return load_tables()
+    return load_tables(table_set="paper")  # the steady velocity tables, whatever model drives the machine
 
 
 def _tables(env: HexLoadingEnv) -> dict[str, MBLTable]:

@@ -34,7 +34,7 @@ from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.machine.assets import load_model
 from hexgym.machine.physics import ExcavatorPhysics
-from hexgym.mbl.schema import DEFAULT_TABLE_SET, QUANTITIES, TABLE_SETS, table_set_of
+from hexgym.mbl.schema import QUANTITIES, TABLE_SETS, table_set_of
 from hexgym.mbl.table import MBLTable, load_tables
 from hexgym.model.base import END_MARGIN, PULL_LIMIT, PUSH_LIMIT, STROKES, LearnedModelBase, next_swing_rate
 
@@ -44,13 +44,14 @@ class LearnedModel(LearnedModelBase):
 
     Args:
         tables: the tables of one table set (default: the packaged ones of ``table_set``,
-            :func:`hexgym.mbl.table.load_tables`).
+            :func:`hexgym.mbl.table.load_tables`; the circuit model's are
+            :class:`hexgym.model.circuit_model.CircuitModel`'s).
         model: a compiled machine or scene model with joint-rate servo actuators (default: the lean
             machine, ``assets/cat325_lean.xml``, whose step is the control period).
         control_period: seconds between table queries; a multiple of the MuJoCo step (default:
             one step).
-        table_set: ``"paper"`` (the paper's four tables) or ``"extended"`` (the swing's torque from pump 2's
-            pressure, itself a table; :mod:`hexgym.mbl.schema`); with ``tables``, the set they form.
+        table_set: ``"paper"`` (the paper's four tables, the default) or ``"extended"`` (the swing's torque from
+            pump 2's pressure, itself a table; :mod:`hexgym.mbl.schema`); with ``tables``, the set they form.
     """
 
     def __init__(
@@ -62,7 +63,7 @@ class LearnedModel(LearnedModelBase):
     ) -> None:
         self._init_machine(model, control_period)
         if tables is None:
-            tables = load_tables(table_set=table_set or DEFAULT_TABLE_SET)
+            tables = load_tables(table_set=table_set or "paper")
         self.table_set = table_set_of(tables)
         self.tables = tables
         self._schema = TABLE_SETS[self.table_set]

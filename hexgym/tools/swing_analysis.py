@@ -82,7 +82,7 @@ def grid_bias_figures(
     inputs, y = data.X, data.y
     near = (np.abs(inputs[:, 0] - spool_mm * 1e-3) < 6e-4) & (np.abs(inputs[:, 1]) < 6e-4)
     near &= (inputs[:, 4] > 0.0) & (inputs[:, 4] < below_rate)
-    table = load_tables()["swing"]
+    table = load_tables(table_set="paper")["swing"]
     kept = fitted_points(data)
     lwr = LocallyWeightedRegression(table.params).fit(kept.X, kept.y)
     return {
@@ -134,7 +134,7 @@ def swing_momentum_figures(ref: np.ndarray) -> dict[str, float]:
 
 def table_predictions(ref: np.ndarray) -> dict[str, np.ndarray]:
     """The packaged stick and swing tables at the reference's inputs (its own spools and loads)."""
-    tables = load_tables()
+    tables = load_tables(table_set="paper")
     u_swing, u_stick = ref["swing_spool_mm"] * 1e-3, ref["stick_spool_mm"] * 1e-3
     inertia, f_stick = ref["swing_inertia_kgm2"], ref["stick_force_n"]
     return {
