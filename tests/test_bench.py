@@ -9,15 +9,19 @@ from hexgym.tools import bench
 from hexgym.tools.bench import interleaved_steps_per_second, steps_per_second, vector_steps_per_second
 from hexgym.tools.cli import main
 
-ISSUE_KEYS = (
+KEYS = (
     "learned_realtime_factor_python",
-    "learned_realtime_factor_native",
-    "batch_realtime_factor_native",
     "hexloading_steps_per_s",
     "hopper_steps_per_s",
     "vector_steps_per_s",
     "circuit_realtime_factor_python",
-    "circuit_period_native_us",
+)
+NATIVE_KEYS = (
+    "learned_realtime_factor_native",
+    "paper_realtime_factor_native",
+    "batch_realtime_factor_native",
+    "batch_realtime_factor_native_1thread",
+    "batch_speedup",
 )
 
 
@@ -27,7 +31,7 @@ def test_bench_command_prints_and_writes_consistent_json(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "HexLoading-v0" in printed and "Hopper-v5" in printed and "ratio" in printed and "vector" in printed
     data = json.loads(out.read_text())
-    keys = ISSUE_KEYS if native_available() else ISSUE_KEYS[:1] + ISSUE_KEYS[3:]
+    keys = KEYS + NATIVE_KEYS if native_available() else KEYS
     assert all(data[k] > 0 for k in keys), {k: data.get(k) for k in keys}
     assert data["steps"] == 30 and data["vector_envs"] == 64
     assert data["ratio"] == pytest.approx(data["hexloading_steps_per_s"] / data["hopper_steps_per_s"])
@@ -38,6 +42,15 @@ def test_bench_command_prints_and_writes_consistent_json(tmp_path, capsys):
             data["vector_steps_per_s"] / data["vector_physics_bound_steps_per_s"]
         )
     if native_available():
+        cost = data["circuit_cost_us"]
+        assert (
+            cost["period"] > 0
+            and cost["circuit"] > 0
+            and cost["joints"] == pytest.approx(cost["period"] - cost["circuit"])
+        )
+        assert data["batch_speedup"] == pytest.approx(
+            data["batch_realtime_factor_native"] / data["batch_realtime_factor_native_1thread"]
+        )
         assert 0 < data["batch_cores_used"] <= data["batch_threads"] + 0.1
         assert data["batch_realtime_factor_per_core"] == pytest.approx(
             data["batch_realtime_factor_native"] / data["batch_cores_used"]

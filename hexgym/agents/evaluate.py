@@ -30,6 +30,7 @@ from hexgym.checks import check_count, check_seed
 from hexgym.envs import DIG_ENV_ID, ENV_ID  # importing hexgym registers them
 from hexgym.files import check_output_file, write_json
 from hexgym.machine import parameters as p
+from hexgym.mbl.schema import DEFAULT_TABLE_SET
 from hexgym.parallel import executor
 
 POLICY_DIR = Path(__file__).resolve().parents[1] / "policies"
@@ -307,7 +308,9 @@ def evaluate(
         finally:
             _close_worker()  # the environment of a run in this process
     model = (env_kwargs or {}).get("model", "learned")
-    result = {"policy": policy_spec, "env_id": ENV_ID, "model": model, "seed": seed, **aggregate(runs)}
+    tables = (env_kwargs or {}).get("tables", DEFAULT_TABLE_SET) if model == "learned" else None
+    result = {"policy": policy_spec, "env_id": ENV_ID, "model": model, "tables": tables, "seed": seed}
+    result |= aggregate(runs)
     if loader_settings is not None:
         result["loader_settings"] = str(loader_settings)
     if json_out:

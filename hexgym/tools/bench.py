@@ -9,16 +9,18 @@
 - ``vector_steps_per_s``: environment steps (transitions) per second of
   ``gymnasium.make_vec("HexLoading-v0", num_envs=64)`` with random actions: the registered vector
   entry point when there is one, else Gymnasium's ``SyncVectorEnv`` (``vector_env`` names which ran).
-- ``learned_realtime_factor_python`` / ``_native`` (one thread) and ``batch_realtime_factor_native``
-  (64 rollouts on every core): simulated seconds per wall second of the learned machine model
-  alone (targets: native >= 5,000x, batch >= 10,000x on 2 cores); ``circuit_realtime_factor_python``
-  the circuit model's (:mod:`hexgym.model.circuit_model`, Python only), and ``circuit_period_native_us`` what
-  its compiled control period alone costs (:func:`circuit_period_us`): a floor for a native circuit model's
-  period beside the native table model's whole period (25 ms over ``learned_realtime_factor_native``).
+- ``learned_realtime_factor_native`` (the default model, the circuit model, in the plugin; one thread;
+  target >= 2,500x), ``paper_realtime_factor_native`` (the paper's tables), ``batch_realtime_factor_native``
+  (64 rollouts on every core) and ``batch_speedup`` (over the same batch on one thread; target >= 1.8 on 2):
+  simulated seconds per wall second of the machine model alone; ``circuit_cost_us`` splits a circuit period's
+  microseconds into the circuit's steps, the joints' coupling and MuJoCo's step with the rest of the plugin
+  (:func:`circuit_cost_split`); ``circuit_realtime_factor_python`` / ``learned_realtime_factor_python`` the Python
+  models (the circuit model around the same native kernel; the paper tables).
 """
 
 from __future__ import annotations
 
+import ctypes
 import os
 import platform
 import time
@@ -33,6 +35,7 @@ from hexgym.envs import ENV_ID  # importing hexgym registers it
 from hexgym.files import write_json
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
+from hexgym.mbl.schema import DEFAULT_TABLE_SET
 from hexgym.model.base import LearnedModelBase
 from hexgym.model.circuit_model import CircuitModel
 from hexgym.model.commandlog import CommandLog
@@ -248,7 +251,10 @@ def run_bench(steps: int = 2000, seed: int = 0, seconds: float = 2.0) -> dict:
         **native_benchmark(seconds=seconds),  # learned_realtime_factor_python / _native (one thread)
     }
     if native_available():
+        one = batch_benchmark(BATCH_ROLLOUTS, nthread=1, seconds=seconds)["batch_realtime_factor_native"]
         result.update(batch_benchmark(BATCH_ROLLOUTS, seconds=seconds), batch_rollouts=BATCH_ROLLOUTS)
+        result["batch_realtime_factor_native_1thread"] = one
+        result["batch_speedup"] = result["batch_realtime_factor_native"] / one  # target >= 1.8 on 2 threads
         # what the batch made of each core it got: with other processes on the cores it got fewer
         result["batch_realtime_factor_per_core"] = result["batch_realtime_factor_native"] / result["batch_cores_used"]
         # where one native mj_step of the loading site spends its time (MuJoCo's timers)
@@ -278,16 +284,24 @@ def print_bench(result: dict, json_path: str | Path | None = None) -> None:
         ratio = bound / r["hopper_steps_per_s"]
         print(f"  its physics alone (no task logic): {bound:.0f} env steps/s, ratio {ratio:.3f}")
         print(f"  vector / physics alone: {r['vector_steps_per_s'] / bound:.3f} (target >= 0.7)")
-    for key in ("learned_realtime_factor_python", "circuit_realtime_factor_python", "learned_realtime_factor_native"):
+    for key in ("learned_realtime_factor_python", "circuit_realtime_factor_python", "learned_realtime_factor_native",
+                "paper_realtime_factor_native"):  # fmt: skip
         print(f"{key}: {result.get(key, float('nan')):.0f}x real time (one thread)")
-    native_period = 25e3 / result.get("learned_realtime_factor_native", float("nan"))
-    print(f"circuit_period_native_us: {result['circuit_period_native_us']:.1f} us per 25 ms period (the native "
-          f"table model's whole period: {native_period:.1f} us)")  # fmt: skip
+    if "circuit_cost_us" in result:
+        c = result["circuit_cost_us"]
+        print(
+            f"circuit model's 25 ms period: {c['period']:.1f} us in the kernel ({c['circuit']:.1f} circuit steps, "
+            f"{c['joints']:.1f} joints) + {c['mujoco_step_and_plugin']:.1f} us MuJoCo's step and the plugin"
+        )
     if "batch_realtime_factor_native" in result:
         print(
             f"batch_realtime_factor_native: {result['batch_realtime_factor_native']:.0f}x real time"
             f" ({result['batch_rollouts']} rollouts, {result['batch_threads']} threads,"
             f" {result['batch_cores_used']:.2f} cores used: {result['batch_realtime_factor_per_core']:.0f}x per core)"
+        )
+        print(
+            f"  one thread: {result['batch_realtime_factor_native_1thread']:.0f}x real time; speed-up "
+            f"{result['batch_speedup']:.2f} (target >= 1.8 on 2 threads)"
         )
     if json_path is not None:
         print(f"wrote {write_json(json_path, result)}")
@@ -321,13 +335,13 @@ def _test3_controls(model: LearnedModelBase) -> np.ndarray:
     return np.array([log.spools_at((k + 1e-9) * model.control_period) for k in range(n)])
 
 
-def native_rollout_realtime_factor(seconds: float = 3.0) -> float:
-    """The native model's own speed: ``hexgym validate``'s Test 3 spools as ``mujoco.rollout``'s
+def native_rollout_realtime_factor(seconds: float = 3.0, table_set: str = DEFAULT_TABLE_SET) -> float:
+    """The native model's own speed (``table_set``'s): ``hexgym validate``'s Test 3 spools as ``mujoco.rollout``'s
     open-loop controls, one thread, in simulated seconds per wall second (needs the plugin)."""
     from mujoco import rollout
 
     _, pose = _test3()
-    native = NativeLearnedModel()
+    native = NativeLearnedModel(table_set=table_set)
     m, d = native.physics.model, native.physics.data
     control = _test3_controls(native)[None]  # mm
     n = control.shape[1]
@@ -397,24 +411,26 @@ def batch_benchmark(nbatch: int = 64, nthread: int | None = None, seconds: float
 
 
 def native_benchmark(seconds: float = 3.0) -> dict[str, float]:
-    """Real-time factors of the learned model on one thread: simulated time / wall time.
+    """Real-time factors of the learned models on one thread: simulated time / wall time.
 
     All replay the 50 s loading-cycle command log of ``hexgym validate`` (test3) from its start
     pose, repeated for at least ``seconds`` of wall time each:
 
-    - ``learned_realtime_factor_python``: :class:`LearnedModel`, one ``step`` per control period;
-    - ``circuit_realtime_factor_python``: :class:`CircuitModel` (the circuit with the learned valve), the same;
-    - ``learned_realtime_factor_native``: :func:`native_rollout_realtime_factor`, the native
-      model's own speed;
-    - ``learned_realtime_factor_native_python_loop``: :class:`NativeLearnedModel`, one ``step``
-      per control period from Python (what an environment stepping every period gets).
+    - ``learned_realtime_factor_native``: the default model (the circuit model) in the plugin,
+      :func:`native_rollout_realtime_factor`, its own speed; ``paper_realtime_factor_native`` the paper's tables
+      the same way;
+    - ``learned_realtime_factor_native_python_loop``: :class:`NativeLearnedModel`, one ``step`` per control period
+      from Python (what an environment stepping every period gets);
+    - ``circuit_realtime_factor_python``: :class:`CircuitModel` (the Python model around the same native kernel),
+      one ``step`` per control period; ``learned_realtime_factor_python`` the paper tables' :class:`LearnedModel`;
+    - ``circuit_cost_us``: where a native circuit period's time goes (:func:`circuit_cost_split`).
     """
     _, pose = _test3()
 
     def per_period(model: LearnedModelBase) -> Callable[[], float]:
         spools = _test3_controls(model) * 1e-3
         model.reset(pose)
-        model.step(spools[0])  # untimed: a compiled model loads (or compiles, after a change) its kernel here
+        model.step(spools[0])  # untimed: the first period loads what the model needs
 
         def run() -> float:
             model.reset(pose)
@@ -425,30 +441,53 @@ def native_benchmark(seconds: float = 3.0) -> dict[str, float]:
         return run
 
     out = {
-        "learned_realtime_factor_python": _timed(per_period(LearnedModel()), seconds),
+        "learned_realtime_factor_python": _timed(per_period(LearnedModel(table_set="paper")), seconds),
         "circuit_realtime_factor_python": _timed(per_period(CircuitModel()), seconds),
-        "circuit_period_native_us": circuit_period_us(),
     }
     if not native_available():
         return out
     out["learned_realtime_factor_native"] = native_rollout_realtime_factor(seconds)
+    out["paper_realtime_factor_native"] = native_rollout_realtime_factor(seconds, table_set="paper")
     out["learned_realtime_factor_native_python_loop"] = _timed(per_period(NativeLearnedModel()), seconds)
+    split = circuit_cost_split()
+    split["mujoco_step_and_plugin"] = 25e3 / out["learned_realtime_factor_native"] - split["period"]
+    out["circuit_cost_us"] = split
     return out
 
 
-def circuit_period_us(periods: int = 20_000) -> float:
-    """Microseconds of the circuit model's native control period (its five circuit steps and the joints' coupling,
-    native/circuit.cc, called through ctypes: a microsecond or two of the figure is the call). Measured at Test 3's
-    state 2 s in (swing, boom and bucket moving)."""
+def circuit_cost_split(periods: int = 5_000) -> dict[str, float]:
+    """Microseconds of one native circuit period by part, at Test 3's state 2 s in (swing, boom and bucket moving),
+    each timed through the kernel's ctypes binding less the cost of an empty call: ``period`` the whole period
+    (five circuit steps and the joints' coupling), ``circuit`` its five circuit steps alone, ``joints`` the rest
+    (the joints' implicit solve, the oil's forces, the stroke ends)."""
     _, pose = _test3()
     model = CircuitModel()
     model.reset(pose)
     for u in (_test3_controls(model) * 1e-3)[:80]:
         model.step(u)
     arms, mass, load = model._period_start()
-    args = (model.spools_m, model.state, model.rates, model.physics.cylinder_extensions(),
-            arms, mass, load, model.control_period / model.substeps, model.substeps)  # fmt: skip
+    kernel, h = model._kernel, model.control_period / model.substeps
+    kernel.control_period(model.spools_m, model.state, model.rates, model.physics.cylinder_extensions(),
+                          arms, mass, load, h, model.substeps)  # fmt: skip
+    lib, handle, buffer = kernel._lib, kernel._handle, kernel._pointer
+
+    def timed(substeps: int) -> float:
+        start = time.perf_counter()
+        for _ in range(periods):
+            lib.hexgym_circuit_period(handle, buffer, h, substeps)
+        return (time.perf_counter() - start) / periods * 1e6
+
+    empty = timed(0)
+    period = timed(model.substeps) - empty
+    # one circuit step alone, on the raw binding as the period is (its state reset from a copy each time)
+    y0 = model.state.copy()
+    y, sens = model.state.copy(), np.zeros((y0.size, 4))
+    ext, vel = model.physics.cylinder_extensions(), arms * model.rates[1:]
+    pointers = [a.ctypes.data_as(ctypes.POINTER(ctypes.c_double)) for a in (y, model.spools_m, ext, vel, sens)]
     start = time.perf_counter()
     for _ in range(periods):
-        model._kernel.control_period(*args)
-    return (time.perf_counter() - start) / periods * 1e6
+        ctypes.memmove(pointers[0], y0.ctypes.data, y0.nbytes)
+        lib.hexgym_circuit_step(handle, *pointers[:4], model.rates[0], h, pointers[4])
+    one_step = (time.perf_counter() - start) / periods * 1e6 - empty
+    circuit = model.substeps * one_step
+    return {"period": period, "circuit": circuit, "joints": period - circuit}

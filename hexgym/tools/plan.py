@@ -235,7 +235,7 @@ def plan_task(
         model.close()
     return {
         "task": task, "seed": seed, "w_fuel": w_fuel, "margin_m": margin_m, "horizon_s": horizon_s, "swing": swing,
-        "search": search,
+        "search": search, "tables": model.table_set,
         "plan_message": checked.message if checked else plan.message, "plan_wall_s": plan.wall_s,
         "rollouts": plan.rollouts, "predicted_reached": plan.reached, "predicted_time_s": plan.time_s,
         "predicted_fuel_l": plan.fuel_l, "predicted_min_clearance_m": plan.min_clearance_m,
