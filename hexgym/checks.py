@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import math
 import numbers
+import os
 import re
+from collections.abc import Iterable
 from typing import Any
 
 MAX_SEED = 2**63 - 1  # numpy's and gymnasium's seeds are non-negative integers
@@ -37,6 +39,21 @@ def check_positive(name: str, value: Any, unit: str = "") -> float:
     if not _real(value) or not math.isfinite(value) or value <= 0:
         raise ValueError(f"{name} must be a finite number > 0{' ' + unit if unit else ''}, got {value!r}")
     return float(value)
+
+
+def check_choice(name: str, value: Any, choices: Iterable[str]) -> str:
+    """One of the names ``choices``: ValueError naming the argument for anything else (a list included)."""
+    choices = tuple(choices)
+    if not isinstance(value, str) or value not in choices:
+        raise ValueError(f"{name} must be one of {choices}, got {value!r}")
+    return value
+
+
+def check_path_type(name: str, value: Any) -> str | os.PathLike[str]:
+    """A path given as text or an ``os.PathLike``: TypeError naming the argument otherwise."""
+    if not isinstance(value, str | os.PathLike):
+        raise TypeError(f"{name} must be a path (str or os.PathLike), got {type(value).__name__} {value!r:.60}")
+    return value
 
 
 def check_range(name: str, value: Any, lo: float, hi: float, unit: str = "") -> float:

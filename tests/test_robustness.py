@@ -1,4 +1,4 @@
-"""Bad input and faults (issue 18): a clear error every time, nothing lost, no code run from a data file.
+"""Bad input and faults: a clear error every time, nothing lost, no code run from a data file.
 
 A corpus of bad inputs and faults across every ``hexgym`` command and every file format hexgym reads
 (command logs, MBL tables, policy zips, observation normalisers, collected data sets and chunks,
@@ -476,28 +476,40 @@ def _(tmp):
     buffer = __import__("io").BytesIO()
     np.savez(buffer, meta=np.array("{}"), boom_X=np.zeros((50, 4)))
     _chunk(tmp, buffer.getvalue()[:600])
-    return ["collect", "--out", str(tmp / "data"), "--samples", "10", "--workers", "1"]
+    return ["collect", "--out", str(tmp / "data"), "--samples", "10", "--workers", "1", "--tables", "paper"]
 
 
 @case("data chunk", "resume over a chunk with bad metadata", r"is unreadable \(JSONDecodeError.* delete it")
 def _(tmp):
     _chunk(tmp)
+    return ["collect", "--out", str(tmp / "data"), "--samples", "10", "--workers", "1", "--tables", "paper"]
+
+
+@case("data chunk", "resume (default set) over a truncated chunk", r"chunk \S*_00000.npz is unreadable .* delete it")
+def _(tmp):
+    from hexgym.mbl.collect import CollectConfig, chunk_path
+    from hexgym.mbl.schema import DEFAULT_TABLE_SET
+
+    buffer = __import__("io").BytesIO()
+    np.savez(buffer, meta=np.array("{}"), swing_bypass_X=np.zeros((50, 1)))
+    write(chunk_path(tmp / "data", CollectConfig(table_set=DEFAULT_TABLE_SET).groups()[0], 0), buffer.getvalue()[:600])
     return ["collect", "--out", str(tmp / "data"), "--samples", "10", "--workers", "1"]
 
 
 @case("data chunk", "resume over a text file", r"chunk .* is unreadable .* delete it to recompute it", error=ValueError)
 def _(tmp):
-    from hexgym.mbl.collect import collect
+    from hexgym.mbl.collect import CollectConfig, collect
 
     _chunk(tmp, b"not an npz\n")
-    return lambda: collect(tmp / "data", samples_per_group=10, seed=0, workers=1, progress=False)
+    config = CollectConfig(table_set="paper")
+    return lambda: collect(tmp / "data", samples_per_group=10, seed=0, workers=1, progress=False, config=config)
 
 
 def _valid_chunk(tmp: Path, change: Callable[[dict], None]) -> Callable[[], Any]:
     """Chunk 0 made with this run's settings (so its metadata fits), then ``change``d; the resuming call."""
     from hexgym.mbl import collect as c
 
-    config = c.CollectConfig()
+    config = c.CollectConfig(table_set="paper")
     tables = config.tables("boom_bucket")
     arrays = {f"{t}_{k}": np.zeros((3, 4)) if k == "X" else np.zeros(3) for t in tables for k in ("X", "y")}
     arrays |= {f"{t}_{k}": np.zeros(3, np.int64) for t in tables for k in ("episode", "segment")}
@@ -535,7 +547,7 @@ def _dataset(tmp: Path, **arrays: Any) -> list[str]:
     (tmp / "data").mkdir(exist_ok=True)
     with (tmp / "data" / "boom.npz").open("wb") as f:
         np.savez(f, **{k: v for k, v in base.items() if v is not None})
-    return ["fit", "--data", str(tmp / "data"), "--out", str(tmp / "fitted")]
+    return ["fit", "--data", str(tmp / "data"), "--out", str(tmp / "fitted"), "--tables", "paper"]
 
 
 for _name, _arrays, _match in (
@@ -557,13 +569,47 @@ def _(tmp):
 @case("data set", "fit, boom.npz garbage", r"data set .*boom.npz is corrupt or not an .npz data set")
 def _(tmp):
     write(tmp / "data" / "boom.npz", b"PK\x03\x04 garbage")
-    return ["fit", "--data", str(tmp / "data"), "--out", str(tmp / "fitted")]
+    return ["fit", "--data", str(tmp / "data"), "--out", str(tmp / "fitted"), "--tables", "paper"]
 
 
 @case("data set", "fit, boom.npz missing", r"data set .*boom.npz does not exist \(run `hexgym collect`\)")
 def _(tmp):
     (tmp / "data").mkdir()
+    return ["fit", "--data", str(tmp / "data"), "--out", str(tmp / "fitted"), "--tables", "paper"]
+
+
+@case(
+    "data set", "fit (default set), swing_bypass.npz garbage", r"data set .*swing_bypass.npz is corrupt or not an .npz"
+)
+def _(tmp):
+    write(tmp / "data" / "swing_bypass.npz", b"PK\x03\x04 garbage")
     return ["fit", "--data", str(tmp / "data"), "--out", str(tmp / "fitted")]
+
+
+@case("data set", "fit (default set), swing_bypass.npz missing", r"data set .*swing_bypass.npz does not exist \(run")
+def _(tmp):
+    (tmp / "data").mkdir()
+    return ["fit", "--data", str(tmp / "data"), "--out", str(tmp / "fitted")]
+
+
+@case("data set", "collect's report of a table left without samples: accepted")
+def _(tmp):
+    from hexgym.mbl.collect import coverage_report
+
+    stats = {"episodes": 1, "segments": 1.0, "rejected_fraction": 0.0, "rejected_windows": 0.0, "sim_seconds": 38.0}
+    arrays = {"X": np.zeros((0, 1)), "y": np.zeros(0), "episode": np.zeros(0, np.int64),
+              "segment": np.zeros(0, np.int64), "inputs": np.array(["boom_spool_m"]),
+              "output": np.array("boom_pb_area_m2"), "seed": np.array(0), "generator_version": np.array(1),
+              "meta": np.array(json.dumps({"stats": stats}))}  # fmt: skip
+    (tmp / "data").mkdir()
+    with (tmp / "data" / "boom_pb.npz").open("wb") as f:
+        np.savez(f, **arrays)
+
+    def call() -> None:  # a short collection of the circuit set leaves some passages' data sets empty
+        report = coverage_report({"boom_pb": tmp / "data" / "boom_pb.npz"})
+        assert "boom_pb: 0 samples" in report and "no samples: collect more" in report, report
+
+    return call
 
 
 @case("data set", "tables --bench missing", r"input directory --bench .* does not exist")
@@ -572,16 +618,17 @@ def _(tmp):
 
 
 # -- MBL tables through the command line (both loaders: test_table_damage_both_backends below) ------
-def _tables(tmp: Path) -> Path:
+def _tables(tmp: Path, table_set: str) -> Path:
+    """A copy of ``table_set``'s packaged tables in ``tmp/tables``."""
     from hexgym.mbl.table import packaged_tables_dir
 
-    return Path(shutil.copytree(packaged_tables_dir(), tmp / "tables"))
+    return Path(shutil.copytree(packaged_tables_dir(table_set), tmp / "tables"))
 
 
-@case("table", "tables --dir with an edited value", r"MBL table file .*boom.npz: content hash mismatch")
+@case("table", "tables --dir --tables paper with an edited value", r"MBL table file .*boom.npz: content hash mismatch")
 def _(tmp):
-    _rewrite_table(_tables(tmp) / "boom.npz", values=lambda v: v + 1e-6)
-    return ["tables", "--dir", str(tmp / "tables")]
+    _rewrite_table(_tables(tmp, "paper") / "boom.npz", values=lambda v: v + 1e-6)
+    return ["tables", "--dir", str(tmp / "tables"), "--tables", "paper"]
 
 
 @case("table", "tables --dir missing", r"input directory --dir .*nosuch does not exist")
@@ -595,6 +642,61 @@ def _(tmp):
 
     (tmp / "boom.npz").mkdir()
     return lambda: load_table(tmp / "boom.npz")
+
+
+# The default (circuit) set's one-input valve tables through the commands that take a tables directory
+# (``tables --dir`` and ``validate --tables-dir``, which runs the default model on them): one line naming the file.
+# (validate's --out is put in the case's folder: a refused validate still makes its --out's parent folder.)
+def _paper_table_in_place(path: Path) -> None:
+    from hexgym.mbl.table import packaged_tables_dir
+
+    shutil.copyfile(packaged_tables_dir("paper") / "boom.npz", path)
+
+
+_CIRCUIT_FILE_DAMAGE = {
+    "an edited value": (lambda p: _rewrite_table(p, values=lambda v: v * 1.001), r": content hash mismatch"),
+    "a wrong hash": (lambda p: _rewrite_table(p, meta={"content_sha256": "0" * 64}), r": content hash mismatch"),
+    "truncated": (lambda p: p.write_bytes(p.read_bytes()[: p.stat().st_size // 2]), r" is corrupt or not a table"),
+    "missing": (Path.unlink, r" does not exist"),
+    "a paper table in its place": (_paper_table_in_place, r" holds table 'boom', expected 'boom_pa'"),
+}
+
+
+def _damaged_circuit_tables(tmp: Path, argv: list[str], spoil: Callable[[Path], None]) -> list[str]:
+    spoil(_tables(tmp, "circuit") / "boom_pa.npz")
+    return [*(_validate(tmp) if argv[0] == "validate" else argv), str(tmp / "tables")]
+
+
+def _validate(tmp: Path) -> list[str]:
+    return ["validate", "--out", str(tmp / "report"), "--tables-dir"]
+
+
+for _argv in (["tables", "--dir"], ["validate", "--tables-dir"]):
+    for _name, (_spoil, _match) in _CIRCUIT_FILE_DAMAGE.items():
+        case(
+            "table", f"{' '.join(_argv)}, default set: boom_pa.npz {_name}", r"MBL table file \S*boom_pa.npz" + _match
+        )(lambda tmp, argv=_argv, spoil=_spoil: _damaged_circuit_tables(tmp, argv, spoil))
+
+
+@case("table", "validate --tables-dir of the paper set", r"MBL table file \S*tables/swing_bypass.npz does not exist")
+def _(tmp):
+    return [*_validate(tmp), str(_tables(tmp, "paper"))]
+
+
+@case(
+    "table", "tables --dir of the circuit set with --tables paper", r"MBL table file \S*tables/boom.npz does not exist"
+)
+def _(tmp):
+    return ["tables", "--dir", str(_tables(tmp, "circuit")), "--tables", "paper"]
+
+
+@case(
+    "table",
+    "validate --tables-dir missing",
+    r"(input directory --tables-dir \S*nosuch|MBL table file \S*nosuch/swing_bypass.npz) does not exist",
+)
+def _(tmp):
+    return [*_validate(tmp), str(tmp / "nosuch")]
 
 
 # -- policies: the model zip ------------------------------------------------------------------------
@@ -970,13 +1072,96 @@ for _name, _kwargs, _match in (
     ("fuel_weight=nan", {"fuel_weight": float("nan")}, r"fuel_weight must be a finite number, got nan"),
     ("time_weight=inf", {"time_weight": float("inf")}, r"time_weight must be a finite number"),
     ("delivery_weight as text", {"delivery_weight": "1"}, r"delivery_weight must be a finite number, got '1'"),
-    ("time_limit=inf", {"time_limit": float("inf")}, r"time_limit and truck_capacity_kg must be finite and > 0"),
-    ("truck_capacity_kg=nan", {"truck_capacity_kg": float("nan")}, r"must be finite and > 0"),
+    ("time_limit=inf", {"time_limit": float("inf")}, r"time_limit must be a finite number > 0 s, got inf"),
+    ("truck_capacity_kg=nan", {"truck_capacity_kg": float("nan")}, r"truck_capacity_kg must be a finite number > 0 kg"),
+    ("time_limit as text", {"time_limit": "10"}, r"time_limit must be a finite number > 0 s, got '10'"),
+    ("time_limit=True", {"time_limit": True}, r"time_limit must be a finite number > 0 s, got True"),
+    (
+        "truck_capacity_kg=None",
+        {"truck_capacity_kg": None},
+        r"truck_capacity_kg must be a finite number > 0 kg, got None",
+    ),
+    ("tables as a list", {"tables": ["paper"]}, r"tables must be one of \('paper', .*\), got \['paper'\]"),
+    ("model as a list", {"model": ["learned"]}, r"model must be one of \('learned', 'reference'\), got \['learned'\]"),
     ("render width 0", {"render_mode": "rgb_array", "width": 0}, r"width must be a whole number of pixels >= 1"),
     ("render height 2.5", {"render_mode": "rgb_array", "height": 2.5}, r"height must be a whole number of pixels"),
     ("render width 5000", {"render_mode": "rgb_array", "width": 5000}, r"exceed the scene's offscreen buffer"),
 ):
     case("API argument", "HexLoadingEnv " + _name, _match, error=ValueError)(_env(**_kwargs))
+
+
+@case("API argument", "HexLoadingEnv scene_path=5", r"scene_path must be a path \(str or os.PathLike\), got int 5",
+      error=TypeError)  # fmt: skip
+def _(tmp):
+    return _env(scene_path=5)(tmp)
+
+
+@case("API argument", "HexReachEnv tables as a list", r"tables must be one of .*, got \['paper'\]", error=ValueError)
+def _(tmp):
+    from hexgym.envs.reach import HexReachEnv
+
+    return lambda: HexReachEnv(tables=["paper"])
+
+
+def _step(action: Any) -> Callable[[Path], Callable[[], Any]]:
+    def setup(tmp: Path) -> Callable[[], Any]:
+        from hexgym.envs.loading import HexLoadingEnv
+
+        env = HexLoadingEnv()
+        env.reset(seed=0)
+        return lambda: env.step(action)
+
+    return setup
+
+
+for _name, _action in (
+    ("a dict", {"swing": 1}),
+    ("text", "1,0,0,0"),
+    ("None", None),
+    ("a word among numbers", [1, 0, 0, "x"]),
+):
+    _kind = type(_action).__name__
+    case("API argument", f"HexLoadingEnv.step of {_name}", rf"action must be an array of 4 numbers .*, got {_kind} ",
+         error=TypeError)(_step(_action))  # fmt: skip
+case("API argument", "HexLoadingEnv.step of ragged lists", r"action must be an array of 4 numbers .*: setting an array",
+     error=ValueError)(_step([[1, 0], [0]]))  # fmt: skip
+
+
+def _vector(call: Callable[[Any], Any], backend: str = "auto", close: bool = False, **kwargs: Any) -> Callable:
+    """``call(env)`` on a batched HexLoading-v0 of 2 sites after its reset (and its ``close``)."""
+
+    def setup(tmp: Path) -> Callable[[], Any]:
+        from hexgym.envs.vector import HexLoadingVectorEnv
+
+        env = HexLoadingVectorEnv(2, backend=backend, **kwargs)
+        env.reset(seed=0)
+        if close:
+            env.close()
+        return lambda: call(env)
+
+    return setup
+
+
+for _backend in ("auto", "python"):
+    for _what, _call in (("step", lambda env: env.step(np.zeros((2, 4)))), ("reset", lambda env: env.reset(seed=1))):
+        case("API argument", f"batched env ({_backend}): {_what} after close", r"HexLoading-v0 is closed",
+             error=RuntimeError)(_vector(_call, _backend, close=True))  # fmt: skip
+case("API argument", "batched env: step of a dict", r"actions must be an array of shape \(2, 4\) of numbers, got dict",
+     error=TypeError)(_vector(lambda env: env.step({"swing": 1})))  # fmt: skip
+
+
+@case("API argument", "batched env nthread as text", r"nthread must be a whole number >= 1, got 'x'", error=ValueError)
+def _(tmp):
+    from hexgym.envs.vector import HexLoadingVectorEnv
+
+    return lambda: HexLoadingVectorEnv(2, nthread="x")
+
+
+@case("API argument", "batched env tables as a list", r"tables must be one of .*, got \['paper'\]", error=ValueError)
+def _(tmp):
+    from hexgym.envs.vector import HexLoadingVectorEnv
+
+    return lambda: HexLoadingVectorEnv(2, tables=["paper"])
 
 
 @case("API argument", "set_payload(1e9)", r"payload must be a finite mass from 0 to 2145 kg", error=ValueError)
@@ -1499,52 +1684,86 @@ def _meta(path: Path) -> dict:
         return json.loads(str(z["meta"][0]))
 
 
+def _paper_swing_in_place(path: Path) -> None:
+    from hexgym.mbl.table import packaged_tables_dir
+
+    shutil.copyfile(packaged_tables_dir("paper") / "swing.npz", path)
+
+
+# The circuit set's tables have one input (a spool): the damages to a second input or a 2-D layout become these.
+_SEVERAL_INPUTS = ("NaN on an axis (rehashed)", "Fortran-order values (rehashed)", "inputs reordered (rehashed)",
+                   "input_scales of another length (rehashed)", "another table's name (rehashed)")  # fmt: skip
+CIRCUIT_TABLE_DAMAGE: dict[str, tuple[Callable[[Path], None], str]] = {
+    **{name: damage for name, damage in TABLE_DAMAGE.items() if name not in _SEVERAL_INPUTS},
+    "NaN on its axis (rehashed)": (lambda p: _rewrite_table(p, True, axis_0=_nan_at(1)), r"'axis_0' holds non-finite"),
+    "another input (rehashed)": (
+        lambda p: _rewrite_table(p, True, meta={"inputs": ["boom_spool_m"]}),
+        r"boom_spool_m.*swing_spool_m|swing_spool_m.*boom_spool_m",
+    ),
+    "two input_scales (rehashed)": (
+        lambda p: _rewrite_table(p, True, meta={"params": {**_meta(p)["params"], "input_scales": [1.0, 1.0]}}),
+        r"holds an invalid table",
+    ),
+    "another table's name (rehashed)": (
+        lambda p: _rewrite_table(p, True, meta={"name": "stick_bypass"}),
+        r"holds table 'stick_bypass', expected 'swing_bypass'",
+    ),
+    "a paper table in its place": (_paper_swing_in_place, r"holds table 'swing', expected 'swing_bypass'"),
+}
+TABLE_SET_DAMAGE = {"paper": ("swing.npz", TABLE_DAMAGE), "circuit": ("swing_bypass.npz", CIRCUIT_TABLE_DAMAGE)}
+
+
 @pytest.mark.parametrize("backend", ["python", "native"])
-@pytest.mark.parametrize("damage", list(TABLE_DAMAGE))
-def test_table_damage_both_backends(damage, backend, workdir):
+@pytest.mark.parametrize(
+    ("table_set", "damage"), [(s, d) for s, (_, damages) in TABLE_SET_DAMAGE.items() for d in damages]
+)
+def test_table_damage_both_backends(table_set, damage, backend, workdir):
     """The same damaged file is refused by the Python loader and by the native plugin, each naming
-    the file and the same problem (FileNotFoundError from Python for a missing file, as documented)."""
+    the file and the same problem (FileNotFoundError from Python for a missing file, as documented);
+    the paper set's four tables and the circuit set's one-input valve tables."""
     from hexgym.mbl.table import TableFileError, load_tables
 
     if backend == "native" and not _available("native"):
         pytest.skip("native plugin not built")
-    directory = _tables(workdir)
-    path = directory / "swing.npz"
-    spoil, match = TABLE_DAMAGE[damage]
+    directory = _tables(workdir, table_set)
+    name, damages = TABLE_SET_DAMAGE[table_set]
+    path = directory / name
+    spoil, match = damages[damage]
     spoil(path)
     before = snapshot(workdir)
     if backend == "python":
         error = FileNotFoundError if damage == "missing" else TableFileError
         with pytest.raises(error, match=match) as info:
-            load_tables(directory)
+            load_tables(directory, table_set)
     else:
         from hexgym.model.native_backend import load_mbl_model
 
         with pytest.raises(ValueError, match=match) as info:
-            load_mbl_model(directory)
+            load_mbl_model(directory, table_set=table_set)
     assert f"MBL table file {path}" in str(info.value), str(info.value)
     assert snapshot(workdir) == before
     assert not (directory / "MARKER").exists()
 
 
-def test_both_loaders_agree_on_the_hash_of_unusual_metadata(workdir):
+@pytest.mark.parametrize(("table_set", "name"), [("paper", "boom"), ("circuit", "boom_pa")])
+def test_both_loaders_agree_on_the_hash_of_unusual_metadata(table_set, name, workdir):
     """The native loader's canonical JSON (Python's json.dumps) on floats, escapes and big integers:
     a table saved by Python with such metadata loads on both backends."""
     from hexgym.mbl.table import load_table, load_tables
 
-    directory = _tables(workdir)
-    path = directory / "boom.npz"
+    directory = _tables(workdir, table_set)
+    path = directory / f"{name}.npz"
     table = load_table(path)
     metrics = {"tiny": 1e-05, "small": 0.0001, "big": 1e16, "almost": 1e15, "neg": -0.0, "third": 1 / 3,
                "int": 12345678901234567890, "text": "tab\tquote\" \u00e9 \U0001f600", "none": None, "flag": True,
                "list": [1.5, -2, 3e-300], "nan": float("nan")}  # fmt: skip
     object.__setattr__(table, "metrics", metrics)
     table.save(path)
-    assert load_tables(directory)["boom"].metrics["text"] == metrics["text"]
+    assert load_tables(directory, table_set)[name].metrics["text"] == metrics["text"]
     if _available("native"):
         from hexgym.model.native_backend import load_mbl_model
 
-        load_mbl_model(directory)
+        load_mbl_model(directory, table_set=table_set)
 
 
 # -- faults ----------------------------------------------------------------------------------------
@@ -1801,7 +2020,7 @@ def corpus_counts() -> dict[str, int]:
     counts: dict[str, int] = {}
     for c in CORPUS:
         counts[c.kind] = counts.get(c.kind, 0) + 1
-    counts["table"] = counts.get("table", 0) + len(TABLE_DAMAGE)
+    counts["table"] = counts.get("table", 0) + sum(len(damages) for _, damages in TABLE_SET_DAMAGE.values())
     counts["fault"] = len(FAULTS)
     return counts
 

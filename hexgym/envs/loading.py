@@ -14,6 +14,7 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
+from hexgym.checks import check_choice, check_path_type, check_positive
 from hexgym.envs.earthwork import Pile, mouth_normal, retained_volume
 from hexgym.envs.sites import MachineSites
 from hexgym.envs.task import (
@@ -222,8 +223,18 @@ def _is_number(value: Any) -> bool:
 
 def spools_from_action(action: np.ndarray) -> np.ndarray:
     """A single environment's action (swing, boom, stick, bucket spools as fractions of the stroke) as spool
-    positions, m: clipped to [-1, 1] and scaled; ValueError naming the shape or the non-finite entries."""
-    a = np.asarray(action, dtype=np.float64)
+    positions, m: clipped to [-1, 1] and scaled; ValueError naming the shape or the non-finite entries, TypeError
+    for what is not numbers (a dict, text, None)."""
+    try:
+        a = np.asarray(action)
+    except ValueError as exc:  # nested sequences of different lengths
+        raise ValueError(f"action must be an array of 4 numbers (swing, boom, stick, bucket spools): {exc}") from None
+    if a.dtype.kind not in "biuf":  # numpy makes an object or text array of a dict, text or None
+        raise TypeError(
+            "action must be an array of 4 numbers (swing, boom, stick, bucket spools), "
+            f"got {type(action).__name__} {action!r:.60}"
+        )
+    a = a.astype(np.float64, copy=False)
     if a.shape != (4,):
         raise ValueError(f"action must have shape (4,) (swing, boom, stick, bucket spools), got shape {a.shape}")
     if not math.isfinite(sum(a.tolist())) and not np.isfinite(a).all():  # a NaN or inf makes the sum one
@@ -238,8 +249,7 @@ MODELS = ("learned", "reference")
 
 def _check_model(model: str, backend: str, tables: str) -> None:
     """Refuse an unknown ``model``, and learned-model options given with ``model="reference"``."""
-    if model not in MODELS:
-        raise ValueError(f"model must be one of {MODELS}, got {model!r}")
+    check_choice("model", model, MODELS)
     if model == "reference" and backend != "auto":
         raise ValueError(f"backend={backend!r} does not apply to model='reference' (it runs no learned model)")
     if model == "reference" and tables != DEFAULT_TABLE_SET:
@@ -461,11 +471,8 @@ class HexLoadingEnv(gym.Env):
         if isinstance(earthwork_periods, bool) or not isinstance(earthwork_periods, int) or earthwork_periods < 1:
             raise ValueError(f"earthwork_periods must be an integer >= 1, got {earthwork_periods!r}")
         self.earthwork_periods = earthwork_periods
-        if not (math.isfinite(time_limit) and time_limit > 0 and math.isfinite(truck_capacity_kg)
-                and truck_capacity_kg > 0):  # fmt: skip
-            raise ValueError(
-                f"time_limit and truck_capacity_kg must be finite and > 0, got {time_limit}, {truck_capacity_kg}"
-            )
+        time_limit = check_positive("time_limit", time_limit, "s")
+        truck_capacity_kg = check_positive("truck_capacity_kg", truck_capacity_kg, "kg")
         if time_limit > MAX_TIME_LIMIT:
             raise ValueError(f"time_limit must be at most {MAX_TIME_LIMIT:.0f} s (a day), got {time_limit}")
         for name, size in (("width", width), ("height", height)):
@@ -481,8 +488,9 @@ class HexLoadingEnv(gym.Env):
         for name, weight in self.weights.items():
             if not _is_number(weight) or not math.isfinite(weight):
                 raise ValueError(f"{name}_weight must be a finite number, got {weight!r}")
-        if tables not in TABLE_SETS:
-            raise ValueError(f"tables must be one of {tuple(TABLE_SETS)}, got {tables!r}")
+        check_choice("tables", tables, TABLE_SETS)
+        if scene_path is not None:
+            check_path_type("scene_path", scene_path)
         if model == "learned":
             backend_for(tables, backend)  # a set the plugin does not run, with backend "native": refused here
         self._scene_path, self._backend, self.tables = scene_path, backend, tables

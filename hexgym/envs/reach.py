@@ -15,6 +15,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from hexgym.checks import check_choice
 from hexgym.envs.loading import _is_number, spools_from_action
 from hexgym.machine import kinematics
 from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS
@@ -105,8 +106,7 @@ class HexReachEnv(gym.Env):
         for name, weight in self.weights.items():
             if not _is_number(weight) or not (math.isfinite(weight) and weight >= 0):
                 raise ValueError(f"{name} weight must be a finite number >= 0, got {weight!r}")
-        if tables not in TABLE_SETS:
-            raise ValueError(f"tables must be one of {tuple(TABLE_SETS)}, got {tables!r}")
+        check_choice("tables", tables, TABLE_SETS)
         self.time_limit, self.tolerance_m = float(time_limit), float(tolerance_m)
         self.render_mode = None
         self.machine = make_learned_model(backend, table_set=tables)

@@ -24,13 +24,14 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from hexgym.checks import check_choice, check_count
 from hexgym.envs.earthwork import jit
 from hexgym.envs.loading import HexLoadingEnv, heap_for, make_machine, native_world_model, start_machine
 from hexgym.envs.sites import BatchSites, MachineSites
 from hexgym.envs.task import CONTACT_SLOTS, INFO_KEYS, REWARD_TERMS, STEP_INFO_KEYS, STEP_PERIOD, LoadingTask
 from hexgym.envs.world import Layout, World
 from hexgym.machine import parameters as p
-from hexgym.mbl.schema import DEFAULT_TABLE_SET
+from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS
 from hexgym.model.backend import backend_for
 from hexgym.model.plugin import CTRL_PER_SPOOL_M
 
@@ -85,6 +86,8 @@ class HexLoadingVectorEnv(VectorEnv):
     ) -> None:
         if isinstance(num_envs, bool) or not isinstance(num_envs, int | np.integer) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
+        if nthread is not None:
+            check_count("nthread", nthread)
         if render_mode is not None:
             raise ValueError(
                 f"the batched HexLoading-v0 does not render (render_mode {render_mode!r}): render a "
@@ -95,7 +98,7 @@ class HexLoadingVectorEnv(VectorEnv):
                 f"the batched HexLoading-v0 runs the learned model only (model={env_kwargs['model']!r}): use "
                 "gymnasium.make_vec(..., vectorization_mode='sync') or single environments"
             )
-        backend = backend_for(env_kwargs.get("tables", DEFAULT_TABLE_SET), backend)
+        backend = backend_for(check_choice("tables", env_kwargs.get("tables", DEFAULT_TABLE_SET), TABLE_SETS), backend)
         if backend == "native":
             from hexgym.model.plugin import NativePluginError, load_plugin
 
@@ -168,6 +171,7 @@ class HexLoadingVectorEnv(VectorEnv):
         as ``SyncVectorEnv`` does; the others keep their episode (and their last observation). Other options
         are ignored, as ``HexLoadingEnv.reset`` ignores them.
         """
+        self._check_open()
         mask = np.ones(self.num_envs, bool)
         if options is not None and "reset_mask" in options:
             mask = options["reset_mask"]
@@ -200,6 +204,7 @@ class HexLoadingVectorEnv(VectorEnv):
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         """Step every site by 0.1 s; sites whose episode ended on the last step start a new one instead."""
+        self._check_open()
         if not self._started:
             raise RuntimeError("call reset() before step()")
         if self._autoreset.any():
@@ -207,6 +212,10 @@ class HexLoadingVectorEnv(VectorEnv):
         self._hold_spools(self._every, actions)
         terms, rewards, ended = self.task.step(self._every)  # every site steps: the task's arrays are the results
         return self._results(terms, rewards, ended, None)
+
+    def _check_open(self) -> None:
+        if self.closed:
+            raise RuntimeError("the batched HexLoading-v0 is closed: make a new one to go on")
 
     def _step_restarting(
         self, actions: np.ndarray
@@ -237,7 +246,15 @@ class HexLoadingVectorEnv(VectorEnv):
 
     def _hold_spools(self, ids: np.ndarray, actions: np.ndarray) -> None:
         """Check ``actions`` ((num_envs, 4), finite) and hold the spools of sites ``ids`` from their rows."""
-        a = np.asarray(actions)
+        try:
+            a = np.asarray(actions)
+        except ValueError as exc:  # nested sequences of different lengths
+            raise ValueError(f"actions must be an array of shape ({self.num_envs}, 4): {exc}") from None
+        if a.dtype.kind not in "biuf":  # numpy makes an object or text array of a dict, text or None
+            raise TypeError(
+                f"actions must be an array of shape ({self.num_envs}, 4) of numbers, got {type(actions).__name__} "
+                f"{actions!r:.60}"
+            )
         if a.shape != (self.num_envs, 4):
             raise ValueError(
                 f"actions must have shape ({self.num_envs}, 4) (one row of swing, boom, stick, bucket "
@@ -260,6 +277,7 @@ class HexLoadingVectorEnv(VectorEnv):
         and no task logic; returns the wall seconds of the batch's step. The physics' share of a step: what
         benchmarks compare the full step with (the site states are left inconsistent with the task: reset after).
         Native backend only."""
+        self._check_open()
         if not isinstance(self.sites, BatchSites):
             raise NotImplementedError("step_physics_only times the native batch; this environment runs in Python")
         self.sites.ctrl[:, self.sites.ctrl_ids] = spools_mm

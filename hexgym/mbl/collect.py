@@ -980,6 +980,9 @@ def coverage_report(paths: dict[str, Path]) -> str:
             f"{st['sim_seconds']:.0f} s simulated"
             + (f", {st['swing_rejected']:.0f} swing samples rejected" if table == "swing" else "")
         )
+        if len(ds["y"]) == 0:  # a short collection leaves some of a set's tables without samples (yet)
+            lines.append("  no samples: collect more (a larger --samples) before fitting")
+            continue
         for name, col in zip((*ds["inputs"], ds["output"]), np.column_stack([ds["X"], ds["y"]]).T, strict=True):
             q = np.percentile(col, [0, 5, 25, 50, 75, 95, 100])
             lines.append(f"  {name:26s}" + " ".join(f"{v:10.4g}" for v in q))
