@@ -31,7 +31,12 @@ from hexgym.mbl.schema import TABLE_SETS
 TABLES = TABLE_SETS["paper"]
 # Short segments and episodes: a few seconds per collection, every code path.
 TINY = CollectConfig(
-    segments_per_episode=3, episodes_per_chunk=1, hold_s=(0.7, 0.8), windows_per_segment=1, operator_duration_s=6.0
+    table_set="paper",
+    segments_per_episode=3,
+    episodes_per_chunk=1,
+    hold_s=(0.7, 0.8),
+    windows_per_segment=1,
+    operator_duration_s=6.0,
 )
 SAMPLES = 4
 SEED = 6
@@ -102,7 +107,7 @@ def test_interrupted_collection_resumes_to_the_same_data(tiny: dict[str, Path], 
 
 
 def test_episodes_are_seeded_individually() -> None:
-    config = CollectConfig()
+    config = CollectConfig(table_set="paper")
     a = episode_setup(episode_rng(0, "boom_bucket", 5), 5, config)
     b = episode_setup(episode_rng(0, "boom_bucket", 5), 5, config)
     c = episode_setup(episode_rng(1, "boom_bucket", 5), 5, config)
@@ -112,7 +117,7 @@ def test_episodes_are_seeded_individually() -> None:
 
 
 def test_episode_starts_cover_poses_payloads_and_tip_forces() -> None:
-    config = CollectConfig()
+    config = CollectConfig(table_set="paper")
     setups = [episode_setup(episode_rng(0, "boom_bucket", e), e, config) for e in range(300)]
     for i, name in enumerate(kinematics.FRONT_CYLINDERS):  # uniform over the stroke, clear of the ends
         stroke = p.CYLINDERS[name].stroke
@@ -141,7 +146,7 @@ def start(sim: ReferenceModel, payload_kg: float) -> None:
 
 def test_full_boom_spool_without_load_moves_at_one_pump_flow(sim: ReferenceModel) -> None:
     start(sim, 0.0)
-    result = run_segment(sim, np.array([0.0, p.SPOOL_STROKE, 0.0, 0.0]), 750, CollectConfig())
+    result = run_segment(sim, np.array([0.0, p.SPOOL_STROKE, 0.0, 0.0]), 750, CollectConfig(table_set="paper"))
     assert not result.limited and len(result.windows) == 2
     one_pump = p.PUMP_MAX_FLOW / p.BOOM_CYLINDER.head_area  # about 0.144 m/s
     for window in result.windows:
@@ -152,7 +157,7 @@ def test_full_boom_spool_without_load_moves_at_one_pump_flow(sim: ReferenceModel
 
 def test_neutral_spools_hold_a_loaded_machine_under_a_tip_force(sim: ReferenceModel) -> None:
     start(sim, 2000.0)
-    result = run_segment(sim, np.zeros(4), 600, CollectConfig(), tip_force_arm=np.array([-40e3, 40e3]))
+    result = run_segment(sim, np.zeros(4), 600, CollectConfig(table_set="paper"), tip_force_arm=np.array([-40e3, 40e3]))
     assert not result.limited
     for window in result.windows:
         assert np.abs(window.velocity).max() < 0.01  # m/s: ports closed, only the oil's compliance
@@ -160,7 +165,7 @@ def test_neutral_spools_hold_a_loaded_machine_under_a_tip_force(sim: ReferenceMo
 
 def test_swing_samples_accelerate_at_about_the_rated_torque(sim: ReferenceModel) -> None:
     start(sim, 1000.0)
-    config = CollectConfig()
+    config = CollectConfig(table_set="paper")
     result = run_segment(sim, np.array([p.SPOOL_STROKE, 0.0, 0.0, 0.0]), 500, config, swing_samples=True)
     rows = np.array(result.swing_rows)[:, [0, 1, 2, 6]]  # stick force, inertia, swing rate, acceleration
     assert len(rows) == 9 and result.swing_rejected == 0  # every 0.1 s from 0.1 s to 0.9 s

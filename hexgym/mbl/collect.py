@@ -137,7 +137,7 @@ class CollectConfig:
     swing_settle_s: float = 0.1  # no swing samples this soon after a spool change
     swing_half_width_s: float = 0.024  # central difference over twice this
     record_every: int = 10  # steps between force records in the window and limit checks
-    table_set: str = "paper"  # which tables' data sets to write (hexgym.mbl.schema.TABLE_SETS)
+    table_set: str = DEFAULT_TABLE_SET  # which tables' data sets to write (hexgym.mbl.schema.TABLE_SETS)
     operator_interval_s: float = 0.2  # operator group: one row this often along each log
     operator_duration_s: float | None = None  # operator group: each log this long (None: 30-60 s)
     operator_sample_factor: int = 2  # operator group: this many times the samples per group

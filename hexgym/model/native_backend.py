@@ -58,7 +58,19 @@ def load_mbl_model(
         raise FileNotFoundError(f"MBL table directory {tables_dir} does not exist")
     spec = mujoco.MjSpec.from_string(mbl_model_xml(tables_dir, control_period, full=full, table_set=table_set))
     spec.meshdir = str(asset_path("cat325_lean.xml").parent / "meshes")
-    return spec.compile()
+    try:
+        return spec.compile()
+    except ValueError as exc:
+        raise ValueError(plugin_message(str(exc))) from None
+
+
+def plugin_message(error: str) -> str:
+    """The plugin's own line in MuJoCo's compile error (which wraps it in engine and plugin-id lines), or the
+    error as it is."""
+    for line in error.splitlines():
+        if "hexgym.mbl: " in line:
+            return line[line.index("hexgym.mbl: ") + len("hexgym.mbl: ") :].strip()
+    return error
 
 
 class NativeLearnedModel(LearnedModelBase):
