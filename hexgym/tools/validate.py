@@ -365,12 +365,14 @@ def run_validation(
     workers = (os.cpu_count() or 1) if workers is None else workers
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
+    if tables_dir is not None and not Path(tables_dir).is_dir():
+        raise FileNotFoundError(f"input directory --tables-dir {tables_dir} does not exist")
+    learned = learned or make_learned_model("python", tables_dir, table_set=table_set)  # before any output
     # the report (plots and summary) is replaced as a whole: an interrupted run leaves the previous one
     with staged_dir(Path(out_dir)) as staging:
         out_dir = staging
         for old in REPORT_FILES:  # an earlier report's files go: the new report is one run's, whole
             (out_dir / old).unlink(missing_ok=True)
-        learned = learned or make_learned_model("python", tables_dir, table_set=table_set)
         summary: dict[str, object] = {
             "tables": learned.table_set,
             "model": model_record(learned, tables_dir),
