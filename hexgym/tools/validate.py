@@ -182,7 +182,7 @@ def _speed(test3: dict[str, object], table_set: str) -> dict[str, float]:
     duration = float(test3["duration"])
     python = duration / wall_python
     native = native_available() and table_set in NATIVE_TABLE_SETS
-    learned = native_rollout_realtime_factor(seconds=3.0) if native else python
+    learned = native_rollout_realtime_factor(seconds=3.0, table_set=table_set) if native else python
     reference = duration / wall_ref
     return {
         "simulated_s": duration,
