@@ -46,8 +46,8 @@
 #include <mujoco/mujoco.h>
 
 #include "circuit.h"
-#include "clearance_plugin.h"
 #include "linkage.h"
+#include "mbl_plugin.h"
 #include "mbl_table.h"
 #include "plugin_interface.h"
 
@@ -183,8 +183,10 @@ Triangle ReadTriangle(const mjModel* m, int instance, const char* key) {
   return {{v[0], v[1]}, {v[2], v[3]}, v[4], v[5]};
 }
 
-// Everything one instance needs: model indices, geometry, limits (per mjData, read-only in steps).
-struct Instance {
+// One instance (per mjData): its config read once from the model (model indices, geometry, limits, tables or
+// circuit), and what a step stages between compute and advance.
+class MblPlugin {
+ public:
   std::shared_ptr<const LoadedTables> tables;
   std::shared_ptr<const Circuit> circuit;  // table_set circuit: the circuit model (else null)
   int substeps = 1;                       // the circuit's steps per control period
@@ -212,7 +214,17 @@ struct Instance {
   std::vector<bool> machine_body;                // per body: carried by the swinging upper structure
   std::vector<mjtNum> jacp;                       // scratch: a contact point's translation Jacobian
 
-  Instance(const mjModel* m, int instance) {
+  // The instance of a model's config, or null after a warning naming what is wrong (MuJoCo's load error).
+  static MblPlugin* Create(const mjModel* m, int instance) {
+    try {
+      return new MblPlugin(m, instance);
+    } catch (const std::exception& e) {
+      mju_warning("hexgym.mbl: %s", e.what());
+      return nullptr;
+    }
+  }
+
+  MblPlugin(const mjModel* m, int instance) {
     const char* set_name = mj_getPluginConfig(m, instance, "table_set");
     const TableSet& table_set = FindTableSet(set_name && set_name[0] ? set_name : kDefaultTableSet);
     const char* dir = mj_getPluginConfig(m, instance, "tables");
@@ -572,32 +584,11 @@ struct Instance {
   }
 };
 
-Instance* Get(const mjData* d, int instance) { return reinterpret_cast<Instance*>(d->plugin_data[instance]); }
+MblPlugin* Get(const mjData* d, int instance) { return reinterpret_cast<MblPlugin*>(d->plugin_data[instance]); }
 
-std::string& LoadError() {
-  static std::string error;
-  return error;
-}
+}  // namespace
 
-// Why a library built against MuJoCo `built` must not register in MuJoCo `running` ("" if it may):
-// mjModel/mjData layouts and the plugin API change between versions.
-std::string VersionError(int built, int running) {
-  if (built == running) return "";
-  char message[256];
-  std::snprintf(message, sizeof(message),
-                "hexgym.mbl was built against MuJoCo %d but is loaded into MuJoCo %d: rebuild hexgym "
-                "(pip install -e . or pip install .) for this MuJoCo",
-                built, running);
-  return message;
-}
-
-void Register() {
-  std::string refusal = VersionError(mjVERSION_HEADER, mj_version());
-  if (!refusal.empty()) {
-    LoadError() = refusal;
-    std::fprintf(stderr, "%s\n", refusal.c_str());  // also for processes that do not ask (MuJoCo's viewer)
-    return;  // not registered: a model that uses it fails to load, naming the plugin
-  }
+void RegisterMblPlugin() {
   mjpPlugin plugin;
   mjp_defaultPlugin(&plugin);
   plugin.name = kPluginName;
@@ -606,59 +597,27 @@ void Register() {
   plugin.attributes = kAttributes;
   plugin.nstate = +[](const mjModel*, int) { return kStateSize; };
   plugin.init = +[](const mjModel* m, mjData* d, int instance) {
-    try {
-      d->plugin_data[instance] = reinterpret_cast<uintptr_t>(new Instance(m, instance));
-      return 0;
-    } catch (const std::exception& e) {
-      mju_warning("hexgym.mbl: %s", e.what());
-      return -1;
-    }
+    MblPlugin* created = MblPlugin::Create(m, instance);
+    d->plugin_data[instance] = reinterpret_cast<uintptr_t>(created);
+    return created ? 0 : -1;
   };
   plugin.destroy = +[](mjData* d, int instance) {
     delete Get(d, instance);
     d->plugin_data[instance] = 0;
   };
   plugin.copy = +[](mjData* dest, const mjModel*, const mjData* src, int instance) {
-    dest->plugin_data[instance] = reinterpret_cast<uintptr_t>(new Instance(*Get(src, instance)));
+    dest->plugin_data[instance] = reinterpret_cast<uintptr_t>(new MblPlugin(*Get(src, instance)));
   };
   plugin.reset = +[](const mjModel*, mjtNum* state, void* data, int) {
     for (int i = 0; i < kStateSize; ++i) state[i] = 0.0;
     if (data) {
-      auto* in = static_cast<Instance*>(data);
+      auto* in = static_cast<MblPlugin*>(data);
       in->next_rate = in->swing_acceleration = 0.0;
     }
   };
   plugin.compute = +[](const mjModel* m, mjData* d, int instance, int) { Get(d, instance)->Compute(m, d); };
   plugin.advance = +[](const mjModel* m, mjData* d, int instance) { Get(d, instance)->Advance(m, d); };
   mjp_registerPlugin(&plugin);
-  RegisterClearance();
 }
 
-}  // namespace
 }  // namespace hexgym
-
-extern "C" {
-
-// Empty when the plugin registered; else why not (e.g. a MuJoCo version mismatch).
-__attribute__((visibility("default"))) const char* hexgym_mbl_load_error(void) {
-  return hexgym::LoadError().c_str();
-}
-
-// The check Register makes, for any pair of versions (tests): writes its message ("" if they agree)
-// into out (size bytes, truncated) and returns the message's full length.
-__attribute__((visibility("default"))) int hexgym_mbl_version_error(int built, int running, char* out, int size) {
-  std::string message = hexgym::VersionError(built, running);
-  if (out && size > 0) std::snprintf(out, static_cast<size_t>(size), "%s", message.c_str());
-  return static_cast<int>(message.size());
-}
-
-// The interface (plugin name, config keys, state slots, tables, ctrl unit) this library was built
-// with, as JSON; hexgym.model.plugin compares it with its own before registering the plugin.
-__attribute__((visibility("default"))) const char* hexgym_mbl_interface(void) { return hexgym::kInterfaceJson; }
-
-// The MuJoCo version (mjVERSION_HEADER) this library was built against.
-__attribute__((visibility("default"))) int hexgym_mbl_built_mujoco_version(void) { return mjVERSION_HEADER; }
-
-}
-
-mjPLUGIN_LIB_INIT(hexgym_mbl) { hexgym::Register(); }

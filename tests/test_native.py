@@ -439,3 +439,26 @@ def test_both_backends_stall_at_the_ground_alike_without_kicks(table_set):
         rows[name] = np.array(tips)
     assert rows["python"][:, 2].min() > -0.3  # the teeth stay near the surface, not through it
     np.testing.assert_allclose(rows["python"], rows["native"], atol=1e-6)
+
+
+def test_without_the_library_the_circuit_model_runs_its_definition_and_says_so_once(monkeypatch):
+    """A build without a compiler: the circuit model falls back to the numpy definition (the same trajectory),
+    warning once per process."""
+    from hexgym.model import circuit_kernel, circuit_model
+
+    monkeypatch.setattr(circuit_kernel, "native_reason", lambda: "the native plugin was not built")
+    monkeypatch.setattr(circuit_model, "_fallback_said", False)
+    with pytest.warns(RuntimeWarning, match="not built; the circuit model runs its numpy definition"):
+        fallback = circuit_model.CircuitModel()
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        circuit_model.CircuitModel()  # said once
+    assert fallback._kernel is None
+    log, pose = scenarios()["test1"]
+    rows = replay(fallback, log, start=pose, duration=2.0)
+    monkeypatch.undo()
+    if plugin.native_available():
+        native_rows = replay(circuit_model.CircuitModel(), log, start=pose, duration=2.0)
+        assert np.abs(_tip(rows) - _tip(native_rows)).max() < 1e-9
