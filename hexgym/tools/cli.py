@@ -22,6 +22,8 @@ from pathlib import Path
 from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS  # names only: no MuJoCo, no numpy
 from hexgym.parallel import add_ray_option  # no Ray until --ray is used
 
+_REPOSITORY_ASSETS = Path(__file__).resolve().parents[2] / "assets"  # where build-assets writes by default
+
 
 def _cmd_demo(args: argparse.Namespace) -> int:
     from hexgym.agents.demo import run_demo
@@ -178,27 +180,37 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
 
 def _cmd_build_assets(args: argparse.Namespace) -> int:
-    from hexgym.files import atomic_path
+    from hexgym.files import atomic_path, staged_dir
     from hexgym.machine import mjcf
-    from hexgym.machine.assets import LEAN_MODEL_FILE, LEAN_SCENE_FILE, SCENE_FILE
+    from hexgym.machine.assets import LEAN_MODEL_FILE, LEAN_SCENE_FILE, SCENE_FILE, asset_path
+    from hexgym.model.plugin import HEADER, write_interface_header
+    from hexgym.model.plugin_mjcf import MBL_FULL_MODEL_FILE, MBL_MODEL_FILE, write_mbl_model
     from hexgym.tools import meshes
 
     directory = Path(args.dir)
-    for path in meshes.write_meshes(directory / "meshes"):
-        print(f"wrote {path} ({path.stat().st_size} bytes)")
-    for name, lean in (("cat325.xml", False), ("cat325_lean.xml", True)):
-        mjcf.write_model(directory / name, lean=lean)
-        print(f"wrote {directory / name}")
-    from hexgym.model.plugin_mjcf import MBL_FULL_MODEL_FILE, MBL_MODEL_FILE, write_mbl_model
-
-    print(f"wrote {write_mbl_model(directory / MBL_MODEL_FILE)}")
-    print(f"wrote {write_mbl_model(directory / MBL_FULL_MODEL_FILE, full=True)}")
-    with atomic_path(directory / LEAN_SCENE_FILE) as tmp:
-        tmp.write_text(mjcf.scene_xml_around((directory / SCENE_FILE).read_text(), LEAN_MODEL_FILE))
-    print(f"wrote {directory / LEAN_SCENE_FILE}")
-    from hexgym.model.plugin import HEADER, write_interface_header
-
-    print(f"wrote {write_interface_header(directory.parent / HEADER)}")
+    scene = directory / SCENE_FILE if (directory / SCENE_FILE).is_file() else asset_path(SCENE_FILE)
+    written = []
+    with staged_dir(directory) as staging:  # all of it or nothing: a failure leaves the directory as it was
+        written += meshes.write_meshes(staging / "meshes")
+        for name, lean in (("cat325.xml", False), ("cat325_lean.xml", True)):
+            mjcf.write_model(staging / name, lean=lean)
+            written.append(staging / name)
+        written.append(write_mbl_model(staging / MBL_MODEL_FILE))
+        written.append(write_mbl_model(staging / MBL_FULL_MODEL_FILE, full=True))
+        if not (directory / SCENE_FILE).is_file():  # a new directory gets the packaged site
+            with atomic_path(staging / SCENE_FILE) as tmp:
+                tmp.write_text(scene.read_text())
+            written.append(staging / SCENE_FILE)
+        with atomic_path(staging / LEAN_SCENE_FILE) as tmp:
+            tmp.write_text(mjcf.scene_xml_around(scene.read_text(), LEAN_MODEL_FILE))
+        written.append(staging / LEAN_SCENE_FILE)
+    for path in written:
+        print(f"wrote {directory / Path(path).relative_to(staging)}")
+    header = directory.resolve().parent / HEADER
+    if directory.resolve() == _REPOSITORY_ASSETS:  # the plugin's generated interface sits beside, in native/
+        print(f"wrote {write_interface_header(header)}")
+    else:
+        print(f"not written: {header} (the plugin's interface header goes only beside the repository's assets)")
     return 0
 
 
@@ -541,7 +553,11 @@ def build_parser() -> argparse.ArgumentParser:
     validate.set_defaults(func=_cmd_validate)
 
     build = sub.add_parser("build-assets", help="regenerate assets/meshes and assets/cat325.xml (developers)")
-    build.add_argument("--dir", default=str(Path(__file__).resolve().parents[2] / "assets"), help="assets dir")
+    build.add_argument(
+        "--dir",
+        default=str(_REPOSITORY_ASSETS),
+        help="directory to write (default: the repository's assets/; there also native/plugin_interface.h)",
+    )
     build.set_defaults(func=_cmd_build_assets)
 
     from hexgym.tools.view import key_help
