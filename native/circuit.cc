@@ -341,29 +341,10 @@ double Coupling(const Circuit& k, const double* sens, const double* vel, double*
   return dtorque - ratio * ratio * law[kLawSwingViscous];
 }
 
-// The implicit step lhs (new - rates) = rhs with the held joints' new rates zero (_with_joints_held).
-void HeldSolve(const double* lhs, const double* rhs, const double* rates, const bool* held, double* out) {
-  int free[4], nf = 0;
-  for (int j = 0; j < 4; ++j) {
-    if (!held[j]) free[nf++] = j;
-  }
-  double a[16], b[4];
-  for (int r = 0; r < nf; ++r) {
-    double s = 0.0;
-    for (int j = 0; j < 4; ++j) {
-      if (held[j]) s += lhs[free[r] * 4 + j] * -rates[j];
-    }
-    b[r] = rhs[free[r]] - s;
-    for (int c = 0; c < nf; ++c) a[r * nf + c] = lhs[free[r] * 4 + free[c]];
-  }
-  Solve(a, nf, b, 1, nf, 1);
-  for (int j = 0; j < 4; ++j) out[j] = 0.0;
-  for (int r = 0; r < nf; ++r) out[free[r]] = rates[free[r]] + b[r];
-}
-
-// One circuit step of h s with the joints' rates implicit in the oil's torques (CircuitModel._substep).
-int Substep(const Circuit& k, double h, double* state, double* rates, double* ext, const double* arms,
-            const double* mass, const double* load, Workspace& w) {
+// One circuit step of h s with the joints' rates implicit in the oil's torques and in the stops' springs
+// (CircuitModel._joint_step); the caller has set w.area at ext.
+int JointStep(const Circuit& k, double h, double* state, double* rates, double* ext, const double* arms,
+              const double* mass, const double* load, Workspace& w) {
   double vel[kNumCylinders], sens[kMaxState * 4], force[kNumCylinders], dforce[kNumCylinders];
   for (int c = 0; c < kNumCylinders; ++c) vel[c] = arms[c] * rates[c + 1];
   int splits = Advance(k, state, h, ext, vel, rates[0], sens, w);  // state: the predicted one
@@ -381,27 +362,56 @@ int Substep(const Circuit& k, double h, double* state, double* rates, double* ex
   std::memcpy(b, rhs, sizeof(b));
   Solve(a, 4, b, 1, 4, 1);
   for (int j = 0; j < 4; ++j) next[j] = rates[j] + b[j];
-  double new_ext[kNumCylinders], lo = k.law[kLawStopClearance];
-  bool held[4] = {false, false, false, false}, stopped = false;
+  const double lo = k.law[kLawStopClearance];
+  double end[kNumCylinders];
+  bool stopped = false;
   for (int c = 0; c < kNumCylinders; ++c) {
-    new_ext[c] = ext[c] + arms[c] * next[c + 1] * h;
-    double v = arms[c] * next[c + 1];
-    held[c + 1] = (new_ext[c] > k.stroke[c] - lo && v > 0.0) || (new_ext[c] < lo && v < 0.0);
-    stopped |= held[c + 1];
+    double reach = ext[c] + arms[c] * next[c + 1] * h, hi = k.stroke[c] - lo;
+    end[c] = reach > hi ? hi : (reach < lo ? lo : -1.0);
+    stopped |= end[c] >= 0.0;
   }
-  if (stopped) {  // the stops hold those joints; their impulse reaches the others through M
-    HeldSolve(lhs, rhs, rates, held, next);
-    for (int c = 0; c < kNumCylinders; ++c) new_ext[c] = held[c + 1] ? ext[c] : ext[c] + arms[c] * next[c + 1] * h;
+  if (stopped) {  // the stops' springs, implicit: force -K (ext + h v - end) - D v at the step's end
+    std::memcpy(b, rhs, sizeof(b));
+    for (int c = 0; c < kNumCylinders; ++c) {
+      if (end[c] < 0.0) continue;
+      double stiff = k.count[c] * k.law[kLawStopStiffness], damp = k.count[c] * k.law[kLawStopDamping];
+      double gain = (h * stiff + damp) * (arms[c] * arms[c]);
+      lhs[(c + 1) * 5] += h * gain;
+      b[c + 1] -= h * (stiff * arms[c] * (ext[c] - end[c]) + gain * rates[c + 1]);
+    }
+    std::memcpy(a, lhs, sizeof(a));
+    Solve(a, 4, b, 1, 4, 1);
+    for (int j = 0; j < 4; ++j) next[j] = rates[j] + b[j];
   }
   double dv[4];
-  for (int c = 0; c < kNumCylinders; ++c) dv[c] = arms[c] * (next[c + 1] - rates[c + 1]);
+  for (int c = 0; c < kNumCylinders; ++c) {
+    dv[c] = arms[c] * (next[c + 1] - rates[c + 1]);
+    ext[c] += arms[c] * next[c + 1] * h;
+  }
   dv[3] = next[0] - rates[0];
   for (int i = 0; i < k.state_size; ++i) {  // the pressures follow the rates the step reached
     const double* s = &sens[i * 4];
     state[i] += s[0] * dv[0] + s[1] * dv[1] + s[2] * dv[2] + s[3] * dv[3];
   }
   std::memcpy(rates, next, sizeof(next));
-  std::memcpy(ext, new_ext, sizeof(new_ext));
+  return splits;
+}
+
+// One circuit step of h s (CircuitModel._substep): split into stop_split steps where a cylinder runs into its
+// stop within it faster than stop_split_speed.
+int Substep(const Circuit& k, const ValveAreas& valve, double h, double* state, double* rates, double* ext,
+            const double* arms, const double* mass, const double* load, Workspace& w) {
+  const double lo = k.law[kLawStopClearance], fast = k.law[kLawStopSplitSpeed];
+  bool split = false;
+  for (int c = 0; c < kNumCylinders; ++c) {
+    double v = arms[c] * rates[c + 1], reach = ext[c] + v * h;
+    split |= (reach > k.stroke[c] - lo && v > fast) || (reach < lo && v < -fast);
+  }
+  int n = split ? static_cast<int>(k.law[kLawStopSplit]) : 1, splits = 0;
+  for (int s = 0; s < n; ++s) {
+    BranchAreas(k, valve, ext, w.area);
+    splits += JointStep(k, h / n, state, rates, ext, arms, mass, load, w);
+  }
   return splits;
 }
 
@@ -551,8 +561,7 @@ int ControlPeriod(const Circuit& k, const double* spools, double* state, double*
   int splits = 0;
   for (int j = 0; j < 4; ++j) travel[j] = 0.0;
   for (int s = 0; s < substeps; ++s) {
-    BranchAreas(k, valve, ext, w.area);
-    splits += Substep(k, h, state, rates, ext, arms, mass, load, w);
+    splits += Substep(k, valve, h, state, rates, ext, arms, mass, load, w);
     for (int j = 0; j < 4; ++j) travel[j] += rates[j] * h;
   }
   return splits;

@@ -204,6 +204,12 @@ CUSHION_AREA = 8e-6  # m^2 per cylinder: cushion orifice left when the spear is 
 CUSHION_PORT_AREA = 600e-6  # m^2 per cylinder: unrestricted port [est]
 END_STOP_STIFFNESS = 1e8  # N/m beyond the stroke (standalone use; MuJoCo has its own limits) [est]
 END_STOP_DAMPING = 1e5  # N s/m [est]
+# The stroke-end stop of the learned circuit model's cylinders (hexgym/model/circuit_model.py), per cylinder: as the
+# reference's MuJoCo joint limit stops the stick cylinder at its crowded-in end (effective mass ~2.3e5 kg there),
+# measured: from 0.17 m/s within ~1.2 mm and ~16 ms (~100 rad/s); critically damped there, as the limit's solref
+# (0.02 1) is (the reference's rebound is its oil's); it holds a cylinder at relief pressure within 0.5 mm [est]
+CYLINDER_STOP_STIFFNESS = 2e9  # N/m
+CYLINDER_STOP_DAMPING = 4e7  # N s/m
 
 # Swing motor and reduction (SWING_MOTOR_DISPLACEMENT, SWING_REDUCTION above).
 SWING_MOTOR_VOLUMETRIC_EFFICIENCY = 0.95  # at SWING_RELIEF and full pump flow [est]

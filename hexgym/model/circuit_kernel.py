@@ -53,6 +53,12 @@ from hexgym.model.plugin import (
 )
 
 VALVE_TABLES = tuple(TABLE_SETS["circuit"])  # the kernel's valve rows: passage-major, functions in spool order
+# A circuit step in which a cylinder runs into its stop faster than STOP_SPLIT_SPEED (m/s) is split into STOP_SPLIT
+# steps (hexgym.model.circuit_model.CircuitModel._substep): at 5 ms steps the stop's kick on the stick left the
+# bucket's cylinder 14-41 mm from the reference's (its chambers near vacuum, their make-up valves), split into
+# 1 ms steps within 2.5 mm; holding a cylinder at its stop (slower) does not split
+STOP_SPLIT = 5
+STOP_SPLIT_SPEED = 0.02
 
 
 def circuit_laws(circuit: HydraulicCircuit, stop_clearance: float) -> dict[str, float]:
@@ -90,6 +96,10 @@ def circuit_laws(circuit: HydraulicCircuit, stop_clearance: float) -> dict[str, 
         "swing_a": NODES.index("swing_a"),
         "swing_b": NODES.index("swing_b"),
         "stop_clearance": stop_clearance,
+        "stop_stiffness": p.CYLINDER_STOP_STIFFNESS,
+        "stop_damping": p.CYLINDER_STOP_DAMPING,
+        "stop_split": STOP_SPLIT,
+        "stop_split_speed": STOP_SPLIT_SPEED,
         "dead_band": p.SPOOL_DEAD_BAND,
         "closed_area": CLOSED_AREA,
         "idle_pressure": p.NFC_PRESSURE_IDLE,

@@ -18,7 +18,9 @@ Every control period (one 25 ms step of the lean machine), ``SUBSTEPS`` times:
    velocity terms, joint damping, any tip force; :meth:`LearnedModel.joint_loads`), both from the
    period's start; the oil's torques are linearised in the rates (the circuit's sensitivity) and the
    step is implicit in them, so the stiff oil springs stay stable at this step;
-3. a cylinder reaching a stroke end stops there, and its impulse reaches the other joints through ``M``.
+3. a cylinder reaching a stroke end meets its stop's spring-damper, implicit in the rates like the oil, and its
+   impulse reaches the other joints through ``M`` over the stop's time; a step in which a cylinder runs into its
+   stop is split (the kick's chambers near vacuum need the finer steps).
 
 The lean machine's stiff rate servos then move the joints by the period's mean rates (so MuJoCo's
 positions follow the circuit's); the rates at the period's end stay the model's state.
@@ -38,10 +40,12 @@ import mujoco
 import numpy as np
 
 from hexgym.hydraulics.circuit import STATE_NAMES, STATE_SIZE, HydraulicCircuit, fuel_rate
+from hexgym.machine import parameters as p
 from hexgym.mbl.table import MBLTable
 from hexgym.mbl.valve import LearnedValve
 from hexgym.model import circuit_kernel
 from hexgym.model.base import LEARNED_DTYPE
+from hexgym.model.circuit_kernel import STOP_SPLIT, STOP_SPLIT_SPEED
 from hexgym.model.python_backend import LearnedModel
 
 STOP_CLEARANCE = 1e-3  # m: the circuit's stroke ends, inside MuJoCo's joint limits (which would kick the servos)
@@ -153,7 +157,27 @@ class CircuitModel(LearnedModel):
         self, h: float, rates: np.ndarray, ext: np.ndarray, arms: np.ndarray, mass: np.ndarray, load: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """One circuit step of ``h`` s with the joints' rates implicit in the oil's torques: the new
-        joint rates (swing, boom, stick, bucket) and cylinder extensions; the circuit state advances."""
+        joint rates (swing, boom, stick, bucket) and cylinder extensions; the circuit state advances.
+
+        A cylinder that runs into its stop within the step faster than ``STOP_SPLIT_SPEED`` splits it into
+        ``STOP_SPLIT`` steps: the stop's kick drives the other cylinders' chambers towards vacuum and their make-up
+        valves open, which a 5 ms linearised step does not follow (see :meth:`_joint_step`)."""
+        vel = arms * rates[1:]
+        reach = ext + vel * h
+        lo, hi = STOP_CLEARANCE, self.circuit.stroke - STOP_CLEARANCE
+        if (((reach > hi) & (vel > STOP_SPLIT_SPEED)) | ((reach < lo) & (vel < -STOP_SPLIT_SPEED))).any():
+            for _ in range(STOP_SPLIT):
+                rates, ext = self._joint_step(h / STOP_SPLIT, rates, ext, arms, mass, load)
+            return rates, ext
+        return self._joint_step(h, rates, ext, arms, mass, load)
+
+    def _joint_step(
+        self, h: float, rates: np.ndarray, ext: np.ndarray, arms: np.ndarray, mass: np.ndarray, load: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_substep`'s one circuit step. A cylinder that would pass its stop (``STOP_CLEARANCE`` inside its
+        stroke) meets the stop's spring-damper (``CYLINDER_STOP_STIFFNESS``, ``CYLINDER_STOP_DAMPING`` per cylinder),
+        implicit in the joint rates like the oil, so its impulse reaches the other joints through ``M`` over the
+        stop's time, as the reference's joint limit hands it over, not within one step."""
         vel = arms * rates[1:]
         predicted, sens = self.circuit.step_with_sensitivity(self.state, h, self.spools_m, ext, vel, rates[0])
         forces, torque = self.circuit.actuator_forces(predicted, ext, vel, rates[0], end_stops=False)
@@ -162,13 +186,17 @@ class CircuitModel(LearnedModel):
         lhs = mass - h * np.diag(np.concatenate(([dtorque], dforce * arms**2)))
         rhs = h * (oil - load)
         new = rates + np.linalg.solve(lhs, rhs)
-        new_ext = ext + arms * new[1:] * h
-        new_vel = arms * new[1:]
         lo, hi = STOP_CLEARANCE, self.circuit.stroke - STOP_CLEARANCE
-        stopped = ((new_ext > hi) & (new_vel > 0.0)) | ((new_ext < lo) & (new_vel < 0.0))
-        if stopped.any():  # the stops hold those joints; their impulse reaches the others through M
-            new = _with_joints_held(lhs, rhs, rates, np.concatenate(([False], stopped)))
-            new_ext = np.where(stopped, ext, ext + arms * new[1:] * h)
+        reach = ext + arms * new[1:] * h
+        up, down = reach > hi, reach < lo
+        if (up | down).any():  # the stops' springs, implicit: force -K (ext + h v - end) - D v at the step's end
+            count = self.circuit.cylinder_count * (up | down)
+            stiff, damp = count * p.CYLINDER_STOP_STIFFNESS, count * p.CYLINDER_STOP_DAMPING
+            gain = (h * stiff + damp) * arms**2
+            lhs = lhs + h * np.diag(np.concatenate(([0.0], gain)))
+            push = stiff * arms * (ext - np.where(up, hi, lo)) + gain * rates[1:]
+            new = rates + np.linalg.solve(lhs, rhs - h * np.concatenate(([0.0], push)))
+        new_ext = ext + arms * new[1:] * h
         dv = np.append(arms * (new[1:] - rates[1:]), new[0] - rates[0])
         self.state = predicted + sens @ dv  # the pressures follow the rates the step reached
         return new, new_ext
@@ -188,14 +216,3 @@ def _native_kernel(circuit: HydraulicCircuit, tables: dict[str, MBLTable]) -> ci
         _fallback_said = True
         warnings.warn(f"hexgym: {reason}; the circuit model runs its numpy definition", RuntimeWarning, stacklevel=3)
     return None
-
-
-def _with_joints_held(lhs: np.ndarray, rhs: np.ndarray, rates: np.ndarray, held: np.ndarray) -> np.ndarray:
-    """The implicit step ``lhs (new - rates) = rhs`` with the ``held`` joints' new rates zero: the rows
-    of the free joints, with the held joints' change (to rest) moved to the right-hand side."""
-    new = np.zeros_like(rates)
-    free = ~held
-    change_held = -rates[held]
-    b = rhs[free] - lhs[np.ix_(free, held)] @ change_held
-    new[free] = rates[free] + np.linalg.solve(lhs[np.ix_(free, free)], b)
-    return new

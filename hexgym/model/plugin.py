@@ -97,7 +97,11 @@ CIRCUIT_LAWS = (
     "swing_friction_speed",  # rad/s at the motor
     "swing_a",  # the swing motor's port nodes
     "swing_b",
-    "stop_clearance",  # m inside each stroke end, where the joints are held
+    "stop_clearance",  # m inside each stroke end, where the cylinders' stops begin
+    "stop_stiffness",  # N/m per cylinder, the stops' springs
+    "stop_damping",  # N s/m per cylinder
+    "stop_split",  # circuit steps a step is split into where a cylinder runs into its stop
+    "stop_split_speed",  # m/s: the slowest such cylinder that splits the step
     "dead_band",  # m of spool: the passages to and from the ports are closed within it
     "closed_area",  # m^2: a closed bypass section in the series law
     "idle_pressure",  # Pa: the pump and NFC signal lines at rest
