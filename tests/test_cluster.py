@@ -21,7 +21,9 @@ from hexgym.parallel import LocalPool, executor
 from hexgym.tools.cli import build_parser
 
 ROOT = Path(__file__).resolve().parent.parent
-TINY = CollectConfig(segments_per_episode=3, episodes_per_chunk=1, hold_s=(0.7, 0.8), windows_per_segment=1)
+TINY = CollectConfig(
+    table_set="paper", segments_per_episode=3, episodes_per_chunk=1, hold_s=(0.7, 0.8), windows_per_segment=1
+)
 SEED = 6
 
 
