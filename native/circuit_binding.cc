@@ -1,6 +1,8 @@
 // The circuit kernel's C interface, for the Python circuit model (hexgym.model.circuit_kernel, through ctypes):
 // the same ControlPeriod the plugin runs.
+#include <chrono>
 #include <cstdio>
+#include <cstring>
 #include <exception>
 #include <vector>
 
@@ -68,5 +70,30 @@ __attribute__((visibility("default"))) double hexgym_circuit_forces(const void* 
 __attribute__((visibility("default"))) double hexgym_circuit_coupling(const void* circuit, const double* sens,
                                                                      const double* vel, double* dforce) {
   return hexgym::CouplingDerivatives(*static_cast<const hexgym::Circuit*>(circuit), sens, vel, dforce);
+}
+
+// Nanoseconds per control period on the buffer's inputs (plugin_interface.h's kPeriod* slots; the buffer is not
+// changed), `repeat` times, timed inside the library so no call overhead counts (hexgym bench's cost split);
+// steps_only: the period's `substeps` circuit steps alone, without the joints' coupling.
+__attribute__((visibility("default"))) double hexgym_circuit_time(const void* circuit, const double* b, double h,
+                                                                 int substeps, int repeat, int steps_only) {
+  using namespace hexgym;
+  const Circuit& k = *static_cast<const Circuit*>(circuit);
+  double state[kMaxState], rates[4], ext[kNumCylinders], travel[4], vel[kNumCylinders], sens[kMaxState * 4];
+  auto start = std::chrono::steady_clock::now();
+  for (int r = 0; r < repeat; ++r) {
+    std::memcpy(state, b + kPeriodState, sizeof(double) * k.state_size);
+    std::memcpy(rates, b + kPeriodRates, sizeof(rates));
+    std::memcpy(ext, b + kPeriodExt, sizeof(ext));
+    if (steps_only) {
+      for (int c = 0; c < kNumCylinders; ++c) vel[c] = b[kPeriodArms + c] * rates[c + 1];
+      for (int s = 0; s < substeps; ++s) Step(k, state, b + kPeriodSpools, ext, vel, rates[0], h, sens);
+    } else {
+      ControlPeriod(k, b + kPeriodSpools, state, rates, ext, b + kPeriodArms, b + kPeriodMass, b + kPeriodLoad, h,
+                    substeps, travel);
+    }
+  }
+  std::chrono::duration<double, std::nano> elapsed = std::chrono::steady_clock::now() - start;
+  return elapsed.count() / (repeat > 0 ? repeat : 1);
 }
 }

@@ -200,6 +200,8 @@ def _library() -> ctypes.CDLL | None:
     lib.hexgym_circuit_forces.argtypes = [ctypes.c_void_p, _DOUBLES, _DOUBLES, ctypes.c_double, _DOUBLES]
     lib.hexgym_circuit_coupling.restype = ctypes.c_double
     lib.hexgym_circuit_coupling.argtypes = [ctypes.c_void_p, _DOUBLES, _DOUBLES, _DOUBLES]
+    lib.hexgym_circuit_time.restype = ctypes.c_double
+    lib.hexgym_circuit_time.argtypes = [ctypes.c_void_p, _DOUBLES, ctypes.c_double, *[ctypes.c_int] * 3]
     return lib
 
 
@@ -313,3 +315,8 @@ class NativeCircuit:
         dforce = np.zeros(NUM_CYLINDERS)
         dtorque = self._lib.hexgym_circuit_coupling(self._handle, _in(sens), _in(vel), dforce.ctypes.data_as(_DOUBLES))
         return dforce, dtorque
+
+    def period_ns(self, h: float, substeps: int, repeat: int, steps_only: bool = False) -> float:
+        """Nanoseconds per control period on the inputs of the last :meth:`control_period`, timed in the library
+        (``steps_only``: its circuit steps alone, without the joints' coupling)."""
+        return self._lib.hexgym_circuit_time(self._handle, self._pointer, h, substeps, repeat, int(steps_only))
