@@ -14,8 +14,9 @@
   (64 rollouts on every core) and ``batch_speedup`` (over the same batch on one thread; target >= 1.8 on 2):
   simulated seconds per wall second of the machine model alone; ``circuit_cost_us`` splits a circuit period's
   microseconds into the circuit's steps and the joints' coupling at one state (:func:`circuit_cost_split`), and
-  gives the rest of a step over Test 3 (MuJoCo's step, the plugin around the kernel, costlier periods); ``circuit_realtime_factor_python`` / ``learned_realtime_factor_python`` the Python
-  models (the circuit model around the same native kernel; the paper tables).
+  gives the rest of a step over Test 3 (MuJoCo's step, the plugin around the kernel, costlier periods);
+  ``circuit_realtime_factor_python`` / ``learned_realtime_factor_python`` the Python models (the circuit model
+  around the same native kernel; the paper tables).
 """
 
 from __future__ import annotations
