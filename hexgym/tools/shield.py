@@ -24,6 +24,7 @@ import numpy as np
 
 from hexgym.agents.evaluate import Policy, load_policy
 from hexgym.files import save_figure, write_json
+from hexgym.mbl.schema import DEFAULT_TABLE_SET
 from hexgym.wrappers import CollisionShield
 
 
@@ -96,6 +97,7 @@ def compare(
             runs[label].append(run_episode(env, _policy(policy_spec, seed + k), seed + k))
         env.close()
     out: dict[str, Any] = {"policy": policy_spec, "episodes": episodes, "seed": seed, "horizon_s": horizon_s}
+    out["tables"] = DEFAULT_TABLE_SET  # the learned model the episodes and the shield's predictions run
     for label, eps in runs.items():
         hours = sum(e["sim_seconds"] for e in eps) / 3600.0
         steps = sum(e["steps"] for e in eps)
