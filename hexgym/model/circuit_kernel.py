@@ -233,7 +233,7 @@ class NativeCircuit:
         lib = _library()
         if lib is None:
             raise RuntimeError(native_reason())
-        self._lib = lib
+        self._lib, self._recipe = lib, (numbers, tables, branches)
         sizes, nodes, values = valve_arrays(tables)
         error = ctypes.create_string_buffer(512)
         handle = lib.hexgym_circuit_new(
@@ -245,6 +245,10 @@ class NativeCircuit:
         self._handle, self._branches = handle, branches
         self._buffer = np.zeros(PERIOD_SIZE)
         self._pointer = self._buffer.ctypes.data_as(_DOUBLES)
+
+    def __reduce__(self) -> tuple:
+        """Pickled as its recipe (the library's handle is per process): a copy builds its own kernel."""
+        return (_rebuilt, self._recipe)
 
     def __del__(self) -> None:
         handle, self._handle = getattr(self, "_handle", None), None
@@ -320,3 +324,10 @@ class NativeCircuit:
         """Nanoseconds per control period on the inputs of the last :meth:`control_period`, timed in the library
         (``steps_only``: its circuit steps alone, without the joints' coupling)."""
         return self._lib.hexgym_circuit_time(self._handle, self._pointer, h, substeps, repeat, int(steps_only))
+
+
+def _rebuilt(numbers: np.ndarray, tables: dict[str, MBLTable], branches: int) -> NativeCircuit:
+    """A :class:`NativeCircuit` of packed circuit numbers and valve tables (unpickling)."""
+    kernel = NativeCircuit.__new__(NativeCircuit)
+    kernel._init(numbers, tables, branches)
+    return kernel
