@@ -291,7 +291,8 @@ def print_bench(result: dict, json_path: str | Path | None = None) -> None:
         c = result["circuit_cost_us"]
         print(
             f"circuit model's 25 ms period: {c['period']:.1f} us in the kernel ({c['circuit']:.1f} circuit steps, "
-            f"{c['joints']:.1f} joints) + {c['mujoco_step_and_plugin']:.1f} us MuJoCo's step and the plugin"
+            f"{c['joints']:.1f} joints) at one state; per step over Test 3 {c['rest_of_step']:.1f} us more (MuJoCo, "
+            "the plugin, the log's costlier periods)"
         )
     if "batch_realtime_factor_native" in result:
         print(
