@@ -104,7 +104,17 @@ def circuit_laws(circuit: HydraulicCircuit, stop_clearance: float) -> dict[str, 
         "closed_area": CLOSED_AREA,
         "idle_pressure": p.NFC_PRESSURE_IDLE,
         "rest_pressure": REST_PRESSURE,
+        "fault_pressure": fault_pressure(circuit),
     }
+
+
+FAULT_FACTOR = 10.0  # a pressure this many times the highest relief's setting is no state of the machine
+
+
+def fault_pressure(circuit: HydraulicCircuit) -> float:
+    """Pa beyond which a node's pressure means the circuit's state diverged: :data:`FAULT_FACTOR` times the highest
+    cracking pressure of its pressure-operated valves (the reliefs)."""
+    return FAULT_FACTOR * float(np.max(circuit.branches.crack))
 
 
 def circuit_fields(circuit: HydraulicCircuit, stop_clearance: float) -> dict[str, np.ndarray]:

@@ -86,6 +86,7 @@ class CircuitModel(LearnedModel):
         valve = LearnedValve(tables)
         self.circuit = HydraulicCircuit(valve=valve)
         self._kernel = _native_kernel(self.circuit, tables)
+        self._fault_pressure = circuit_kernel.fault_pressure(self.circuit)
         if self._kernel is None:
             self._control_period = self._control_period_numpy
         nv = self.physics.model.nv
@@ -115,8 +116,7 @@ class CircuitModel(LearnedModel):
         state, rates, _, travel, splits = self._kernel.control_period(
             self.spools_m, self.state, self.rates, ext, arms, mass, load, h, self.substeps
         )
-        if not np.isfinite(state.sum()):
-            raise ValueError(f"hydraulic state must be {STATE_SIZE} finite numbers ({STATE_NAMES})")
+        check_state(state, self._fault_pressure)
         self.state = state
         self.circuit.split_count += splits
         self._end_period(travel, rates)
@@ -203,6 +203,18 @@ class CircuitModel(LearnedModel):
 
 
 _fallback_said = False
+
+
+def check_state(state: np.ndarray, fault_pressure: float) -> None:
+    """Raise ValueError unless ``state`` is finite with every pressure within ``fault_pressure`` (Pa)."""
+    if not np.isfinite(state.sum()):
+        raise ValueError(f"hydraulic state must be {STATE_SIZE} finite numbers ({STATE_NAMES})")
+    worst = float(np.abs(state[: STATE_SIZE - 2]).max())
+    if worst > fault_pressure:
+        raise ValueError(
+            f"hydraulic state diverged: a pressure of {worst / 1e6:.0f} MPa, beyond {fault_pressure / 1e6:.0f} MPa"
+            " (ten times the highest relief)"
+        )
 
 
 def _native_kernel(circuit: HydraulicCircuit, tables: dict[str, MBLTable]) -> circuit_kernel.NativeCircuit | None:

@@ -166,8 +166,8 @@ class NativeLearnedModel(LearnedModelBase):
         self._steps = end
         if self._circuit is not None and self.physics.data.plugin_state[self._state.start + STATE["circuit_fault"]]:
             raise ValueError(
-                f"hydraulic state must be {CIRCUIT_STATE_SIZE} finite numbers ({CIRCUIT_STATE_NAMES}): the circuit's"
-                f" state went non-finite by t = {self.physics.time:.3f} s"
+                f"hydraulic state must be {CIRCUIT_STATE_SIZE} finite numbers ({CIRCUIT_STATE_NAMES}) within ten"
+                f" times the highest relief: the circuit's state diverged by t = {self.physics.time:.3f} s"
             )
 
     @property

@@ -106,6 +106,7 @@ CIRCUIT_LAWS = (
     "closed_area",  # m^2: a closed bypass section in the series law
     "idle_pressure",  # Pa: the pump and NFC signal lines at rest
     "rest_pressure",  # Pa: a chamber that holds no load
+    "fault_pressure",  # Pa: a pressure beyond this (FAULT_FACTOR x the highest relief) is a diverged state
 )
 CIRCUIT_FIELDS: dict[str, tuple[int, str]] = {
     "laws": (len(CIRCUIT_LAWS), "one"),
