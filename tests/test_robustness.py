@@ -1127,6 +1127,30 @@ case("API argument", "HexLoadingEnv.step of ragged lists", r"action must be an a
      error=ValueError)(_step([[1, 0], [0]]))  # fmt: skip
 
 
+def _closed(env_id: str, call: Callable[[Any], Any]) -> Callable[[Path], Callable[[], Any]]:
+    """``call(env)`` on a single environment (``gymnasium.make``'s, wrappers included) after a reset and two
+    ``close`` calls (closing twice is allowed)."""
+
+    def setup(tmp: Path) -> Callable[[], Any]:
+        import gymnasium as gym
+
+        import hexgym  # noqa: F401  (registers the ids)
+
+        env = gym.make(env_id)
+        env.reset(seed=0)
+        env.close()
+        env.close()
+        return lambda: call(env)
+
+    return setup
+
+
+for _id in ("HexLoading-v0", "HexDig-v0", "HexReach-v0"):
+    for _what, _call in (("step", lambda env: env.step(np.zeros(4, np.float32))), ("reset", lambda env: env.reset())):
+        case("API argument", f"{_id}: {_what} after close", rf"^{_id} is closed: make a new one",
+             error=RuntimeError)(_closed(_id, _call))  # fmt: skip
+
+
 def _vector(call: Callable[[Any], Any], backend: str = "auto", close: bool = False, **kwargs: Any) -> Callable:
     """``call(env)`` on a batched HexLoading-v0 of 2 sites after its reset (and its ``close``)."""
 

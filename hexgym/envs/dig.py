@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from hexgym.envs import DIG_ENV_ID
 from hexgym.envs.loading import OBSERVATION_NAMES, HexLoadingEnv, _is_number, dig_start_pose
 from hexgym.envs.world import Layout, sample_layout
 from hexgym.machine import parameters as p
@@ -66,6 +67,8 @@ class HexDigEnv(HexLoadingEnv):
     (20.0); and ``HexLoading-v0``'s ``render_mode``, ``camera``, ``width``, ``height``, ``backend``,
     ``tables``, ``earthwork_periods``, ``model``.
     """
+
+    env_id = DIG_ENV_ID
 
     def __init__(
         self,

@@ -15,6 +15,7 @@ import numpy as np
 from gymnasium import spaces
 
 from hexgym.checks import check_choice, check_path_type, check_positive
+from hexgym.envs import ENV_ID
 from hexgym.envs.earthwork import Pile, mouth_normal, retained_volume
 from hexgym.envs.sites import MachineSites
 from hexgym.envs.task import (
@@ -81,8 +82,7 @@ def make_machine(
     no cylinder bodies, 25 ms step); ``"native"``: the ``hexgym.mbl`` MuJoCo plugin on
     ``cat325_mbl.xml`` (:mod:`hexgym.model.native_backend`, needs the built plugin). ``scene_path`` overrides
     the scene (e.g. the full ``scene.xml``). ``"auto"``: :func:`hexgym.model.backend.backend_for`.
-    ``table_set``: the learned model's tables, "paper", "extended" or "circuit" (:mod:`hexgym.mbl.schema`;
-    the circuit model runs in Python).
+    ``table_set``: the learned model's tables, "paper" or "circuit" (:mod:`hexgym.mbl.schema`).
     ``tool_contact_slots``: see :func:`hexgym.envs.world.build_world_model`.
     """
     if backend_for(table_set, backend) == "native":
@@ -219,6 +219,12 @@ def task_spaces() -> tuple[spaces.Box, spaces.Box]:
 def _is_number(value: Any) -> bool:
     """A real number (Python or NumPy), not a bool."""
     return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
+
+
+def check_open(env_name: str, closed: bool) -> None:
+    """Refuse to use a closed environment: RuntimeError naming it (every environment's ``step`` and ``reset``)."""
+    if closed:
+        raise RuntimeError(f"{env_name} is closed: make a new one to go on")
 
 
 def spools_from_action(action: np.ndarray) -> np.ndarray:
@@ -409,7 +415,7 @@ class HexLoadingEnv(gym.Env):
     | scene_path | None | MJCF scene to build the site on (default ``scene_lean.xml``; reference: ``scene.xml``) |
     | backend | ``"auto"`` | ``"native"`` (MuJoCo plugin), ``"python"`` (LearnedModel), ``"auto"`` (native if built) |
     | earthwork_periods | 4 | control periods (25 ms) per dig (fill, pile cut, spill) near the pile; 1: every period |
-    | tables | ``"paper"`` | the learned model: ``"paper"``, ``"extended"`` or ``"circuit"`` (circuit model, Python) |
+    | tables | ``"circuit"`` | the learned model: ``"circuit"`` (the circuit model) or ``"paper"`` (the paper's four tables) |
     | model | ``"learned"`` | ``"reference"``: the same task on the analytical circuit (the real machine's stand-in) |
     | dig_start_share | 0.0 | share of episodes starting with the open bucket over the pile (a curriculum) |
     | loaded_start_share | 0.0 | share starting loaded: curled between pile and truck, or reached out to the truck |
@@ -425,6 +431,8 @@ class HexLoadingEnv(gym.Env):
         "render_modes": ["rgb_array", "depth_array"] + (["human"] if _display_available() else []),
         "render_fps": round(1.0 / STEP_PERIOD),
     }
+    env_id = ENV_ID  # what errors call it
+    closed = False  # set by close()
 
     def __init__(
         self,
@@ -531,6 +539,7 @@ class HexLoadingEnv(gym.Env):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
         """Start an episode on a new random site (see the class docstring)."""
+        check_open(self.env_id, self.closed)
         super().reset(seed=seed)
         self.layout, q, payload_kg = self._draw_start(self.np_random)
         pile = heap_for(self.layout)
@@ -588,6 +597,7 @@ class HexLoadingEnv(gym.Env):
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
         """Hold the spools for 0.1 s (several control periods of the machine model)."""
+        check_open(self.env_id, self.closed)
         if self.earth is None:
             raise RuntimeError("call reset() before step()")
         self._site.spools_m[0] = spools_from_action(action)
@@ -665,7 +675,9 @@ class HexLoadingEnv(gym.Env):
         return None
 
     def close(self) -> None:
-        """Release the renderer's OpenGL context."""
+        """Release the renderer's OpenGL context; ``step`` and ``reset`` are refused after it (closing again is
+        harmless)."""
+        self.closed = True
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None

@@ -16,7 +16,8 @@ import numpy as np
 from gymnasium import spaces
 
 from hexgym.checks import check_choice
-from hexgym.envs.loading import _is_number, spools_from_action
+from hexgym.envs import REACH_ENV_ID
+from hexgym.envs.loading import _is_number, check_open, spools_from_action
 from hexgym.machine import kinematics
 from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS
 from hexgym.model.backend import make_learned_model
@@ -85,6 +86,7 @@ class HexReachEnv(gym.Env):
     """
 
     metadata = {"render_modes": [], "render_fps": round(1.0 / STEP_PERIOD)}
+    closed = False  # set by close()
 
     def __init__(
         self,
@@ -122,6 +124,7 @@ class HexReachEnv(gym.Env):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
         """A new start pose, payload and target (see the class docstring)."""
+        check_open(REACH_ENV_ID, self.closed)
         super().reset(seed=seed)
         rng = self.np_random
         start = self._draw_pose(rng, self._home, _START_NOISE, math.pi)
@@ -156,6 +159,7 @@ class HexReachEnv(gym.Env):
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
         """Hold the spools for 0.1 s."""
+        check_open(REACH_ENV_ID, self.closed)
         spools = spools_from_action(action)
         before = self.physics.tip_position()
         self.machine.step(spools, n=self._periods)
@@ -176,6 +180,10 @@ class HexReachEnv(gym.Env):
             truncated,
             self._info(progress, time_term, success, arrived),
         )
+
+    def close(self) -> None:
+        """Nothing to release; ``step`` and ``reset`` are refused after it (closing again is harmless)."""
+        self.closed = True
 
     def _observe(self) -> np.ndarray:
         ph = self.physics

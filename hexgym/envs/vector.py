@@ -26,7 +26,7 @@ from gymnasium.vector.utils import batch_space
 
 from hexgym.checks import check_choice, check_count
 from hexgym.envs.earthwork import jit
-from hexgym.envs.loading import HexLoadingEnv, heap_for, make_machine, native_world_model, start_machine
+from hexgym.envs.loading import HexLoadingEnv, check_open, heap_for, make_machine, native_world_model, start_machine
 from hexgym.envs.sites import BatchSites, MachineSites
 from hexgym.envs.task import CONTACT_SLOTS, INFO_KEYS, REWARD_TERMS, STEP_INFO_KEYS, STEP_PERIOD, LoadingTask
 from hexgym.envs.world import Layout, World
@@ -214,8 +214,7 @@ class HexLoadingVectorEnv(VectorEnv):
         return self._results(terms, rewards, ended, None)
 
     def _check_open(self) -> None:
-        if self.closed:
-            raise RuntimeError("the batched HexLoading-v0 is closed: make a new one to go on")
+        check_open("the batched HexLoading-v0", self.closed)
 
     def _step_restarting(
         self, actions: np.ndarray
