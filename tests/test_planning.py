@@ -251,7 +251,8 @@ def test_the_planner_simulates_no_further_than_the_best_moves_cost(env, model):
     """Once a move reaches the goal, no batch runs past the best cost so far (a move's cost is at least its time and
     w_fuel x its idle fuel), never short of the plan's time; a loaded move keeps the loaded margin."""
     from hexgym.planning import MachineState
-    from hexgym.planning.planner import LOADED_MARGIN_M, MARGIN_M, margin_for, plan_motion, tip_goal
+    from hexgym.planning.goals import LOADED_MARGIN_M, MARGIN_M, margin_for, tip_goal
+    from hexgym.planning.planner import plan_motion
 
     state = MachineState.from_env(env)
     assert margin_for(state) == MARGIN_M
@@ -278,7 +279,8 @@ def test_the_planner_simulates_no_further_than_the_best_moves_cost(env, model):
 
 def test_the_planner_refuses_bad_input(env, model):
     from hexgym.planning import MachineState
-    from hexgym.planning.planner import Goal, dump_goal, plan_motion, tip_goal
+    from hexgym.planning.goals import Goal, dump_goal, tip_goal
+    from hexgym.planning.planner import plan_motion
 
     layout = env.unwrapped.layout
     state = MachineState(env.unwrapped.physics.joint_positions(), np.zeros(4), 2000.0, layout)
@@ -295,7 +297,8 @@ def test_the_planner_refuses_bad_input(env, model):
 
 def test_a_small_plan_reaches_over_the_truck_or_says_why(env, model):
     from hexgym.planning import MachineState
-    from hexgym.planning.planner import dump_goal, plan_motion
+    from hexgym.planning.goals import dump_goal
+    from hexgym.planning.planner import plan_motion
 
     layout = env.unwrapped.layout
     state = MachineState(env.unwrapped.physics.joint_positions(), np.zeros(4), 2000.0, layout)
@@ -310,7 +313,8 @@ def test_a_small_plan_reaches_over_the_truck_or_says_why(env, model):
 
 def test_a_plan_from_inside_the_ground_is_not_reported_safe(env, model):
     from hexgym.planning import MachineState
-    from hexgym.planning.planner import dump_goal, plan_motion
+    from hexgym.planning.goals import dump_goal
+    from hexgym.planning.planner import plan_motion
 
     layout = env.unwrapped.layout
     for boom in np.linspace(0.6, -0.4, 11):
@@ -328,7 +332,7 @@ def test_a_plan_from_inside_the_ground_is_not_reported_safe(env, model):
 def test_the_check_replays_a_plan_on_the_circuit_model_and_finds_its_contact(env, model):
     from hexgym.planning import MachineState
     from hexgym.planning.check import PlanCheck
-    from hexgym.planning.planner import dump_goal
+    from hexgym.planning.goals import dump_goal
 
     layout = env.unwrapped.layout
     state = MachineState(env.unwrapped.physics.joint_positions(), np.zeros(4), 0.0, layout)
@@ -347,7 +351,7 @@ def test_the_check_predicts_the_references_fuel(env, model):
     from hexgym.hydraulics.reference import ReferenceModel
     from hexgym.planning import MachineState
     from hexgym.planning.check import PlanCheck, replay_plan
-    from hexgym.planning.planner import dump_goal
+    from hexgym.planning.goals import dump_goal
 
     layout = env.unwrapped.layout
     state = MachineState(env.unwrapped.physics.joint_positions(), np.zeros(4), 0.0, layout)
@@ -370,7 +374,8 @@ def test_circuit_rollouts_are_the_checks_replays_with_its_fuel(env, model):
     from hexgym.planning import MachineState
     from hexgym.planning.check import PlanCheck, replay_plan
     from hexgym.planning.circuit_search import CircuitRolloutModel
-    from hexgym.planning.planner import dump_goal, move_fuel_l
+    from hexgym.planning.goals import dump_goal
+    from hexgym.planning.planner import move_fuel_l
 
     layout = env.unwrapped.layout
     state = MachineState(env.unwrapped.physics.joint_positions(), np.zeros(4), 1500.0, layout)
@@ -428,7 +433,7 @@ def test_a_correction_trims_a_plan_to_its_point_on_the_accurate_model(env, paper
     model = paper_model
     from hexgym.planning import MachineState
     from hexgym.planning.check import SETTLE_S, PlanCheck, replay_plan
-    from hexgym.planning.planner import tip_goal
+    from hexgym.planning.goals import tip_goal
 
     layout = env.unwrapped.layout
     state = MachineState(env.unwrapped.physics.joint_positions(), np.zeros(4), 0.0, layout)
@@ -451,7 +456,8 @@ def test_a_checked_plan_keeps_the_clearance_the_check_found_missing(env, model):
     """Two rounds, each plan checked; the second keeps the clearance the check found the first overstated."""
     from hexgym.planning import MachineState
     from hexgym.planning.check import CheckResult
-    from hexgym.planning.planner import MEND_DELAYS_S, dump_goal, plan_checked
+    from hexgym.planning.goals import dump_goal
+    from hexgym.planning.planner import MEND_DELAYS_S, plan_checked
 
     layout = env.unwrapped.layout
     state = MachineState(env.unwrapped.physics.joint_positions(), np.zeros(4), 2000.0, layout)
@@ -477,7 +483,8 @@ def test_a_plan_that_touches_on_the_accurate_model_is_mended_by_a_later_swing(en
     delay that the check finds clear by its margin and at the goal is returned, its other spools as planned."""
     from hexgym.planning import MachineState
     from hexgym.planning.check import CHECK_MARGIN_M, CheckResult
-    from hexgym.planning.planner import MEND_DELAYS_S, dump_goal, plan_checked
+    from hexgym.planning.goals import dump_goal
+    from hexgym.planning.planner import MEND_DELAYS_S, plan_checked
 
     layout = env.unwrapped.layout
     state = MachineState(env.unwrapped.physics.joint_positions(), np.zeros(4), 2000.0, layout)
@@ -502,7 +509,8 @@ def test_a_fitted_swing_comes_to_rest_at_its_target_on_the_circuit_model(env, pa
     model = paper_model
     from hexgym.planning import MachineState
     from hexgym.planning.check import PlanCheck, replay_plan
-    from hexgym.planning.planner import dump_goal, swing_bang_bang
+    from hexgym.planning.goals import dump_goal
+    from hexgym.planning.planner import swing_bang_bang
 
     layout = env.unwrapped.layout
     state = MachineState(env.unwrapped.physics.joint_positions(), np.zeros(4), 0.0, layout)
@@ -525,7 +533,8 @@ def test_a_plan_with_a_fitted_swing_runs_the_fitted_spools(env, model):
     swing before its check; the returned plan's spools are the fitted ones, its rollouts count the swing's batch."""
     from hexgym.planning import MachineState
     from hexgym.planning.check import CheckResult
-    from hexgym.planning.planner import MEND_DELAYS_S, plan_checked, return_goal
+    from hexgym.planning.goals import return_goal
+    from hexgym.planning.planner import MEND_DELAYS_S, plan_checked
     from hexgym.planning.rollouts import bang_bang
 
     layout = env.unwrapped.layout

@@ -5,13 +5,16 @@
   path and the bucket's and stick's clearance to truck and ground (negative = contact).
 - :mod:`hexgym.planning.predict`: :func:`predict`, the motion under a spool command and its first
   predicted contact (time, bodies, point, depth); :class:`hexgym.wrappers.CollisionShield` builds on it.
+- :mod:`hexgym.planning.goals`: the vocabulary: a :class:`Goal` (``dump``, ``return``, a teeth target), its
+  builders and the clearance a plan keeps.
 - :mod:`hexgym.planning.planner`: :func:`plan_motion`, time-and-fuel-optimal spool sequences to a
-  :class:`Goal` (``dump``, ``return``, a teeth target) by the cross-entropy method on batched rollouts.
+  :class:`Goal` by the cross-entropy method on batched rollouts.
 
 Needs the native plugin (``hexgym.mbl``). Imports nothing above the environments' layer.
 """
 
-from hexgym.planning.planner import Goal, Plan, dump_goal, plan_motion, return_goal, tip_goal
+from hexgym.planning.goals import Goal, dump_goal, return_goal, tip_goal
+from hexgym.planning.planner import Plan, plan_motion
 from hexgym.planning.predict import Contact, Prediction, predict
 from hexgym.planning.rollouts import PAIRS, MachineState, RolloutBatch, RolloutModel
 

@@ -32,7 +32,7 @@ from hexgym.planning.rollouts import MachineState, RolloutModel, bang_bang
 
 if TYPE_CHECKING:
     from hexgym.model.base import MachineModel
-    from hexgym.planning.planner import Goal
+    from hexgym.planning.goals import Goal
 
 TRIM_S = 1.5  # s: the plan's last stretch whose spools a correction offsets
 TRIM_PROBE = 0.25  # spool fraction each joint's offset is probed with (beyond the valves' dead bands)

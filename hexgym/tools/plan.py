@@ -45,20 +45,17 @@ from hexgym.machine import parameters as p
 from hexgym.parallel import executor
 from hexgym.planning.check import ROW_S, PlanCheck, replay_plan
 from hexgym.planning.circuit_search import CIRCUIT_MARGIN_M, CircuitRolloutModel
+from hexgym.planning.goals import Goal, dump_goal, margin_for, return_goal
 from hexgym.planning.planner import (
     HORIZON_S,
     KNOT_S,
-    Goal,
     Plan,
-    dump_goal,
     knot_means,
-    margin_for,
     plan_checked,
     plan_motion,
-    return_goal,
     swing_bang_bang,
     swing_target,
-)  # fmt: skip
+)
 from hexgym.planning.rollouts import MachineState, RolloutModel
 
 TASKS = ("dump", "return")
