@@ -14,6 +14,7 @@ from hexgym.envs.earthwork import (
     side_plate_force,
 )
 from hexgym.machine import parameters as p
+from hexgym.machine.bucket import BUCKET, bucket_profile, struck_volume
 
 SPACING = 0.1
 N = 81
@@ -23,16 +24,15 @@ def heap(height=1.5, top=1.2):
     return Pile.heap((7.0, 0.5), height, top, N, SPACING)
 
 
-def test_bucket_constants_match_the_bucket_mesh():
-    from hexgym.tools import meshes
-
-    profile = meshes._bucket_profile()
-    assert p.BUCKET_STRUCK_CAPACITY == pytest.approx(meshes.bucket_struck_volume(), abs=1e-3)
-    assert np.allclose(p.BUCKET_LIP, profile.lip, atol=1e-3)
-    assert np.allclose(p.BUCKET_EDGE, profile.edge, atol=1e-3)
-    assert np.allclose(p.BUCKET_TEETH_DIRECTION, -profile.floor, atol=1e-3)
+def test_the_bucket_geometry_is_its_profile_to_the_millimetre():
+    profile = bucket_profile()
+    assert BUCKET.struck_capacity == pytest.approx(struck_volume(profile), abs=5e-4)
+    assert np.allclose(BUCKET.lip, profile.lip, atol=5e-4)
+    assert np.allclose(BUCKET.edge, profile.edge, atol=5e-4)
+    assert np.allclose(BUCKET.teeth_direction, -profile.floor, atol=5e-4)
+    assert BUCKET.heaped_capacity == pytest.approx(p.BUCKET_HEAPED_CAPACITY, abs=5e-4)  # the profile's design goal
     # the mouth faces away from the bucket pin (the inside is on the pin's side)
-    mid = (np.array(p.BUCKET_LIP) + np.array(p.BUCKET_EDGE)) / 2
+    mid = (np.array(BUCKET.lip) + np.array(BUCKET.edge)) / 2
     assert mouth_normal() @ (np.zeros(2) - mid) < 0
 
 

@@ -7,6 +7,7 @@ import pytest
 import trimesh
 
 from hexgym.machine import parameters as p
+from hexgym.machine.bucket import BUCKET
 from hexgym.tools import meshes
 
 TOL = 0.02  # m
@@ -94,8 +95,8 @@ def test_bucket_geometry(built: dict[str, trimesh.Trimesh]) -> None:
 
 
 def test_bucket_capacity() -> None:
-    assert 0.9 <= meshes.bucket_struck_volume() <= 1.3
-    assert meshes.bucket_heaped_volume() == pytest.approx(p.BUCKET_HEAPED_CAPACITY, rel=0.02)
+    assert 0.9 <= BUCKET.struck_capacity <= 1.3
+    assert BUCKET.heaped_capacity == pytest.approx(p.BUCKET_HEAPED_CAPACITY, rel=0.02)
 
 
 def test_write_meshes_is_deterministic(tmp_path) -> None:

@@ -53,6 +53,13 @@ BUCKET_LINK_PIN = (0.125, 0.55)  # bucket frame: power link pin, 0.56 m from the
 BUCKET_TIP = (1.35, -0.80)  # bucket frame: teeth, 1.57 m from the pin [cmp: 20 t machine 1.56 m]
 BUCKET_WIDTH = 1.50  # m [pub, paper]
 BUCKET_HEAPED_CAPACITY = 1.30  # m^3 [est, 1.2-1.4]
+# the bucket's profile: hexgym.machine.bucket builds it from these and the pins above [est]
+BUCKET_PLATE = 0.03  # wrapper and side plates
+BUCKET_PIN_STANDOFF = 0.20  # pin line (bucket pin -> link pin) to the inside of the top plate
+BUCKET_LIP_AHEAD = 0.25  # top lip this far ahead of the bucket pin, along link pin -> pin
+BUCKET_FLOOR_ANGLE = np.radians(55.0)  # between the floor at the cutting edge and the strike line
+BUCKET_FLOOR_HANDLE = 0.7  # floor tangent length relative to the top plate's: shapes the heel
+TOOTH_LENGTH = 0.28  # teeth beyond the cutting edge
 
 # --------------------------------------------------------------------------------------------
 # Masses (operating weight about 27 t) [est]

@@ -21,15 +21,13 @@ not meant for inertia or collision. Run ``python -m hexgym.tools.meshes`` to reg
 from __future__ import annotations
 
 import pathlib
-from functools import cache
-from typing import NamedTuple
 
 import numpy as np
 import trimesh
-from scipy.optimize import brentq
 
 from hexgym.files import atomic_path
 from hexgym.machine import parameters as p
+from hexgym.machine.bucket import BUCKET, bucket_profile
 
 # --------------------------------------------------------------------------------------------
 # Cosmetic sizes, m (visual only, nothing physical depends on them) [est from photos of 20-30 t
@@ -98,23 +96,16 @@ GUIDE_LINK_Y = 0.25  # plate centre planes at y = +-this: straddle the stick
 POWER_LINK_Y = 0.30  # straddle the bucket's ears
 
 # Bucket
-BUCKET_PLATE = 0.03  # wrapper and side plates
-BUCKET_PIN_STANDOFF = 0.20  # pin line (bucket pin -> link pin) to the inside of the top plate
-BUCKET_LIP_AHEAD = 0.25  # top lip this far ahead of the bucket pin, along link pin -> pin
-BUCKET_FLOOR_ANGLE = np.radians(55.0)  # between the floor at the cutting edge and the strike line
-BUCKET_FLOOR_HANDLE = 0.7  # floor tangent length relative to the top plate's: shapes the heel
 BUCKET_EAR_Y = (0.21, 0.27)  # ear plates, inner / outer |y|: straddle the stick's end
 BUCKET_EAR_RADIUS = 0.16
 BUCKET_EAR_WELD = 0.25  # each ear sits on this much wrapper either side of its pin's foot
 BUCKET_PIN_BOSS = (0.13, 0.11)  # boss radius at the bucket pin, at the link pin
 BUCKET_LIP_BAR = 0.05  # radius of the top lip's reinforcing bar
 CUTTING_EDGE = (0.30, 0.06)  # length along the floor, thickness
-TOOTH_LENGTH = 0.28  # beyond the cutting edge
 TOOTH_BASE = (0.15, 0.13)  # width, height at the adapter
 TOOTH_TIP = (0.09, 0.03)
 TOOTH_ADAPTER = 0.12  # adapters reach this far back over the cutting edge
 TEETH = 5
-PROFILE_POINTS = 40  # stations along the wrapper
 
 MESH_NAMES = (
     "undercarriage",
@@ -534,71 +525,6 @@ def _stick() -> trimesh.Trimesh:
 
 # --------------------------------------------------------------------------------------------
 # Bucket
-def _polygon_area(points: np.ndarray) -> float:
-    """Shoelace area of a closed planar polygon (absolute)."""
-    x, z = np.asarray(points).T
-    return float(abs(x @ np.roll(z, -1) - z @ np.roll(x, -1)) / 2.0)
-
-
-def _heap_volume(opening: float, width: float) -> float:
-    """Heap above the strike plane at a 1:1 repose (ISO 7451 / SAE J296), m^3."""
-    return opening**2 * width / 4.0 - opening**3 / 12.0
-
-
-class _BucketProfile(NamedTuple):
-    inner: np.ndarray  # (PROFILE_POINTS, 2) inside of the wrapper, top lip -> cutting edge
-    lip: np.ndarray  # top lip M
-    edge: np.ndarray  # cutting edge E (the teeth continue the floor to BUCKET_TIP)
-    floor: np.ndarray  # unit direction from the cutting edge into the bucket, along the floor
-    opening: float  # strike-line length M -> E
-    width: float  # inside width between the side plates
-
-
-@cache
-def _bucket_profile() -> _BucketProfile:
-    """The bucket's inner (struck) profile, top lip M -> cutting edge E, in the bucket frame.
-
-    The top plate leaves the lip M parallel to the pin line (bucket pin -> link pin), offset
-    by BUCKET_PIN_STANDOFF so that ears carry both pins; the floor meets the cutting edge E at
-    BUCKET_FLOOR_ANGLE to the strike line M-E, and the teeth continue the floor to BUCKET_TIP.
-    A cubic Bezier with those end tangents makes the wrapper round the heel; its one free size
-    (the tangent length) is solved so that struck volume + 1:1 heap = BUCKET_HEAPED_CAPACITY.
-    """
-    pin, link, tip = np.zeros(2), np.array(p.BUCKET_LINK_PIN), np.array(p.BUCKET_TIP)
-    e = (link - pin) / np.hypot(*(link - pin))
-    n = np.array([e[1], -e[0]])  # from the pin line toward the bucket's inside (the tip's side)
-    if n @ (tip - pin) < 0:
-        n = -n
-    lip = pin + BUCKET_PIN_STANDOFF * n - BUCKET_LIP_AHEAD * e
-    back = (lip - tip) / np.hypot(*(lip - tip))
-    turns = (_rotation2(a) @ back for a in (BUCKET_FLOOR_ANGLE, -BUCKET_FLOOR_ANGLE))
-    floor = max(turns, key=lambda d: d @ (link - tip))  # turned from the strike line toward the inside
-    edge = tip + TOOTH_LENGTH * floor
-    width = p.BUCKET_WIDTH - 2.0 * BUCKET_PLATE
-    t = np.linspace(0.0, 1.0, PROFILE_POINTS)[:, None]
-
-    def wrapper(h: float) -> np.ndarray:
-        c = [lip, lip + h * e, edge + h * BUCKET_FLOOR_HANDLE * floor, edge]
-        return (1 - t) ** 3 * c[0] + 3 * (1 - t) ** 2 * t * c[1] + 3 * (1 - t) * t**2 * c[2] + t**3 * c[3]
-
-    opening = float(np.hypot(*(edge - lip)))
-    target_area = (p.BUCKET_HEAPED_CAPACITY - _heap_volume(opening, width)) / width
-    h = brentq(lambda h: _polygon_area(wrapper(h)) - target_area, 0.05, 3.0, xtol=1e-12)
-    return _BucketProfile(wrapper(h), lip, edge, floor, opening, width)
-
-
-def bucket_struck_volume() -> float:
-    """Struck capacity of the bucket mesh, m^3: inner profile closed by the strike line x inside width."""
-    prof = _bucket_profile()
-    return _polygon_area(_hull(prof.inner)) * prof.width
-
-
-def bucket_heaped_volume() -> float:
-    """Heaped capacity, m^3: struck plus the 1:1 heap over the opening (ISO 7451 / SAE J296)."""
-    prof = _bucket_profile()
-    return bucket_struck_volume() + _heap_volume(prof.opening, prof.width)
-
-
 def _outward_normals(curve: np.ndarray) -> np.ndarray:
     """Unit normals of the (convex) wrapper curve, pointing away from the bucket's inside."""
     tangents, _ = _polyline_frame(curve)
@@ -609,10 +535,10 @@ def _outward_normals(curve: np.ndarray) -> np.ndarray:
 
 def _bucket() -> trimesh.Trimesh:
     """Bucket shell: wrapper plate, side plates, cutting edge, teeth, lip bar, ears and bosses."""
-    prof = _bucket_profile()
+    prof = bucket_profile()
     inner, edge, floor = prof.inner, prof.edge, prof.floor
     normals = _outward_normals(inner)
-    outer = inner + BUCKET_PLATE * normals
+    outer = inner + p.BUCKET_PLATE * normals
     yi, yo = prof.width / 2.0, p.BUCKET_WIDTH / 2.0
     wrapper = [
         np.array([(a[0], -yi, a[1]), (a[0], yi, a[1]), (b[0], yi, b[1]), (b[0], -yi, b[1])])
@@ -737,4 +663,4 @@ if __name__ == "__main__":
     for written in write_meshes(out_dir):
         n_faces = (written.stat().st_size - 84) // 50  # binary STL: 84-byte header, 50 bytes a face
         print(f"{written}: {written.stat().st_size} bytes, {n_faces} faces")
-    print(f"bucket struck volume {bucket_struck_volume():.3f} m^3, heaped {bucket_heaped_volume():.3f} m^3")
+    print(f"bucket struck volume {BUCKET.struck_capacity:.3f} m^3, heaped {BUCKET.heaped_capacity:.3f} m^3")
