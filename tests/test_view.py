@@ -149,10 +149,8 @@ def xvfb_env():
 
 
 def _run_view(env: dict, *args: str) -> subprocess.Popen:
-    return subprocess.Popen(
-        [sys.executable, "-m", "hexgym.tools.view", *args], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-        text=True,
-    )  # fmt: skip
+    command = [sys.executable, "-m", "hexgym.tools.cli", "view", *args]
+    return subprocess.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
 @pytest.mark.slow  # ~10 s: the viewer's window on Xvfb, its pixels read back

@@ -322,14 +322,3 @@ def run_viewer(
         for thread in ui_threads:  # let it release its window before Python exits (else it may crash)
             thread.join(timeout=5.0)
     return {"sim_seconds": float(data.time), "frames": drawn, "spools_mm": data.ctrl[site.spools].tolist()}
-
-
-def main(argv: list[str] | None = None) -> int:
-    """``python -m hexgym.tools.view``: the same as ``hexgym view``."""
-    from hexgym.tools.cli import main as cli_main
-
-    return cli_main(["view", *(argv if argv is not None else sys.argv[1:])])
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
