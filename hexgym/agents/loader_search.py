@@ -5,16 +5,15 @@ hand. :func:`tune_loader` searches them at once with CMA-ES (the ``cmaes`` packa
 ranges (``SETTING_RANGES``; all but those for teaching clones, ``TEACHING_SETTINGS``), scoring each candidate
 on whole seeded episodes of ``HexLoading-v0``: the tonnes per hour pooled over the episodes, less a
 penalty for every percentage point of spill above ``spill_target`` and for contacts (the task's
-contact reward). The search starts from the defaults; the best candidate met is saved. Select on one seed set here and
-measure the result on others (``hexgym scripted --loader-settings`` / ``hexgym evaluate``).
+contact reward). The search starts from the defaults; the best candidate met is saved after every generation, so an
+interrupted search (Ctrl-C) keeps its best so far. Episodes run in a :class:`hexgym.parallel.LocalPool`. Select on one
+seed set here and measure the result on others (``hexgym scripted --loader-settings`` / ``hexgym evaluate``).
 """
 
 from __future__ import annotations
 
 import os
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, replace
-from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +22,7 @@ import numpy as np
 from hexgym.agents.scripted import SETTING_RANGES, TEACHING_SETTINGS, LoaderSettings, run_scripted
 from hexgym.checks import check_count, check_range
 from hexgym.files import check_output_file
+from hexgym.parallel import LocalPool
 
 SPILL_PENALTY = 15.0  # t/h per percentage point of spill above the target
 CONTACT_PENALTY = 20.0  # t/h per unit of the task's contact reward per episode (-1: 100 kN s of hard contact)
@@ -50,9 +50,13 @@ def episode_figures(settings: LoaderSettings, seed: int) -> tuple[float, float, 
     return run["delivered_t"], run["spilled_t"], run["sim_seconds"], run["return_terms"]["contact"]
 
 
-def score(settings: LoaderSettings, seeds: list[int], pool: ProcessPoolExecutor, spill_target: float) -> Score:
+def _episode_figures(job: tuple[LoaderSettings, int]) -> tuple[float, float, float, float]:
+    return episode_figures(*job)
+
+
+def score(settings: LoaderSettings, seeds: list[int], pool: LocalPool, spill_target: float) -> Score:
     """The objective of ``settings`` over ``seeds`` (episodes run in ``pool``)."""
-    runs = list(pool.map(episode_figures, [settings] * len(seeds), seeds))
+    runs = pool.map(_episode_figures, [(settings, seed) for seed in seeds])
     delivered, spilled, seconds, contact = (sum(column) for column in zip(*runs, strict=True))
     tph = delivered / (seconds / 3600.0)
     spill = spilled / max(spilled + delivered, 1e-9)
@@ -90,7 +94,9 @@ def tune_loader(
     workers: int | None = None,
     log: Any = print,
 ) -> tuple[LoaderSettings, Score]:
-    """CMA-ES over the loader's settings from the defaults; the best met is written to ``out`` (JSON) and returned."""
+    """CMA-ES over the loader's settings from the defaults; the best met is written to ``out`` (JSON) after each
+    generation and returned. Ctrl-C stops the workers at once; ``out`` then holds the best of the generations
+    finished (or its old content, before the first)."""
     try:
         from cmaes import CMA
     except ImportError:
@@ -105,7 +111,7 @@ def tune_loader(
     optimiser = CMA(mean=_to_unit(start), sigma=START_SIGMA, bounds=np.array([[0.0, 1.0]] * len(SEARCHED)),
                     seed=seed, population_size=population)  # fmt: skip
     workers = max(1, min(workers or os.cpu_count() or 1, len(seeds)))
-    with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+    with LocalPool(workers) as pool:
         best = (start, score(start, seeds, pool, spill_target))
         log(f"defaults: {_describe(best[1])}")
         for generation in range(generations):
@@ -118,8 +124,8 @@ def tune_loader(
                 if result.objective > best[1].objective:
                     best = (candidate, result)
             optimiser.tell(told)
-            log(f"generation {generation}: best so far {_describe(best[1])}")
-    best[0].save(out)
+            best[0].save(out)  # what was found is kept, however the search ends
+            log(f"generation {generation}: best so far {_describe(best[1])} (written to {out})")
     return best
 
 
