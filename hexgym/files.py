@@ -13,6 +13,7 @@ marked read-only is respected even by root); unreadable likewise.
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import shutil
@@ -28,19 +29,65 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a unique temporary path beside ``path`` (same suffix); on success it replaces ``path``.
 
     The one way hexgym writes output files: on an exception the temporary file is removed and
-    ``path`` is untouched.
+    ``path`` is untouched. An OSError of the write (a full disk) names ``path``, not the temporary.
     """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}")
-    os.close(fd)
-    os.chmod(name, _mode_for(path))  # mkstemp makes it owner-only
-    tmp = Path(name)
-    try:
+    with atomic_paths(path) as (tmp,):
         yield tmp
-        os.replace(tmp, path)
+
+
+@contextmanager
+def atomic_paths(*paths: str | Path) -> Iterator[list[Path]]:
+    """:func:`atomic_path` for files that are one output (a video and its snapshot, a model and its normaliser).
+
+    Yields a temporary path beside each; only once the block has written them all are they renamed over the
+    ``paths``, one after the other. A failure or Ctrl-C in the block leaves every old file as it was. The renames
+    write no data (a full disk does not stop them); should one still fail, after others succeeded, the OSError
+    says which files are new and which old.
+    """
+    paths = tuple(Path(p) for p in paths)
+    temporaries: list[Path] = []
+    try:
+        for path in paths:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}")
+            os.close(fd)
+            temporaries.append(Path(name))
+            os.chmod(name, _mode_for(path))  # mkstemp makes it owner-only
+        try:
+            yield list(temporaries)
+        except OSError as exc:
+            _name_output(exc, dict(zip(temporaries, paths, strict=True)))
+            raise
+        for i, (tmp, path) in enumerate(zip(temporaries, paths, strict=True)):
+            try:
+                os.replace(tmp, path)
+            except OSError as exc:
+                if i == 0:
+                    _name_output(exc, {tmp: path})
+                    raise
+                new = ", ".join(str(p) for p in paths[:i])
+                raise OSError(exc.errno, f"{exc.strerror}; {new} already replaced, the rest not: a mixed set",
+                              str(path)) from exc  # fmt: skip
     finally:
-        tmp.unlink(missing_ok=True)
+        for tmp in temporaries:
+            tmp.unlink(missing_ok=True)
+
+
+_SPACE_ERRORS = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)  # a full disk, a quota, a file size limit
+
+
+def _name_output(exc: OSError, outputs: dict[Path, Path]) -> None:
+    """Make an OSError of a write into a temporary (or staging) path name the output it stands for: a write that
+    fails on a full disk names no file (``exc.filename`` None), or the temporary one."""
+    if exc.filename is None:
+        if exc.errno in _SPACE_ERRORS and len(outputs) == 1:
+            exc.filename = str(next(iter(outputs.values())))
+        return
+    written = str(exc.filename)
+    for tmp, path in outputs.items():
+        if written == str(tmp) or written.startswith(f"{tmp}{os.sep}"):
+            exc.filename = str(path) + written[len(str(tmp)) :]
+            return
 
 
 def _umask() -> int:
@@ -73,10 +120,14 @@ def staged_dir(path: str | Path, keep: bool = True) -> Iterator[Path]:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
     try:
-        if keep and path.is_dir():
-            shutil.copytree(path, tmp, symlinks=True, dirs_exist_ok=True, copy_function=_link_or_copy)
-        os.chmod(tmp, _mode_for(path, directory=True))
-        yield tmp
+        try:
+            if keep and path.is_dir():
+                shutil.copytree(path, tmp, symlinks=True, dirs_exist_ok=True, copy_function=_link_or_copy)
+            os.chmod(tmp, _mode_for(path, directory=True))
+            yield tmp
+        except OSError as exc:  # named after the output, not the staging folder
+            _name_output(exc, {tmp: path})
+            raise
         _swap_in(tmp, path)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

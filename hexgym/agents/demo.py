@@ -26,12 +26,13 @@ def run_demo(
     duration: float = DEMO_DURATION,
     seed: int = DEMO_SEED,
 ) -> dict[str, Path | dict]:
-    """Run the scripted loader for ``duration`` s; write ``demo.mp4`` and ``demo.png``.
+    """Run the scripted loader for ``duration`` s; write ``demo.mp4`` and ``demo.png`` (replaced as a pair, or
+    neither: a failed or interrupted run leaves the previous pair).
 
     ``fps`` is the playback rate (default: the control rate, 10, real time; 20 plays at 2x).
     Returns the two paths and the run's figures (``metrics``, see :func:`run_scripted`).
     """
-    from hexgym.machine.render import check_frame_memory, write_mp4, write_png
+    from hexgym.machine.render import check_frame_memory, write_mp4
 
     if check_positive("seconds", duration, "s") < STEP_PERIOD:
         raise ValueError(f"seconds must be at least one control step ({STEP_PERIOD} s), got {duration}")
@@ -48,8 +49,6 @@ def run_demo(
     metrics = run_scripted(env, seed=seed, seconds=duration, frames=frames)
     env.close()
     snapshot = frames[int(len(frames) * 0.45)]  # mid-cycle: the loaded bucket on its way
-    return {
-        "video": write_mp4(frames, Path(out_dir) / "demo.mp4", fps=fps),
-        "snapshot": write_png(snapshot, Path(out_dir) / "demo.png"),
-        "metrics": metrics,
-    }
+    video, picture = Path(out_dir) / "demo.mp4", Path(out_dir) / "demo.png"
+    write_mp4(frames, video, fps=fps, snapshot=(snapshot, picture))
+    return {"video": video, "snapshot": picture, "metrics": metrics}

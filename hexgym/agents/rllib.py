@@ -23,8 +23,6 @@ from __future__ import annotations
 import os
 import pickle
 import re
-import shutil
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -34,7 +32,7 @@ import numpy as np
 from hexgym.agents.policy_files import PolicyFileError
 from hexgym.checks import check_count, check_seed
 from hexgym.envs import ENV_ID
-from hexgym.files import check_input_file, check_output_dir, run_lock
+from hexgym.files import check_input_file, check_output_dir, run_lock, staged_dir
 from hexgym.parallel import connect, import_ray
 
 RLLIB_ENV = "hexgym-rllib"  # the name the env creator is registered under in Ray's registry
@@ -96,16 +94,11 @@ def _steps_sampled(result: dict[str, Any]) -> int:
 
 
 def _save(algo: Any, run_dir: Path) -> Path:
-    """Replace ``run_dir/checkpoint`` by a new checkpoint of ``algo`` (written beside it first)."""
+    """Replace ``run_dir/checkpoint`` by a new checkpoint of ``algo`` as a whole (written beside it first, then
+    swapped in: a failed save, a full disk, leaves the previous checkpoint and no partial folder)."""
     final = run_dir / CHECKPOINT
-    tmp = Path(tempfile.mkdtemp(prefix=".checkpoint-", dir=run_dir))
-    algo.save_to_path(str(tmp))
-    old = run_dir / ".checkpoint-old"
-    shutil.rmtree(old, ignore_errors=True)
-    if final.exists():
-        final.rename(old)
-    tmp.rename(final)
-    shutil.rmtree(old, ignore_errors=True)
+    with staged_dir(final, keep=False) as tmp:
+        algo.save_to_path(str(tmp))
     return final
 
 

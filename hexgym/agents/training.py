@@ -27,9 +27,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
-from multiprocessing import get_context
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -47,7 +45,8 @@ from hexgym.agents.policy_files import (
 )
 from hexgym.checks import check_count, check_range, check_seed
 from hexgym.envs import ENV_ID
-from hexgym.files import atomic_path, check_input_file, check_output_dir, check_output_file, run_lock
+from hexgym.files import atomic_paths, check_input_file, check_output_dir, check_output_file, run_lock
+from hexgym.parallel import LocalPool
 
 if TYPE_CHECKING:
     from hexgym.agents.scripted import LoaderSettings
@@ -333,16 +332,17 @@ def make_vec_env(
 
 # -- saving -----------------------------------------------------------------------------------------
 def save_model(model: Any, path: str | Path) -> Path:
-    """Save an SB3 model and its observation normaliser (``<stem>_vecnormalize.json``), each atomically.
+    """Save an SB3 model and its observation normaliser (``<stem>_vecnormalize.json``), replaced as a pair.
 
     The normaliser is always written (an identity for a model trained without one), so a model
-    without it is known to be incomplete.
+    without it is known to be incomplete. Both are written to temporary files first: a failure leaves the old
+    pair, never a new model beside an old normaliser.
     """
     path = Path(path)
     normalizer = ObsNormalizer.from_vec_normalize(model.get_vec_normalize_env())
-    with atomic_path(path) as tmp:
-        model.save(tmp)
-    write_normalizer(normalizer, normalizer_path(path))
+    with atomic_paths(path, normalizer_path(path)) as (model_tmp, normalizer_tmp):
+        model.save(model_tmp)
+        write_normalizer(normalizer, normalizer_tmp)
     return path
 
 
@@ -413,11 +413,16 @@ def _rollout_report_callback(print_line: Callable[[str], None] | None = print, c
                 f"{np.mean(self._successes):.4f}" if self._successes else "",
                 f"{self._delivered_kg / 1000:.3f}" if self._trucks else "",
             )  # fmt: skip
-            new = not path.exists()
-            with path.open("a") as f:  # appended row by row: a resumed run continues its curve
-                if new:
-                    f.write(",".join(CURVE_COLUMNS) + "\n")
-                f.write(",".join(str(v) for v in row) + "\n")
+            size = path.stat().st_size if path.exists() else 0
+            try:
+                with path.open("a") as f:  # appended row by row: a resumed run continues its curve
+                    if size == 0:
+                        f.write(",".join(CURVE_COLUMNS) + "\n")
+                    f.write(",".join(str(v) for v in row) + "\n")
+            except OSError as exc:  # a full disk: the rows written stay whole, the run stops naming the file
+                with contextlib.suppress(OSError):
+                    os.truncate(path, size)
+                raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from None
 
     return RolloutReport()
 
@@ -645,7 +650,7 @@ def record_demonstrations(
     wrapper: str | None = None,
     noise: float = 0.0,
     workers: int | None = None,
-    pool: ProcessPoolExecutor | None = None,
+    pool: LocalPool | None = None,
     loader_settings: LoaderSettings | None = None,
 ) -> Demonstrations:
     """:func:`record_episode` for each seed, in parallel worker processes (``pool``, or new ones)."""
@@ -655,17 +660,24 @@ def record_demonstrations(
     return Demonstrations.concatenate(parts)
 
 
-def _worker_pool(workers: int | None = None) -> ProcessPoolExecutor:
-    """Worker processes, one per core (spawned: torch is not fork-safe)."""
-    return ProcessPoolExecutor(max(1, workers or os.cpu_count() or 1), mp_context=get_context("spawn"))
+def _worker_pool(workers: int | None = None) -> LocalPool:
+    """Worker processes, one per core (spawned: torch is not fork-safe; Ctrl-C stops them at once)."""
+    return LocalPool(max(1, workers or os.cpu_count() or 1))
 
 
-def _in_workers(pool: ProcessPoolExecutor | None, workers: int | None, function: Any, *arguments: list) -> list:
+def _in_workers(pool: LocalPool | None, workers: int | None, function: Any, *arguments: list) -> list:
     """``function`` over the argument lists in ``pool`` (or in a new pool of at most ``workers``)."""
+    jobs = [(function, *job) for job in zip(*arguments, strict=True)]
     if pool is not None:
-        return list(pool.map(function, *arguments))
-    with _worker_pool(min(workers or os.cpu_count() or 1, len(arguments[0]))) as new_pool:
-        return list(new_pool.map(function, *arguments))
+        return pool.map(_apply, jobs)
+    with _worker_pool(min(workers or os.cpu_count() or 1, len(jobs))) as new_pool:
+        return new_pool.map(_apply, jobs)
+
+
+def _apply(job: tuple) -> Any:
+    """``function(*arguments)`` of ``job`` = (function, *arguments): a pool's task."""
+    function, *arguments = job
+    return function(*arguments)
 
 
 def score_episode(model_path: str, seed: int, env_kwargs: dict | None = None) -> dict[str, float]:
@@ -808,7 +820,7 @@ def clone_scripted(
 
 
 def _clone_rounds(
-    out: Path, rounds: Path, hp: dict[str, Any], pool: ProcessPoolExecutor, episodes: int, dagger_rounds: int,
+    out: Path, rounds: Path, hp: dict[str, Any], pool: LocalPool, episodes: int, dagger_rounds: int,
     dagger_episodes: int, noise: float, epochs: int, seed: int, select_episodes: int, loss: str,
     teacher: LoaderSettings, log: Any,
 ) -> Path:  # fmt: skip
@@ -852,7 +864,7 @@ def _clone_rounds(
     if best is None:
         return save_model(model, out)
     log(f"selected {best[1].name} ({best[0]:.2f} t per selection episode)")
-    for source, target in ((best[1], out), (normalizer_path(best[1]), normalizer_path(out))):
-        with atomic_path(target) as tmp:
-            shutil.copyfile(source, tmp)
+    with atomic_paths(out, normalizer_path(out)) as (model_tmp, normalizer_tmp):  # the pair, or neither
+        shutil.copyfile(best[1], model_tmp)
+        shutil.copyfile(normalizer_path(best[1]), normalizer_tmp)
     return out

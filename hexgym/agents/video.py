@@ -19,7 +19,7 @@ from hexgym.checks import check_count, check_positive, check_seed
 from hexgym.envs import DIG_ENV_ID, ENV_ID
 from hexgym.envs.loading import STEP_PERIOD
 from hexgym.files import check_output_file
-from hexgym.machine.render import CAMERAS, check_frame_memory, write_mp4, write_png
+from hexgym.machine.render import CAMERAS, check_frame_memory, write_mp4
 
 OVERLAY_HEIGHT = 28  # px: the text strip at the top of each frame
 
@@ -87,7 +87,8 @@ def record_video(
 
     ``seconds`` stops each episode's film early (the episode itself keeps the task's time budget, which the
     observation counts down: a shorter budget would change what a trained policy does); ``snapshot`` also
-    writes a PNG of a frame from the middle of the first episode; ``model``: the machine model, ``"learned"`` or
+    writes a PNG of a frame from the middle of the first episode (the video and it are replaced as a pair, or
+    neither); ``model``: the machine model, ``"learned"`` or
     ``"reference"`` (the real machine's stand-in); ``env_id``: ``HexLoading-v0`` or ``HexDig-v0`` (a model
     trained on it, or ``"scripted"``). Returns the paths and each episode's figures.
     """
@@ -120,18 +121,21 @@ def record_video(
     check_frame_memory(int(episodes) * steps, width, height)
     frames: list[np.ndarray] = []
     summaries = []
+    still = None  # the snapshot's frame: the middle of the first episode
     try:
         for i in range(int(episodes)):
             if env_id == ENV_ID:
                 summaries.append(run_episode(env, policy, seed + i, _frame_recorder(frames, i + 1)).summary())
             else:
                 summaries.append(_dig_episode(env, policy, seed + i, frames, i + 1))
-            if i == 0 and snapshot is not None:
-                write_png(frames[len(frames) // 2], snapshot)
+            if i == 0:
+                still = frames[len(frames) // 2]
     finally:
         env.close()
     fps = float(env.metadata["render_fps"])
-    result: dict[str, Any] = {"video": write_mp4(frames, out, fps=fps), "frames": len(frames), "episodes": summaries}
+    pair = None if snapshot is None else (still, snapshot)  # the video and its snapshot are replaced together
+    result: dict[str, Any] = {"video": write_mp4(frames, out, fps=fps, snapshot=pair), "frames": len(frames),
+                              "episodes": summaries}  # fmt: skip
     if snapshot is not None:
         result["snapshot"] = Path(snapshot)
     return result

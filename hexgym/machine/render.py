@@ -12,7 +12,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from hexgym.files import atomic_path
+from hexgym.files import atomic_path, atomic_paths
 
 CAMERAS = ("chase", "cab")
 
@@ -109,23 +109,25 @@ def check_frame_memory(frames: int, width: int, height: int, what: str = "the vi
 
 def write_png(frame: np.ndarray, path: str | Path) -> Path:
     """Write one frame as a PNG, atomically (a reader never sees a half-written file)."""
-    import imageio.v3 as iio
-
     _check_frame(frame, path)
     with atomic_path(path) as tmp:
-        iio.imwrite(tmp, frame)
+        _encode_png(frame, tmp, path)
     return Path(path)
 
 
-def write_mp4(frames: Iterable[np.ndarray], path: str | Path, fps: float) -> Path:
+def write_mp4(
+    frames: Iterable[np.ndarray], path: str | Path, fps: float, snapshot: tuple[np.ndarray, str | Path] | None = None
+) -> Path:
     """Encode frames (H.264, yuv420p so every player opens it) to an MP4, atomically.
+
+    ``snapshot``: (a frame, a PNG path) written with the video as one output: both are encoded to temporary files
+    and replace the old pair only once both are complete (:func:`hexgym.files.atomic_paths`), so a failed or
+    interrupted run never leaves a new video beside an old picture.
 
     No frames, an empty frame or a rate outside :data:`MIN_FPS`-:data:`MAX_FPS` raise ValueError, an encoder
     that wrote nothing raises RuntimeError and one that could not write the whole file (a full disk) OSError:
-    in each case ``path`` keeps what it held.
+    in each case ``path`` (and the snapshot's) keeps what it held.
     """
-    import imageio.v2 as imageio
-
     frames = list(frames)
     if not frames:
         raise ValueError(f"no frames to write to {path}")
@@ -133,16 +135,42 @@ def write_mp4(frames: Iterable[np.ndarray], path: str | Path, fps: float) -> Pat
         raise ValueError(f"the frame rate must be from {MIN_FPS:g} to {MAX_FPS:g} frames/s, got {fps}")
     for frame in frames:
         _check_frame(frame, path)
-    with atomic_path(path) as tmp:
+    outputs = [path]
+    if snapshot is not None:
+        _check_frame(snapshot[0], snapshot[1])
+        outputs.append(snapshot[1])
+    with atomic_paths(*outputs) as temporaries:
+        _encode_mp4(frames, temporaries[0], fps, path)
+        if snapshot is not None:
+            _encode_png(snapshot[0], temporaries[1], snapshot[1])
+    return Path(path)
+
+
+def _encode_png(frame: np.ndarray, tmp: Path, path: str | Path) -> None:
+    """``frame`` as a PNG in ``tmp``; an OSError (a full disk) names ``path``, the output."""
+    import imageio.v3 as iio
+
+    try:
+        iio.imwrite(tmp, frame)
+    except OSError as exc:
+        raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from None
+
+
+def _encode_mp4(frames: list[np.ndarray], tmp: Path, fps: float, path: str | Path) -> None:
+    """``frames`` as an MP4 in ``tmp``, checked whole (:func:`_check_mp4`); errors name ``path``, the output."""
+    import imageio.v2 as imageio
+
+    try:
         with imageio.get_writer(
             tmp, fps=fps, codec="libx264", quality=7, pixelformat="yuv420p", macro_block_size=8
         ) as w:
             for frame in frames:
                 w.append_data(frame)
-        if tmp.stat().st_size == 0:
-            raise RuntimeError(f"the video encoder wrote nothing for {path}")
-        _check_mp4(tmp, path)
-    return Path(path)
+    except OSError as exc:
+        raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from None
+    if tmp.stat().st_size == 0:
+        raise RuntimeError(f"the video encoder wrote nothing for {path}")
+    _check_mp4(tmp, path)
 
 
 MIN_FPS, MAX_FPS = 0.1, 1000.0  # playback rates an MP4 is written at (outside: players show no video)
