@@ -15,6 +15,7 @@ loaders (Python and the native plugin) with the same files.
 from __future__ import annotations
 
 import base64
+import errno
 import hashlib
 import json
 import os
@@ -1816,8 +1817,6 @@ def test_full_disk_keeps_the_old_file(tmp_path):
 
 
 def test_no_space_at_the_rename_keeps_the_old_file(workdir, capsys, monkeypatch):
-    import errno
-
     from hexgym import files
     from hexgym.tools import cli
 
@@ -1877,6 +1876,9 @@ def test_an_unexpected_error_is_one_line_and_debug_shows_the_traceback(workdir, 
 FAULTS += ["a fit failing on its third table", "Ctrl-C in a staged output", "a private file replaced",
            "a video cut short by a full disk", "two runs into one directory", "Ctrl-C with worker processes",
            "a Ray address that answers but is no Ray"]  # fmt: skip
+FAULTS += ["a full disk at demo's picture (the pair kept)", "Ctrl-C at demo's picture (the pair kept)",
+           "a JSON output on a full disk", "a full disk in a staged folder", "a pair's second rename failing",
+           "Ctrl-C in tune-loader with workers", "Ctrl-C in clone with workers"]  # fmt: skip
 
 
 def test_a_fit_failing_on_its_third_table_keeps_the_old_set(tmp_path, monkeypatch):
@@ -1963,6 +1965,88 @@ def test_a_video_cut_short_by_a_full_disk_keeps_the_old_one(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["v.mp4"]
 
 
+def _no_space(*args: Any, **kwargs: Any) -> None:
+    """A write on a full disk: OSError ENOSPC naming no file, as a write to an open file raises it."""
+    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+
+@pytest.mark.parametrize("fault", ["full disk", "Ctrl-C"])
+def test_demo_replaces_its_video_and_snapshot_as_a_pair(fault, workdir, capsys, monkeypatch):
+    """The picture is written after the video: a fault there leaves the old pair, not a new video beside an old
+    picture; a full disk is one line naming the picture."""
+    import imageio.v3 as iio
+
+    from hexgym.tools import cli
+
+    write(workdir / "out" / "demo.mp4", "the old video")
+    write(workdir / "out" / "demo.png", "the old picture")
+    before = snapshot(workdir)
+    argv = ["demo", "--seconds", "0.5", "--width", "64", "--height", "48"]
+
+    def interrupted(*args: Any, **kwargs: Any) -> None:
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as patch:
+        patch.setattr(iio, "imwrite", _no_space if fault == "full disk" else interrupted)
+        code = cli.main(argv)
+    err = capsys.readouterr().err.strip()
+    if fault == "full disk":
+        assert code == 2 and err == f"hexgym demo: error: {Path('out') / 'demo.png'}: No space left on device", err
+    else:
+        assert code == 130 and err == "hexgym demo: interrupted", err
+    assert snapshot(workdir) == before  # the old pair, no temporary left
+    assert cli.main(argv) == 0
+    assert (workdir / "out" / "demo.mp4").read_bytes()[4:8] == b"ftyp"
+    assert (workdir / "out" / "demo.png").read_bytes()[1:4] == b"PNG"
+
+
+def test_a_json_output_on_a_full_disk_is_one_line_naming_it(workdir, capsys, monkeypatch):
+    from hexgym.tools import cli
+
+    write(workdir / "runs.json", "the old runs")
+    before = snapshot(workdir)
+    monkeypatch.setattr(Path, "write_text", _no_space)
+    code = cli.main(["scripted", "--seconds", "0.5", "--json", "runs.json"])
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and lines == ["hexgym scripted: error: runs.json: No space left on device"], lines
+    assert snapshot(workdir) == before
+
+
+def test_a_full_disk_in_a_staged_folder_names_the_output_not_the_staging(tmp_path):
+    from hexgym.files import atomic_path, staged_dir
+
+    out = tmp_path / "tables"
+    write(out / "boom.npz", "old")
+    before = snapshot(tmp_path)
+    with pytest.raises(OSError) as raised, staged_dir(out) as staging, atomic_path(staging / "boom.npz"):
+        _no_space()
+    assert raised.value.errno == errno.ENOSPC and raised.value.filename == str(out / "boom.npz")
+    assert snapshot(tmp_path) == before
+
+
+def test_a_pair_whose_second_rename_fails_says_the_set_is_mixed(tmp_path, monkeypatch):
+    from hexgym import files
+
+    write(tmp_path / "a.mp4", "old video")
+    write(tmp_path / "a.png", "old picture")
+    renames = []
+    replace = os.replace
+
+    def second_fails(source: Any, target: Any) -> None:
+        renames.append(target)
+        if len(renames) == 2:
+            raise OSError(errno.EIO, os.strerror(errno.EIO), str(source))
+        replace(source, target)
+
+    monkeypatch.setattr(files.os, "replace", second_fails)
+    with pytest.raises(OSError, match=r"a\.mp4 already replaced, the rest not: a mixed set") as raised:
+        with files.atomic_paths(tmp_path / "a.mp4", tmp_path / "a.png") as (video, picture):
+            video.write_text("new video")
+            picture.write_text("new picture")
+    assert raised.value.filename == str(tmp_path / "a.png")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.mp4", "a.png"]  # no temporary left
+
+
 def test_two_runs_into_one_directory_are_refused(workdir, capsys):
     from hexgym.files import run_lock
     from hexgym.tools import cli
@@ -2008,6 +2092,71 @@ def test_ctrl_c_ends_worker_processes_at_once_without_tracebacks(tmp_path):
             os.killpg(process.pid, signal.SIGKILL)
     assert process.returncode == 130 and "interrupted" in out, (out, err)
     assert time.monotonic() - start < 5 and "Traceback" not in err, err
+
+
+def _busy_workers(parent: int, n: int) -> bool:
+    """Whether ``parent`` has ``n`` pool workers that have loaded MuJoCo (past their start: running a task)."""
+    found = 0
+    for entry in Path("/proc").iterdir():
+        try:
+            if not entry.name.isdigit() or int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1]) != parent:
+                continue
+            if b"spawn_main" in (entry / "cmdline").read_bytes() and "mujoco" in (entry / "maps").read_text():
+                found += 1
+        except (OSError, IndexError, ValueError):
+            continue
+    return found >= n
+
+
+def _interrupt_command(argv: list[str], cwd: Path, workers: int = 2) -> tuple[int, str, float]:
+    """Run ``hexgym argv`` in its own process group, press Ctrl-C (SIGINT to the group, as a terminal does) once
+    ``workers`` pool workers run their episodes; returns (exit status, stderr, seconds from Ctrl-C to exit)."""
+    import time
+
+    code = "import sys\nfrom hexgym.tools.cli import main\nsys.exit(main(sys.argv[1:]))"
+    process = subprocess.Popen([sys.executable, "-c", code, *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True, start_new_session=True, cwd=cwd)  # fmt: skip
+    try:
+        deadline = time.monotonic() + 120
+        while not _busy_workers(process.pid, workers):
+            assert process.poll() is None and time.monotonic() < deadline, process.communicate()
+            time.sleep(0.2)
+        time.sleep(1.0)
+        start = time.monotonic()
+        os.killpg(process.pid, signal.SIGINT)
+        _, err = process.communicate(timeout=20)
+        return process.returncode, err, time.monotonic() - start
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.communicate()
+
+
+@pytest.mark.skipif(not Path("/proc/self/maps").exists(), reason="finds the workers in /proc")
+def test_ctrl_c_ends_tune_loader_and_its_workers_keeping_the_old_settings(tmp_path):
+    pytest.importorskip("cmaes")
+    write(tmp_path / "best.json", "the old settings")
+    argv = ["tune-loader", "--out", "best.json", "--seeds", "100-101", "--generations", "1", "--population", "4"]
+    code, err, seconds = _interrupt_command(argv, tmp_path)
+    assert code == 130 and err.strip() == "hexgym tune-loader: interrupted", err
+    assert seconds < 5, seconds
+    # interrupted while scoring the defaults: no generation finished, the old file is kept, nothing beside it
+    assert (tmp_path / "best.json").read_text() == "the old settings"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["best.json"]
+
+
+@pytest.mark.skipif(not Path("/proc/self/maps").exists(), reason="finds the workers in /proc")
+def test_ctrl_c_ends_clone_and_its_workers_keeping_the_old_model(tmp_path):
+    pytest.importorskip("stable_baselines3")
+    write(tmp_path / "h.yml", TINY_YAML.replace("time_limit: 2.0", "time_limit: 120.0"))
+    write(tmp_path / "bc.zip", "the old model")
+    argv = ["clone", "--out", "bc.zip", "--hyperparams", "h.yml", "--episodes", "2", "--dagger-rounds", "0",
+            "--epochs", "1"]  # fmt: skip
+    code, err, seconds = _interrupt_command(argv, tmp_path)
+    assert code == 130 and err.strip() == "hexgym clone: interrupted", err
+    assert seconds < 5, seconds
+    assert (tmp_path / "bc.zip").read_text() == "the old model"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bc.zip", "h.yml"]
 
 
 @pytest.mark.parametrize("reply", [b"HTTP/1.1 400 Bad Request\r\n\r\n", b""], ids=["HTTP", "silent"])
