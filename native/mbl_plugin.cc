@@ -193,8 +193,6 @@ class MblPlugin {
   int mass_adr[4][4];                     // the main dofs' entries in d->M (CSR, lower triangle), -1: none
   double next_hydraulics[kHydraulicsSize], next_rates[4], next_fault = 0.0;
   int boom_table, bucket_table, stick_table, swing_table;
-  std::vector<std::pair<int, int>> feeding;  // (table, quantity): tables whose output is a quantity, looked up first
-  bool swing_torque;  // the swing table gives the motor torque (else the acceleration)
   Linkage linkage;
   double retracted[3], stroke[3], push_limit[3], pull_limit[3], rate_lo[4], rate_hi[4];
   double end_margin, swing_torque_limit, dead_band, swing_rest_rate;
@@ -209,7 +207,6 @@ class MblPlugin {
   // set by compute, committed by advance (the same mj_step)
   bool queried = false;
   double next_rate = 0.0, swing_acceleration = 0.0, target[4] = {0, 0, 0, 0};
-  double next_inertia = 0.0;          // the swing inertia at this query
   std::vector<mjtNum> limit_force, limit_qfrc;  // scratch: efc forces of joint-limit rows, J^T of them
   std::vector<bool> machine_body;                // per body: carried by the swinging upper structure
   std::vector<mjtNum> jacp;                       // scratch: a contact point's translation Jacobian
@@ -244,13 +241,7 @@ class MblPlugin {
     if (boom_table < 0 || bucket_table < 0 || stick_table < 0 || swing_table < 0) {
       throw SetupError(std::string("table set '") + table_set.name + "' lacks a function's table");
     }
-    for (int t = 0; t < table_set.num_tables; ++t) {
-      for (int q = 0; q < kNumQuantities; ++q) {
-        if (std::strcmp(table_set.tables[t].output, kQuantityNames[q]) == 0) feeding.emplace_back(t, q);
-      }
-    }
     const TableSchema& swing_spec = table_set.tables[swing_table];
-    swing_torque = std::strcmp(swing_spec.output, "swing_torque_nm") == 0;
     int rate_axis = 0;
     while (rate_axis < swing_spec.num_inputs && swing_spec.inputs[rate_axis] != kQSwingRateRadps) ++rate_axis;
     if (rate_axis == swing_spec.num_inputs) throw SetupError("the swing table does not read the swing rate");
@@ -421,21 +412,14 @@ class MblPlugin {
     bool closed[4];
     for (int k = 0; k < 4; ++k) closed[k] = std::fabs(u[k]) < dead_band;
     double rate = integrated ? d->plugin_state[stateadr + kTargets] : d->act[swing_actadr];
-    double last_inertia = d->plugin_state[stateadr + kInertia];
-    if (swing_torque && last_inertia > 0.0) rate *= last_inertia / inertia;  // the momentum is kept
-    next_inertia = inertia;
     double q[kNumQuantities];
     q[kQSwingSpoolM] = u[0], q[kQBoomSpoolM] = u[1], q[kQStickSpoolM] = u[2], q[kQBucketSpoolM] = u[3];
     q[kQBoomForceN] = f[0], q[kQStickForceN] = f[1], q[kQBucketForceN] = f[2];
-    q[kQStickDriveForceN] = closed[2] ? 0.0 : f[1];
     q[kQSwingInertiaKgm2] = inertia, q[kQSwingRateRadps] = rate;
-    q[kQPump1PressurePa] = q[kQPump2PressurePa] = 0.0;
-    for (const auto& [table, quantity] : feeding) q[quantity] = Lookup(table, q);  // first: the others read them
     double v_boom = closed[1] ? 0.0 : Lookup(boom_table, q);
     double v_bucket = closed[3] ? 0.0 : Lookup(bucket_table, q);
     double v_stick = closed[2] ? 0.0 : Lookup(stick_table, q);
     swing_acceleration = Lookup(swing_table, q);
-    if (swing_torque) swing_acceleration /= inertia;  // a torque table (extended): through this inertia
     if (!(slowest_swing < rate && rate < fastest_swing) && swing_acceleration * rate > 0.0) {
       // the table clamps the rate to its grid (the fastest swing in its data): beyond it, it
       // would keep accelerating at that edge's value; it must not go faster
@@ -504,7 +488,7 @@ class MblPlugin {
     StallAtContacts(m, d, wanted, blocked);
     for (int k = 0; k < 4; ++k) next_rates[k] = blocked[k] ? 0.0 : rates[k];
     double rate = integrated ? state[kTargets] : d->act[swing_actadr];
-    swing_acceleration = next_inertia = 0.0;  // the circuit integrates the swing itself
+    swing_acceleration = 0.0;  // the circuit integrates the swing itself
     next_rate = wanted[0];
     if (!integrated) d->act_dot[swing_actadr] = (next_rate - rate) / m->opt.timestep;
     for (int k = 0; k < 4; ++k) target[k] = std::fmin(std::fmax(wanted[k], rate_lo[k]), rate_hi[k]);
@@ -557,7 +541,6 @@ class MblPlugin {
       state[kAcceleration] = swing_acceleration;
       for (int k = 0; k < 4; ++k) state[kTargets + k] = target[k];
       state[kTargets] = next_rate;  // the swing's rate, unclipped (the servo clips it when used)
-      state[kInertia] = next_inertia;
       if (circuit) {
         std::memcpy(state + kHydraulics, next_hydraulics, sizeof(next_hydraulics));
         std::memcpy(state + kRates, next_rates, sizeof(next_rates));

@@ -15,12 +15,11 @@ constexpr int kLoad = 0, kLoadSize = 4;
 constexpr int kAcceleration = 4, kAccelerationSize = 1;
 constexpr int kPhase = 5, kPhaseSize = 1;
 constexpr int kTargets = 6, kTargetsSize = 4;
-constexpr int kInertia = 10, kInertiaSize = 1;
-constexpr int kHydraulics = 11, kHydraulicsSize = 14;
-constexpr int kRates = 25, kRatesSize = 4;
-constexpr int kCircuitReady = 29, kCircuitReadySize = 1;
-constexpr int kCircuitFault = 30, kCircuitFaultSize = 1;
-constexpr int kStateSize = 31;
+constexpr int kHydraulics = 10, kHydraulicsSize = 14;
+constexpr int kRates = 24, kRatesSize = 4;
+constexpr int kCircuitReady = 28, kCircuitReadySize = 1;
+constexpr int kCircuitFault = 29, kCircuitFaultSize = 1;
+constexpr int kStateSize = 30;
 
 // Config keys, in the declared order
 constexpr const char* kAttributes[] = {
@@ -38,7 +37,7 @@ constexpr const char* kAttributes[] = {
     "swing_rest_rate",  // rad/s
     "rate_range",  // lo hi per joint, rad/s (the Python path's servo ctrlrange)
     "control_period",  // s between table queries, >= one step (default: one step)
-    "table_set",  // which table set the tables directory holds: circuit, paper or extended (default: the default set)
+    "table_set",  // which table set the tables directory holds: circuit or paper (default: the default set)
     "circuit",  // the circuit's numbers (nodes, branches, then CIRCUIT_FIELDS), for table_set circuit
     "substeps",  // the circuit's steps per control period, for table_set circuit
 };
@@ -62,11 +61,8 @@ enum Quantity {
   kQBoomForceN,
   kQStickForceN,
   kQBucketForceN,
-  kQStickDriveForceN,
   kQSwingInertiaKgm2,
   kQSwingRateRadps,
-  kQPump1PressurePa,
-  kQPump2PressurePa,
   kNumQuantities
 };
 constexpr const char* kQuantityNames[kNumQuantities] = {
@@ -77,11 +73,8 @@ constexpr const char* kQuantityNames[kNumQuantities] = {
     "boom_force_n",
     "stick_force_n",
     "bucket_force_n",
-    "stick_drive_force_n",
     "swing_inertia_kgm2",
     "swing_rate_radps",
-    "pump1_pressure_pa",
-    "pump2_pressure_pa",
 };
 
 constexpr int kMaxTableInputs = 5;
@@ -119,23 +112,15 @@ constexpr TableSchema kPaperTables[] = {
     {"stick", 4, {kQSwingSpoolM, kQStickSpoolM, kQSwingInertiaKgm2, kQStickForceN}, "stick_velocity_mps"},
     {"swing", 5, {kQSwingSpoolM, kQStickSpoolM, kQStickForceN, kQSwingInertiaKgm2, kQSwingRateRadps}, "swing_acceleration_radps2"},
 };
-constexpr TableSchema kExtendedTables[] = {
-    {"boom", 4, {kQBoomSpoolM, kQBucketSpoolM, kQBoomForceN, kQBucketForceN}, "boom_velocity_mps"},
-    {"bucket", 4, {kQBoomSpoolM, kQBucketSpoolM, kQBoomForceN, kQBucketForceN}, "bucket_velocity_mps"},
-    {"stick", 4, {kQSwingSpoolM, kQStickSpoolM, kQSwingInertiaKgm2, kQStickForceN}, "stick_velocity_mps"},
-    {"swing", 3, {kQSwingSpoolM, kQPump2PressurePa, kQSwingRateRadps}, "swing_torque_nm"},
-    {"pump2", 4, {kQSwingSpoolM, kQStickSpoolM, kQStickDriveForceN, kQSwingRateRadps}, "pump2_pressure_pa"},
-};
 struct TableSet {
   const char* name;
   int num_tables;
   const TableSchema* tables;
 };
-constexpr int kNumTableSets = 3;
+constexpr int kNumTableSets = 2;
 constexpr TableSet kTableSets[kNumTableSets] = {
     {"circuit", 20, kCircuitTables},
     {"paper", 4, kPaperTables},
-    {"extended", 5, kExtendedTables},
 };
 constexpr char kDefaultTableSet[] = "circuit";
 
@@ -261,7 +246,7 @@ constexpr CircuitField kCircuitFields[kNumCircuitFields] = {
 };
 
 // All of the above as JSON, returned by hexgym_mbl_interface() for the Python side's check
-constexpr char kInterfaceJson[] = "{\"circuit_counts\":{\"cylinders\":3,\"functions\":4,\"pumps\":2},\"circuit_fields\":[[\"laws\",40,\"one\"],[\"branch_from\",1,\"branches\"],[\"branch_to\",1,\"branches\"],[\"branch_area\",1,\"branches\"],[\"branch_crack\",1,\"branches\"],[\"branch_inv_span\",1,\"branches\"],[\"branch_laminar\",1,\"branches\"],[\"passage_branch\",4,\"functions\"],[\"bypass_branch\",1,\"pumps\"],[\"pump_node\",1,\"pumps\"],[\"signal_node\",1,\"pumps\"],[\"pump_sections\",2,\"pumps\"],[\"head_area\",1,\"cylinders\"],[\"rod_area\",1,\"cylinders\"],[\"stroke\",1,\"cylinders\"],[\"cylinder_count\",1,\"cylinders\"],[\"port_volume\",1,\"cylinders\"],[\"head_node\",1,\"cylinders\"],[\"rod_node\",1,\"cylinders\"],[\"function\",1,\"cylinders\"],[\"node_volume\",1,\"nodes\"],[\"displacement\",4,\"nodes\"]],\"circuit_laws\":[\"discharge\",\"sqrt_2_rho\",\"laminar_sq\",\"atmosphere\",\"vacuum\",\"polytropic\",\"air_fraction\",\"bulk_modulus\",\"cushion_length\",\"cushion_area\",\"cushion_port_area\",\"nfc_full_flow\",\"nfc_min_flow\",\"idle_fraction\",\"power_limit\",\"max_flow\",\"regulator_time\",\"max_splits\",\"trust_floor\",\"trust_jump\",\"coulomb\",\"friction_velocity\",\"viscous\",\"swing_reduction\",\"swing_displacement\",\"swing_viscous\",\"swing_efficiency\",\"swing_friction_speed\",\"swing_a\",\"swing_b\",\"stop_clearance\",\"stop_stiffness\",\"stop_damping\",\"stop_split\",\"stop_split_speed\",\"dead_band\",\"closed_area\",\"idle_pressure\",\"rest_pressure\",\"fault_pressure\"],\"circuit_period\":{\"arms\":[11,3],\"ext\":[8,3],\"load\":[30,4],\"mass\":[14,16],\"rates\":[4,4],\"spools\":[0,4],\"state\":[38,14],\"travel\":[34,4]},\"clearance_config_keys\":[\"tool\",\"obstacles\",\"cutoff\"],\"clearance_plugin\":\"hexgym.clearance\",\"config_keys\":[\"tables\",\"boom_triangle\",\"stick_triangle\",\"bucket_four_bar\",\"retracted_length\",\"stroke\",\"end_margin\",\"push_limit\",\"pull_limit\",\"swing_torque_limit\",\"dead_band\",\"swing_rest_rate\",\"rate_range\",\"control_period\",\"table_set\",\"circuit\",\"substeps\"],\"ctrl_per_spool_m\":1000.0,\"default_table_set\":\"circuit\",\"joints\":[\"swing\",\"boom\",\"stick\",\"bucket\"],\"plugin\":\"hexgym.mbl\",\"quantities\":[\"swing_spool_m\",\"boom_spool_m\",\"stick_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"stick_force_n\",\"bucket_force_n\",\"stick_drive_force_n\",\"swing_inertia_kgm2\",\"swing_rate_radps\",\"pump1_pressure_pa\",\"pump2_pressure_pa\"],\"state\":{\"acceleration\":[4,1],\"circuit_fault\":[30,1],\"circuit_ready\":[29,1],\"hydraulics\":[11,14],\"inertia\":[10,1],\"load\":[0,4],\"phase\":[5,1],\"rates\":[25,4],\"targets\":[6,4]},\"state_size\":31,\"table_format_version\":1,\"table_sets\":{\"circuit\":[{\"inputs\":[\"swing_spool_m\"],\"name\":\"swing_bypass\",\"output\":\"swing_bypass_area_m2\"},{\"inputs\":[\"boom_spool_m\"],\"name\":\"boom_bypass\",\"output\":\"boom_bypass_area_m2\"},{\"inputs\":[\"stick_spool_m\"],\"name\":\"stick_bypass\",\"output\":\"stick_bypass_area_m2\"},{\"inputs\":[\"bucket_spool_m\"],\"name\":\"bucket_bypass\",\"output\":\"bucket_bypass_area_m2\"},{\"inputs\":[\"swing_spool_m\"],\"name\":\"swing_pa\",\"output\":\"swing_pa_area_m2\"},{\"inputs\":[\"boom_spool_m\"],\"name\":\"boom_pa\",\"output\":\"boom_pa_area_m2\"},{\"inputs\":[\"stick_spool_m\"],\"name\":\"stick_pa\",\"output\":\"stick_pa_area_m2\"},{\"inputs\":[\"bucket_spool_m\"],\"name\":\"bucket_pa\",\"output\":\"bucket_pa_area_m2\"},{\"inputs\":[\"swing_spool_m\"],\"name\":\"swing_pb\",\"output\":\"swing_pb_area_m2\"},{\"inputs\":[\"boom_spool_m\"],\"name\":\"boom_pb\",\"output\":\"boom_pb_area_m2\"},{\"inputs\":[\"stick_spool_m\"],\"name\":\"stick_pb\",\"output\":\"stick_pb_area_m2\"},{\"inputs\":[\"bucket_spool_m\"],\"name\":\"bucket_pb\",\"output\":\"bucket_pb_area_m2\"},{\"inputs\":[\"swing_spool_m\"],\"name\":\"swing_at\",\"output\":\"swing_at_area_m2\"},{\"inputs\":[\"boom_spool_m\"],\"name\":\"boom_at\",\"output\":\"boom_at_area_m2\"},{\"inputs\":[\"stick_spool_m\"],\"name\":\"stick_at\",\"output\":\"stick_at_area_m2\"},{\"inputs\":[\"bucket_spool_m\"],\"name\":\"bucket_at\",\"output\":\"bucket_at_area_m2\"},{\"inputs\":[\"swing_spool_m\"],\"name\":\"swing_bt\",\"output\":\"swing_bt_area_m2\"},{\"inputs\":[\"boom_spool_m\"],\"name\":\"boom_bt\",\"output\":\"boom_bt_area_m2\"},{\"inputs\":[\"stick_spool_m\"],\"name\":\"stick_bt\",\"output\":\"stick_bt_area_m2\"},{\"inputs\":[\"bucket_spool_m\"],\"name\":\"bucket_bt\",\"output\":\"bucket_bt_area_m2\"}],\"extended\":[{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\"],\"name\":\"boom\",\"output\":\"boom_velocity_mps\"},{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\"],\"name\":\"bucket\",\"output\":\"bucket_velocity_mps\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"swing_inertia_kgm2\",\"stick_force_n\"],\"name\":\"stick\",\"output\":\"stick_velocity_mps\"},{\"inputs\":[\"swing_spool_m\",\"pump2_pressure_pa\",\"swing_rate_radps\"],\"name\":\"swing\",\"output\":\"swing_torque_nm\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"stick_drive_force_n\",\"swing_rate_radps\"],\"name\":\"pump2\",\"output\":\"pump2_pressure_pa\"}],\"paper\":[{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\"],\"name\":\"boom\",\"output\":\"boom_velocity_mps\"},{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\"],\"name\":\"bucket\",\"output\":\"bucket_velocity_mps\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"swing_inertia_kgm2\",\"stick_force_n\"],\"name\":\"stick\",\"output\":\"stick_velocity_mps\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"stick_force_n\",\"swing_inertia_kgm2\",\"swing_rate_radps\"],\"name\":\"swing\",\"output\":\"swing_acceleration_radps2\"}]}}";
+constexpr char kInterfaceJson[] = "{\"circuit_counts\":{\"cylinders\":3,\"functions\":4,\"pumps\":2},\"circuit_fields\":[[\"laws\",40,\"one\"],[\"branch_from\",1,\"branches\"],[\"branch_to\",1,\"branches\"],[\"branch_area\",1,\"branches\"],[\"branch_crack\",1,\"branches\"],[\"branch_inv_span\",1,\"branches\"],[\"branch_laminar\",1,\"branches\"],[\"passage_branch\",4,\"functions\"],[\"bypass_branch\",1,\"pumps\"],[\"pump_node\",1,\"pumps\"],[\"signal_node\",1,\"pumps\"],[\"pump_sections\",2,\"pumps\"],[\"head_area\",1,\"cylinders\"],[\"rod_area\",1,\"cylinders\"],[\"stroke\",1,\"cylinders\"],[\"cylinder_count\",1,\"cylinders\"],[\"port_volume\",1,\"cylinders\"],[\"head_node\",1,\"cylinders\"],[\"rod_node\",1,\"cylinders\"],[\"function\",1,\"cylinders\"],[\"node_volume\",1,\"nodes\"],[\"displacement\",4,\"nodes\"]],\"circuit_laws\":[\"discharge\",\"sqrt_2_rho\",\"laminar_sq\",\"atmosphere\",\"vacuum\",\"polytropic\",\"air_fraction\",\"bulk_modulus\",\"cushion_length\",\"cushion_area\",\"cushion_port_area\",\"nfc_full_flow\",\"nfc_min_flow\",\"idle_fraction\",\"power_limit\",\"max_flow\",\"regulator_time\",\"max_splits\",\"trust_floor\",\"trust_jump\",\"coulomb\",\"friction_velocity\",\"viscous\",\"swing_reduction\",\"swing_displacement\",\"swing_viscous\",\"swing_efficiency\",\"swing_friction_speed\",\"swing_a\",\"swing_b\",\"stop_clearance\",\"stop_stiffness\",\"stop_damping\",\"stop_split\",\"stop_split_speed\",\"dead_band\",\"closed_area\",\"idle_pressure\",\"rest_pressure\",\"fault_pressure\"],\"circuit_period\":{\"arms\":[11,3],\"ext\":[8,3],\"load\":[30,4],\"mass\":[14,16],\"rates\":[4,4],\"spools\":[0,4],\"state\":[38,14],\"travel\":[34,4]},\"clearance_config_keys\":[\"tool\",\"obstacles\",\"cutoff\"],\"clearance_plugin\":\"hexgym.clearance\",\"config_keys\":[\"tables\",\"boom_triangle\",\"stick_triangle\",\"bucket_four_bar\",\"retracted_length\",\"stroke\",\"end_margin\",\"push_limit\",\"pull_limit\",\"swing_torque_limit\",\"dead_band\",\"swing_rest_rate\",\"rate_range\",\"control_period\",\"table_set\",\"circuit\",\"substeps\"],\"ctrl_per_spool_m\":1000.0,\"default_table_set\":\"circuit\",\"joints\":[\"swing\",\"boom\",\"stick\",\"bucket\"],\"plugin\":\"hexgym.mbl\",\"quantities\":[\"swing_spool_m\",\"boom_spool_m\",\"stick_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"stick_force_n\",\"bucket_force_n\",\"swing_inertia_kgm2\",\"swing_rate_radps\"],\"state\":{\"acceleration\":[4,1],\"circuit_fault\":[29,1],\"circuit_ready\":[28,1],\"hydraulics\":[10,14],\"load\":[0,4],\"phase\":[5,1],\"rates\":[24,4],\"targets\":[6,4]},\"state_size\":30,\"table_format_version\":1,\"table_sets\":{\"circuit\":[{\"inputs\":[\"swing_spool_m\"],\"name\":\"swing_bypass\",\"output\":\"swing_bypass_area_m2\"},{\"inputs\":[\"boom_spool_m\"],\"name\":\"boom_bypass\",\"output\":\"boom_bypass_area_m2\"},{\"inputs\":[\"stick_spool_m\"],\"name\":\"stick_bypass\",\"output\":\"stick_bypass_area_m2\"},{\"inputs\":[\"bucket_spool_m\"],\"name\":\"bucket_bypass\",\"output\":\"bucket_bypass_area_m2\"},{\"inputs\":[\"swing_spool_m\"],\"name\":\"swing_pa\",\"output\":\"swing_pa_area_m2\"},{\"inputs\":[\"boom_spool_m\"],\"name\":\"boom_pa\",\"output\":\"boom_pa_area_m2\"},{\"inputs\":[\"stick_spool_m\"],\"name\":\"stick_pa\",\"output\":\"stick_pa_area_m2\"},{\"inputs\":[\"bucket_spool_m\"],\"name\":\"bucket_pa\",\"output\":\"bucket_pa_area_m2\"},{\"inputs\":[\"swing_spool_m\"],\"name\":\"swing_pb\",\"output\":\"swing_pb_area_m2\"},{\"inputs\":[\"boom_spool_m\"],\"name\":\"boom_pb\",\"output\":\"boom_pb_area_m2\"},{\"inputs\":[\"stick_spool_m\"],\"name\":\"stick_pb\",\"output\":\"stick_pb_area_m2\"},{\"inputs\":[\"bucket_spool_m\"],\"name\":\"bucket_pb\",\"output\":\"bucket_pb_area_m2\"},{\"inputs\":[\"swing_spool_m\"],\"name\":\"swing_at\",\"output\":\"swing_at_area_m2\"},{\"inputs\":[\"boom_spool_m\"],\"name\":\"boom_at\",\"output\":\"boom_at_area_m2\"},{\"inputs\":[\"stick_spool_m\"],\"name\":\"stick_at\",\"output\":\"stick_at_area_m2\"},{\"inputs\":[\"bucket_spool_m\"],\"name\":\"bucket_at\",\"output\":\"bucket_at_area_m2\"},{\"inputs\":[\"swing_spool_m\"],\"name\":\"swing_bt\",\"output\":\"swing_bt_area_m2\"},{\"inputs\":[\"boom_spool_m\"],\"name\":\"boom_bt\",\"output\":\"boom_bt_area_m2\"},{\"inputs\":[\"stick_spool_m\"],\"name\":\"stick_bt\",\"output\":\"stick_bt_area_m2\"},{\"inputs\":[\"bucket_spool_m\"],\"name\":\"bucket_bt\",\"output\":\"bucket_bt_area_m2\"}],\"paper\":[{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\"],\"name\":\"boom\",\"output\":\"boom_velocity_mps\"},{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\"],\"name\":\"bucket\",\"output\":\"bucket_velocity_mps\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"swing_inertia_kgm2\",\"stick_force_n\"],\"name\":\"stick\",\"output\":\"stick_velocity_mps\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"stick_force_n\",\"swing_inertia_kgm2\",\"swing_rate_radps\"],\"name\":\"swing\",\"output\":\"swing_acceleration_radps2\"}]}}";
 
 }  // namespace hexgym
 

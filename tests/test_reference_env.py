@@ -73,7 +73,7 @@ def test_video_on_the_reference(tmp_path):
     [
         ({"model": "real"}, "model must be one of"),
         ({"model": "reference", "backend": "native"}, "backend='native' does not apply to model='reference'"),
-        ({"model": "reference", "tables": "extended"}, "tables='extended' does not apply to model='reference'"),
+        ({"model": "reference", "tables": "paper"}, "tables='paper' does not apply to model='reference'"),
     ],
 )
 def test_bad_model_options_are_refused(kwargs, match):

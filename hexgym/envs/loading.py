@@ -415,7 +415,7 @@ class HexLoadingEnv(gym.Env):
     | scene_path | None | MJCF scene to build the site on (default ``scene_lean.xml``; reference: ``scene.xml``) |
     | backend | ``"auto"`` | ``"native"`` (MuJoCo plugin), ``"python"`` (LearnedModel), ``"auto"`` (native if built) |
     | earthwork_periods | 4 | control periods (25 ms) per dig (fill, pile cut, spill) near the pile; 1: every period |
-    | tables | ``"circuit"`` | the learned model: ``"circuit"`` (the circuit model) or ``"paper"`` (the paper's four tables) |
+    | tables | ``"circuit"`` | the learned model: ``"circuit"`` (the circuit model) or ``"paper"`` (the paper's model) |
     | model | ``"learned"`` | ``"reference"``: the same task on the analytical circuit (the real machine's stand-in) |
     | dig_start_share | 0.0 | share of episodes starting with the open bucket over the pile (a curriculum) |
     | loaded_start_share | 0.0 | share starting loaded: curled between pile and truck, or reached out to the truck |

@@ -50,13 +50,12 @@ Its spool is kept over several segments with probability ``swing_persistence``, 
 reaches full speed (about 3 s at full spool) and brakes (spool reversed or zero while turning:
 the crossover reliefs brake it).
 
-Operator-like logs (group ``operator``: the ``extended`` set's swing torque and pump-2 pressure).
-Held segments sampled after they settle cannot show the pump line's pressure transients, which
-decide the swing's response to joystick ramps and to the stick taking the flow. These episodes
-replay one seeded operator-like log each (:mod:`hexgym.mbl.operator_logs`: ramps, one to three
-functions, long swings with and without the stick, payloads 0-2 t) and take a row every
-``operator_interval_s`` along the motion; the group collects ``operator_sample_factor`` times the
-samples of the others (rows of one log are correlated; ~60 logs by default).
+Operator-like logs (group ``operator``: the ``circuit`` set's valve passages). The valve's areas are
+identified from the pressures, pump flows and velocities along the motion, so every spool position
+must be passed, ramps included. These episodes replay one seeded sweep log each
+(:mod:`hexgym.mbl.operator_logs`: partial levels from the dead band up, slow ramps, one to three
+functions, payloads 0-2 t) and take a row every ``operator_interval_s`` along the motion; the group
+collects ``operator_sample_factor`` times the samples of the others (rows of one log are correlated).
 
 Reproducibility and resumption. Each episode has its own random generator, seeded by
 ``SeedSequence(seed, spawn_key=(group, episode))``; episodes are computed in chunks of
@@ -95,7 +94,7 @@ from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS
 from hexgym.mbl.valve import identify_areas
 from hexgym.parallel import Executor, add_ray_option, executor
 
-GENERATOR_VERSION = 1
+GENERATOR_VERSION = 2  # 2: the operator group's rows run to the end of each log
 DEFAULT_SAMPLES = 6400  # per group: the paper had 5500 (boom/bucket) and 6400 (stick/swing) points
 
 _SPOOL = {name: i for i, name in enumerate(kinematics.JOINTS)}  # spool vector order
@@ -142,12 +141,6 @@ class CollectConfig:
     operator_duration_s: float | None = None  # operator group: each log this long (None: 30-60 s)
     operator_sample_factor: int = 2  # operator group: this many times the samples per group
 
-    @property
-    def operator_style(self) -> str:
-        """How the operator group's logs move the joysticks (:data:`hexgym.mbl.operator_logs.STYLES`): the
-        valve's tables need every spool position passed slowly, the others an operator's motion."""
-        return "sweep" if self.table_set == "circuit" else "operator"
-
     def groups(self) -> tuple[str, ...]:
         """The collection groups the table set's tables learn from, in ``GROUPS`` order."""
         used = {spec.group for spec in TABLE_SETS[self.table_set].values()}
@@ -179,7 +172,6 @@ class WindowMean:
     velocity: np.ndarray  # (3,) cylinder velocities (change of extension / time), m/s
     force: np.ndarray  # (3,) cylinder forces, N
     inertia: float  # swing inertia, kg m^2
-    pressures: np.ndarray  # (2,) pump delivery pressures, Pa
 
 
 @dataclass
@@ -189,7 +181,7 @@ class SegmentResult:
     spools: np.ndarray  # m, order swing, boom, stick, bucket
     limited: bool = False  # ran within the margin of a stroke end (cut short there)
     windows: list[WindowMean] = field(default_factory=list)  # the windows completed before that
-    swing_rows: list[tuple[float, ...]] = field(default_factory=list)  # F_stick, I, w, p1, p2, T, dw/dt
+    swing_rows: list[tuple[float, ...]] = field(default_factory=list)  # F_stick, I, w, dw/dt
     swing_rejected: int = 0
     windows_rejected: int = 0
     steps: int = 0
@@ -241,10 +233,10 @@ def run_segment(
     plan, edges = _segment_plan(steps, config, half, dt, swing_samples)
     rates = np.empty(steps + 1)
     rates[0] = ph.joint_velocities()[0]
-    pending: dict[int, tuple[float, ...]] = {}  # centre step -> (F_stick, I, w, p1, p2, T)
+    pending: dict[int, tuple[float, ...]] = {}  # centre step -> (F_stick, I, w)
     result = SegmentResult(spools=spools.copy())
     ext_edge = ph.cylinder_extensions() if edges[0] == 0 else None
-    records: list[tuple[np.ndarray, float, np.ndarray]] = []
+    records: list[tuple[np.ndarray, float]] = []
     for k in range(1, steps + 1):
         if tip_force_arm is not None:
             ph.apply_tip_force(tip_force_world(tip_force_arm, float(ph.joint_positions()[0])))
@@ -262,17 +254,15 @@ def run_segment(
             result.windows_rejected = len(edges) - 1 - len(result.windows)
             return result
         if action & _RECORD:
-            records.append((_forces(sim), ph.swing_inertia(), sim.state[:2].copy()))
+            records.append((_forces(sim), ph.swing_inertia()))
         if action & _CENTRE:
-            p1, p2 = (float(v) for v in sim.state[:2])
-            torque = sim.circuit.swing_torque(sim.state, float(rates[k]))  # the motor's, on the swing axis
-            pending[k] = (float(_forces(sim)[_CYL["stick"]]), ph.swing_inertia(), float(rates[k]), p1, p2, torque)
+            pending[k] = (float(_forces(sim)[_CYL["stick"]]), ph.swing_inertia(), float(rates[k]))
         if action & _EDGE:
             if ext_edge is not None and records:
                 velocity = (ext - ext_edge) / (config.window_s_steps(dt) * dt)
-                force = np.mean([f for f, _, _ in records], axis=0)
-                inertia = float(np.mean([i for _, i, _ in records]))
-                result.windows.append(WindowMean(velocity, force, inertia, np.mean([q for _, _, q in records], axis=0)))
+                force = np.mean([f for f, _ in records], axis=0)
+                inertia = float(np.mean([i for _, i in records]))
+                result.windows.append(WindowMean(velocity, force, inertia))
             ext_edge, records = ext, []
     result.steps = steps
     return result
@@ -450,66 +440,45 @@ def collect_episode(sim: Any, group: str, episode: int, seed: int, config: Colle
 
 
 def collect_operator_episode(sim: Any, episode: int, seed: int, config: CollectConfig) -> EpisodeResult:
-    """One operator-like log (:func:`hexgym.mbl.operator_logs.operator_log`) replayed on ``sim``.
+    """One sweep log (:func:`hexgym.mbl.operator_logs.operator_log`, style ``sweep``) replayed on ``sim``.
 
-    Rows along the motion every ``operator_interval_s``, each with the spools about to act (the valve's
-    samples: the spools that acted on the step just taken), the
-    stick's load while its spool is open, the swing rate, pump 2's pressure and the swing's torque
-    d(I w)/dt (central difference over twice ``swing_half_width_s``: the torque that turned the
-    upper structure, its friction included, whatever the inertia did meanwhile). Rows where a
-    cylinder on pump 2 (the stick) is driven into its stroke end are left out: there its relief,
-    not the valve, sets the pressure, and the learned model closes that spool.
+    A row every ``operator_interval_s`` along the motion: the valve's passage areas identifiable at that
+    instant (:func:`hexgym.mbl.valve.identify_areas`), each against the spools that acted on the step just
+    taken (its flows and pressure rates; the log's rows change the spools every 0.05 s). Rows where a
+    cylinder on pump 2 (the stick) is driven into its stroke end are left out: there its relief, not the
+    valve, sets the pressure.
     """
-    drawn = operator_log(episode_rng(seed, "operator", episode), config.operator_duration_s, config.operator_style)
+    drawn = operator_log(episode_rng(seed, "operator", episode), config.operator_duration_s, "sweep")
     sim.reset("home", drawn.payload_kg)  # clears what a reset to joint angles keeps (see collect_episode)
     sim.reset(drawn.start_pose, drawn.payload_kg)
     ph, dt = sim.physics, sim.timestep
-    half = max(1, round(config.swing_half_width_s / dt))
     every = max(1, round(config.operator_interval_s / dt))
     steps = int(round(drawn.duration / dt))
     row_of_step = np.minimum(((np.arange(steps + 1) * dt) / OPERATOR_DT + 1e-6).astype(int), len(drawn.t) - 1)
     spools_m = drawn.spools_mm[row_of_step] * 1e-3  # the spools acting from each step on
-    momentum = np.empty(steps + 1)
-    momentum[0] = ph.swing_inertia() * ph.joint_velocities()[0]
-    pending: dict[int, dict[str, float]] = {}
     result = EpisodeResult(rows={t: [] for t in config.tables("operator")})
     stick, stroke = _CYL["stick"], _STROKE[_CYL["stick"]]
-    valve = config.table_set == "circuit"  # the valve's samples need the ports' pressure rates
     for k in range(1, steps + 1):
-        before = sim.state[:12].copy() if valve else None
+        before = sim.state[:12].copy()
+        u = spools_m[k - 1]
         try:
-            sim.step(spools_m[k - 1])
+            sim.step(u)
         except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:  # a diverged model: end it here
             result.error = f"step {k}: {exc}"
             break
         result.sim_seconds += dt
-        inertia, rate = ph.swing_inertia(), float(ph.joint_velocities()[0])
-        momentum[k] = inertia * rate
-        if k % every == 0 and half <= k <= steps - half:
-            # the tables' spools: those about to act, but for the valve's samples those the step just
-            # taken ran with (its flows and pressure rates); the log's rows change them every 0.05 s
-            u = spools_m[k - 1] if valve else spools_m[k]
-            ext = ph.cylinder_extensions()[stick]
-            stalled = (ext <= p.STROKE_END_MARGIN and u[2] < 0) or (ext >= stroke - p.STROKE_END_MARGIN and u[2] > 0)
-            if stalled:
-                result.rejected_windows += 1
-                continue
-            force = float(_forces(sim)[stick]) if abs(u[2]) >= p.SPOOL_DEAD_BAND else 0.0
-            pending[k] = {f"{name}_spool_m": float(u[i]) for name, i in _SPOOL.items()} | {
-                "stick_drive_force_n": force,
-                "swing_rate_radps": rate,
-                "swing_inertia_kgm2": inertia,
-                "pump1_pressure_pa": float(sim.state[0]),
-                "pump2_pressure_pa": float(sim.state[1]),
-            }
-            if valve:
-                pending[k] |= _valve_samples(sim, u, (sim.state[:12] - before) / dt)
-        for c in [c for c in pending if c + half <= k]:
-            q = pending.pop(c) | {"swing_torque_nm": float((momentum[c + half] - momentum[c - half]) / (2 * half * dt))}
-            for table in config.tables("operator"):
-                spec = TABLE_SETS[config.table_set][table]
-                if not math.isnan(q[spec.output]):  # a valve passage not metering clearly gives none
-                    result.rows[table].append((np.array([q[name] for name in spec.inputs]), q[spec.output], c))
+        if k % every:
+            continue
+        ext = ph.cylinder_extensions()[stick]
+        if (ext <= p.STROKE_END_MARGIN and u[2] < 0) or (ext >= stroke - p.STROKE_END_MARGIN and u[2] > 0):
+            result.rejected_windows += 1
+            continue
+        q = {f"{name}_spool_m": float(u[i]) for name, i in _SPOOL.items()}
+        q |= _valve_samples(sim, u, (sim.state[:12] - before) / dt)
+        for table in config.tables("operator"):
+            spec = TABLE_SETS[config.table_set][table]
+            if not math.isnan(q[spec.output]):  # a passage not metering clearly gives none
+                result.rows[table].append((np.array([q[name] for name in spec.inputs]), q[spec.output], k))
     result.segments = 1
     return result
 
@@ -540,15 +509,13 @@ def _add_rows(result: EpisodeResult, group: str, seg: int, r: SegmentResult, con
     for w in r.windows:
         forces = {f"{c}_force_n": float(w.force[i]) for c, i in _CYL.items()}
         velocities = {f"{c}_velocity_mps": float(w.velocity[i]) for c, i in _CYL.items()}
-        pressures = {"pump1_pressure_pa": float(w.pressures[0]), "pump2_pressure_pa": float(w.pressures[1])}
-        samples["window"].append(spools | forces | velocities | pressures | {"swing_inertia_kgm2": w.inertia})
+        samples["window"].append(spools | forces | velocities | {"swing_inertia_kgm2": w.inertia})
     if group == "stick_swing":
-        for force, inertia, rate, p1, p2, torque, accel in r.swing_rows:
+        for force, inertia, rate, accel in r.swing_rows:
             samples["trajectory"].append(
                 spools
                 | {"stick_force_n": force, "swing_inertia_kgm2": inertia, "swing_rate_radps": rate}
-                | {"pump1_pressure_pa": p1, "pump2_pressure_pa": p2}
-                | {"swing_torque_nm": torque, "swing_acceleration_radps2": accel}
+                | {"swing_acceleration_radps2": accel}
             )
     for table in config.tables(group):
         spec = TABLE_SETS[config.table_set][table]
@@ -1010,8 +977,8 @@ def add_collect_parser(subparsers: Any) -> argparse.ArgumentParser:
         "--tables",
         choices=tuple(TABLE_SETS),
         default=DEFAULT_TABLE_SET,
-        help="which table set's data: paper, extended (also operator-like logs for the swing's tables) or circuit "
-        "(the valve's passages, from logs that sweep the spools) "
+        help="which table set's data: paper (held-spool segments) or circuit (the valve's passages, from logs "
+        "that sweep the spools) "
         f"(default: {DEFAULT_TABLE_SET})",
     )
     parser.set_defaults(func=run_collect)

@@ -26,12 +26,10 @@ from hexgym.mbl.table import MBLTable, load_tables, table_path
 SPOOL_STEP = 0.001  # m: the data's spool levels (1 mm, as the paper sampled)
 HOLDOUT_FRACTION = 0.2  # of the episodes
 # Grid nodes per table: spool axes at 1 mm take 23 x 23 nodes; the rest share what is left. The
-# swing tables need more to resolve their loads and rate (measured: grid_rmse_rel). The extended set's
-# swing torque has one spool and two smooth axes (pressure, rate), its pump-2 pressure two spools.
+# swing tables need more to resolve their loads and rate (measured: grid_rmse_rel).
 MAX_GRID_NODES = {
     "paper": {"boom": 60_000, "bucket": 60_000, "stick": 60_000, "swing": 200_000},
-    "extended": {"boom": 60_000, "bucket": 60_000, "stick": 60_000, "swing": 150_000, "pump2": 250_000},
-}  # fmt: skip
+}
 # A one-input table (the circuit set's valve passages over their spool, sampled at any spool position
 # along operator-like motion) gets this many nodes per kernel width, up to ONE_INPUT_NODES in all
 # (instead of a MAX_GRID_NODES budget): 0.02 mm apart over +-11 mm, since the leave-one-out picks kernels

@@ -6,26 +6,16 @@ backends build their queries from it, and the native plugin's interface header i
 them with this schema. Adding an input is one edit here plus computing the new quantity where the
 backends gather their quantities.
 
-Two table sets: ``paper``, the paper's four tables (each function's velocity, or the swing's
-acceleration, from its own pump's spools and loads), and ``extended``, which gives the swing the
-state the paper's inputs cannot see: pump 2's delivery pressure. Given that pressure the swing
-motor's torque is a clean function of its spool and its rate (the valve meters from the pump line
-into the motor), and the pressure itself is a table of the spools on pump 2, the stick's load while
-its spool is open and the swing rate. Both learn from operator-like motion (group ``operator``:
-joystick ramps, swings with and without the stick), where the pressure's transients the steady
-segments never show take place. Boom, bucket and stick keep the paper's tables.
+Two table sets. ``paper``, the paper's four tables: each function's velocity, or the swing's
+acceleration, from its own pump's spools and loads. ``circuit`` learns the control valve instead of
+the machine's response: one 1-D table per passage (each section's centre bypass, pump to port a or
+b, port a or b to tank) giving its orifice area against the spool, identified from the pressures,
+pump flows and velocities of operator-like motion (:mod:`hexgym.mbl.valve`). The circuit model
+(:mod:`hexgym.model.circuit_model`) runs the open-centre circuit's structure from the machine's data
+sheet with these areas. The native plugin runs both (``NATIVE_TABLE_SETS``).
 
-The third set, ``circuit``, learns the control valve instead of the machine's response: one 1-D table
-per passage (each section's centre bypass, pump to port a or b, port a or b to tank) giving its
-orifice area against the spool, identified from the pressures, pump flows and velocities of
-operator-like motion (:mod:`hexgym.mbl.valve`). The circuit model (:mod:`hexgym.model.circuit_model`)
-runs the open-centre circuit's structure from the machine's data sheet with these areas. The native
-plugin runs every set (``NATIVE_TABLE_SETS``).
-
-Quantity names carry their SI unit as a suffix: ``_m`` m, ``_n`` N, ``_nm`` N m, ``_kgm2`` kg m^2,
-``_radps`` rad/s, ``_mps`` m/s, ``_radps2`` rad/s^2, ``_pa`` Pa, ``_m2`` m^2. ``stick_drive_force_n`` is the stick
-cylinder's force load while its spool is open and 0 while it is closed (the closed spool cuts the
-cylinder off from the pump, so its load then says nothing about the pump's pressure).
+Quantity names carry their SI unit as a suffix: ``_m`` m, ``_n`` N, ``_kgm2`` kg m^2,
+``_radps`` rad/s, ``_mps`` m/s, ``_radps2`` rad/s^2, ``_m2`` m^2.
 """
 
 from __future__ import annotations
@@ -43,11 +33,8 @@ QUANTITIES = (
     "boom_force_n",
     "stick_force_n",
     "bucket_force_n",
-    "stick_drive_force_n",
     "swing_inertia_kgm2",
     "swing_rate_radps",
-    "pump1_pressure_pa",
-    "pump2_pressure_pa",
 )
 
 
@@ -84,28 +71,6 @@ TABLE_SETS: dict[str, dict[str, TableSchema]] = {
         TableSchema("stick", "stick_swing", _STICK, "stick_velocity_mps"),
         TableSchema("swing", "stick_swing", _SWING, "swing_acceleration_radps2", "trajectory"),
     ),
-    # The paper's boom, bucket and stick; the swing's torque from pump 2's pressure, itself a table.
-    "extended": _tables(
-        TableSchema("boom", "boom_bucket", _BOOM_BUCKET, "boom_velocity_mps"),
-        TableSchema("bucket", "boom_bucket", _BOOM_BUCKET, "bucket_velocity_mps"),
-        TableSchema("stick", "stick_swing", _STICK, "stick_velocity_mps"),
-        # the torque, not the acceleration: the model integrates the angular momentum, d(I w)/dt =
-        # torque, so the swing speeds up when the boom comes in (the inertia falls) as it does
-        TableSchema(
-            "swing",
-            "operator",
-            ("swing_spool_m", "pump2_pressure_pa", "swing_rate_radps"),
-            "swing_torque_nm",
-            "trajectory",
-        ),
-        TableSchema(
-            "pump2",
-            "operator",
-            ("swing_spool_m", "stick_spool_m", "stick_drive_force_n", "swing_rate_radps"),
-            "pump2_pressure_pa",
-            "trajectory",
-        ),
-    ),
 }
 # The control valve's passages: each section's centre bypass, then pump -> port a, pump -> port b,
 # port a -> tank, port b -> tank (port a: a cylinder's head end, the swing motor's turning-positive port).
@@ -117,7 +82,7 @@ TABLE_SETS["circuit"] = _tables(
         for f in JOINTS  # the spool order
     ]
 )
-NATIVE_TABLE_SETS = ("circuit", "paper", "extended")  # the sets the native plugin runs
+NATIVE_TABLE_SETS = ("circuit", "paper")  # the sets the native plugin runs
 DEFAULT_TABLE_SET = "circuit"
 
 

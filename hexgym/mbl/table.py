@@ -396,7 +396,7 @@ def packaged_tables_dir(table_set: str = DEFAULT_TABLE_SET) -> Path:
 
 def require_packaged(table_set: str) -> Path:
     """The packaged tables' directory of ``table_set``; FileNotFoundError saying how to make them if the
-    package has none (the ``extended`` set is not shipped)."""
+    package has none (an install without its tables)."""
     directory = packaged_tables_dir(table_set)
     if not directory.is_dir():
         raise FileNotFoundError(
@@ -415,7 +415,7 @@ def table_path(name: str, directory: str | Path | None = None, table_set: str = 
 def load_tables(directory: str | Path | None = None, table_set: str = DEFAULT_TABLE_SET) -> dict[str, MBLTable]:
     """The tables of ``table_set`` (from ``directory``, default the packaged ones), each checked by
     :func:`load_table` and against :mod:`hexgym.mbl.schema`: a file whose inputs or output differ fails
-    naming the file and what differs (e.g. a ``paper`` file where an ``extended`` one is expected)."""
+    naming the file and what differs (e.g. a table fitted to another schema's inputs)."""
     if table_set not in TABLE_SETS:
         raise ValueError(f"table set must be one of {tuple(TABLE_SETS)}, got {table_set!r}")
     if directory is None:

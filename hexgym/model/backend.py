@@ -56,11 +56,13 @@ def resolve_backend(backend: str = "auto") -> str:
 
 def backend_for(table_set: str, backend: str = "auto") -> str:
     """The backend that runs ``table_set``: :func:`resolve_backend`, except that a set the plugin does not run
-    (the circuit model's, :data:`hexgym.mbl.schema.NATIVE_TABLE_SETS`) runs in Python, and "native" for it is
-    refused naming both."""
-    from hexgym.mbl.schema import NATIVE_TABLE_SETS
+    (one not in :data:`hexgym.mbl.schema.NATIVE_TABLE_SETS`) runs in Python, and "native" for it is refused
+    naming both. ValueError naming the sets for a name that is none of them."""
+    from hexgym.mbl.schema import NATIVE_TABLE_SETS, TABLE_SETS
 
     check_backend(backend)
+    if table_set not in TABLE_SETS:
+        raise ValueError(f"table set must be one of {tuple(TABLE_SETS)}, got {table_set!r}")
     if table_set in NATIVE_TABLE_SETS:
         return resolve_backend(backend)
     if backend == "native":
@@ -76,7 +78,7 @@ def python_learned_model(
 ) -> LearnedModel:
     """The Python learned model of ``table_set`` on ``model`` (default: the lean machine): the circuit model
     (:class:`hexgym.model.circuit_model.CircuitModel`) for "circuit", the table model
-    (:class:`hexgym.model.python_backend.LearnedModel`) for the others."""
+    (:class:`hexgym.model.python_backend.LearnedModel`) for "paper"."""
     from hexgym.mbl.table import load_tables
     from hexgym.model.python_backend import LearnedModel
 
@@ -96,8 +98,8 @@ def make_learned_model(
 ) -> LearnedModelBase:
     """The learned model on ``backend`` ("native", "python" or "auto"), on the lean machine.
 
-    ``table_set``: "paper", "extended" or "circuit" (:mod:`hexgym.mbl.schema`; the circuit model,
-    :mod:`hexgym.model.circuit_model`, runs in Python whatever ``backend`` "auto" would choose);
+    ``table_set``: "paper" or "circuit" (:mod:`hexgym.mbl.schema`; the circuit model,
+    :mod:`hexgym.model.circuit_model`, for "circuit"; both run on either backend);
     ``tables_dir``: other tables of that set than the packaged ones (both backends read the same files).
     """
     if backend_for(table_set, backend) == "native":

@@ -46,7 +46,7 @@ CONFIG_KEYS: dict[str, str] = {
     "swing_rest_rate": "rad/s",
     "rate_range": "lo hi per joint, rad/s (the Python path's servo ctrlrange)",
     "control_period": "s between table queries, >= one step (default: one step)",
-    "table_set": "which table set the tables directory holds: circuit, paper or extended (default: the default set)",
+    "table_set": "which table set the tables directory holds: circuit or paper (default: the default set)",
     "circuit": "the circuit's numbers (nodes, branches, then CIRCUIT_FIELDS), for table_set circuit",
     "substeps": "the circuit's steps per control period, for table_set circuit",
 }
@@ -56,7 +56,6 @@ STATE_SLOTS: dict[str, int] = {
     "acceleration": 1,  # the swing table's last acceleration, rad/s^2
     "phase": 1,  # steps since the last table query, less whole control periods
     "targets": 4,  # the joint-rate targets held until the next query (the swing's unclipped)
-    "inertia": 1,  # the swing inertia at the last table query, kg m^2 (torque tables keep the momentum)
     "hydraulics": CIRCUIT_STATE_SIZE,  # the circuit model's pressures (Pa) and pump displacements (STATE_NAMES)
     "rates": 4,  # the circuit model's joint rates at the last period's end, rad/s
     "circuit_ready": 1,  # 1 once the circuit's state is set; 0 after a reset (the next query sets it to hold the loads)

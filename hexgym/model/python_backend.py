@@ -11,13 +11,9 @@ Every control period (default: one 25 ms step of the lean machine), the paper's 
    not part of the load.
 2. **Tables.** Boom, bucket and stick tables turn spools + loads into cylinder velocities; the
    swing table gives the swing acceleration from the spools, the stick load, the swing inertia
-   (MuJoCo's mass matrix) and the swing rate. With the ``extended`` tables (:mod:`hexgym.mbl.schema`)
-   pump 2's pressure is a table of its own, looked up first, and the swing table gives the motor
-   torque from it, the swing spool and the swing rate.
+   (MuJoCo's mass matrix) and the swing rate.
 3. **Integration.** The cylinder velocities become joint-rate targets through the moment arms;
-   the swing's target rate is integrated from the acceleration (a torque table: its angular
-   momentum, d(I w)/dt = torque, so the swing speeds up as the boom comes in and the inertia falls,
-   as the reference model's does). The MJCF's stiff velocity servos
+   the swing's target rate is integrated from the acceleration. The MJCF's stiff velocity servos
    reach the targets within the step (a zero target holds the joint: no sag) and MuJoCo integrates.
 
 All Python happens in this step loop, not in ``mujoco.set_mjcb_control`` (one global hook per process,
@@ -34,7 +30,7 @@ from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.machine.assets import load_model
 from hexgym.machine.physics import ExcavatorPhysics
-from hexgym.mbl.schema import QUANTITIES, TABLE_SETS, table_set_of
+from hexgym.mbl.schema import TABLE_SETS, table_set_of
 from hexgym.mbl.table import MBLTable, load_tables
 from hexgym.model.base import END_MARGIN, PULL_LIMIT, PUSH_LIMIT, STROKES, LearnedModelBase, next_swing_rate
 
@@ -50,8 +46,8 @@ class LearnedModel(LearnedModelBase):
             machine, ``assets/cat325_lean.xml``, whose step is the control period).
         control_period: seconds between table queries; a multiple of the MuJoCo step (default:
             one step).
-        table_set: ``"paper"`` (the paper's four tables, the default) or ``"extended"`` (the swing's torque from
-            pump 2's pressure, itself a table; :mod:`hexgym.mbl.schema`); with ``tables``, the set they form.
+        table_set: ``"paper"`` (the paper's four tables, :mod:`hexgym.mbl.schema`; the default); with
+            ``tables``, the set they form.
     """
 
     def __init__(
@@ -67,12 +63,8 @@ class LearnedModel(LearnedModelBase):
         self.table_set = table_set_of(tables)
         self.tables = tables
         self._schema = TABLE_SETS[self.table_set]
-        self._swing_torque = self._schema["swing"].output == "swing_torque_nm"
         self._swing_acceleration = 0.0
         self._swing_rate_target = 0.0
-        self._pressures = (0.0, 0.0)  # the pump pressure tables' last outputs, Pa (extended tables)
-        self._inertia = 0.0  # the swing inertia at the last table query (0: none yet), kg m^2
-        self._pressure_tables = [n for n, spec in self._schema.items() if spec.output in QUANTITIES]
         rate_axis = tables["swing"].axes[tables["swing"].inputs.index("swing_rate_radps")]
         self._slowest_swing, self._fastest_swing = rate_axis[0], rate_axis[-1]
 
@@ -108,8 +100,6 @@ class LearnedModel(LearnedModelBase):
         self.spools_m = np.zeros(4)
         self._swing_acceleration = 0.0
         self._swing_rate_target = 0.0
-        self._pressures = (0.0, 0.0)
-        self._inertia = 0.0
         self.physics.set_actuator_targets(np.zeros(4))
         self.physics.step(1)  # one step so the constraint forces (part of the loads) exist
         self.physics.data.time = 0.0
@@ -163,31 +153,20 @@ class LearnedModel(LearnedModelBase):
         # Step 3 for the swing: the model integrates its own rate from the table's acceleration
         # (the table sees that rate); the servo makes the upper structure follow it
         rate = self._swing_rate_target
-        if self._swing_torque and self._inertia > 0.0:
-            rate *= self._inertia / inertia  # the angular momentum is kept while the inertia changes
-        self._inertia = inertia
         q = {
             "swing_spool_m": u_swing, "boom_spool_m": u_boom, "stick_spool_m": u_stick, "bucket_spool_m": u_bucket,
             "boom_force_n": f_boom, "stick_force_n": f_stick, "bucket_force_n": f_bucket,
-            "stick_drive_force_n": 0.0 if closed[2] else f_stick,
             "swing_inertia_kgm2": inertia, "swing_rate_radps": rate,
-            "pump1_pressure_pa": 0.0, "pump2_pressure_pa": 0.0,
         }  # fmt: skip
 
         def table(name: str) -> float:  # the table at its schema inputs
             return self.tables[name](tuple(q[i] for i in self._schema[name].inputs))
-
-        for name in self._pressure_tables:  # first: the other tables read the pressures
-            q[self._schema[name].output] = table(name)
-        self._pressures = (q["pump1_pressure_pa"], q["pump2_pressure_pa"])
 
         # a spool in its dead band blocks its cylinder's ports: the cylinder holds (no table noise)
         v_boom = 0.0 if closed[1] else table("boom")
         v_bucket = 0.0 if closed[3] else table("bucket")
         v_stick = 0.0 if closed[2] else table("stick")
         self._swing_acceleration = table("swing")
-        if self._swing_torque:  # a torque table (extended): the acceleration through this inertia
-            self._swing_acceleration /= inertia
         new_rate, self._swing_acceleration = next_swing_rate(
             rate, self._swing_acceleration, self.control_period, closed[0], self._slowest_swing, self._fastest_swing
         )

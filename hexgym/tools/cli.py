@@ -388,9 +388,8 @@ _MACHINE_MODEL_OPTION = {  # --model of the commands that run a policy on HexLoa
 _TABLES_OPTION = {  # --tables of the commands that use the learned model's tables
     "choices": tuple(TABLE_SETS),
     "default": DEFAULT_TABLE_SET,
-    "help": "the learned model's table set: paper (the paper's four tables), extended (swing from pump 2's "
-    "pressure) or circuit (the open-centre circuit with a learned valve; Python backend only) "
-    f"(default: {DEFAULT_TABLE_SET})",
+    "help": "the learned model's table set: paper (the paper's four tables) or circuit (the open-centre circuit "
+    f"with a learned valve) (default: {DEFAULT_TABLE_SET})",
 }
 
 _LOADER_SETTINGS_OPTION = {  # --loader-settings of the commands that run the scripted loader
