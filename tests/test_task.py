@@ -45,3 +45,13 @@ def test_stepping_some_sites_leaves_the_others_untouched():
     assert np.array_equal(sites.qpos[0], machines[0].physics.data.qpos)  # the gathered copy is current
     assert t.steps.tolist() == [3, 0, 3] and np.isclose(t.elapsed[0], 0.3)
     assert np.array_equal(t.observe(np.array([1]))[0], obs[1])
+
+
+def test_compiled_stages_take_named_state_not_dozens_of_arrays():
+    """The stages take the task's state by name (records, named tuples): a handful of arguments each."""
+    import inspect
+
+    for name, function in _dispatchers(task).items():
+        count = len(inspect.signature(function.py_func).parameters)
+        assert count <= 8, f"{name} takes {count} arguments"
+    assert {"stores", "payload_kg", "tip_velocity", "cutting", "revision"} <= set(task.SITE.names)

@@ -2,7 +2,7 @@
 
 :class:`LoadingTask` holds what the task knows of each site beyond the machine (its pile, the
 material in the bucket, truck and on the ground, the teeth's sampled motion, fuel and time) as
-arrays over the sites, and advances a step of any subset of them. The machines are behind a
+one record per site (:data:`SITE`: fields by name), and advances a step of any subset of them. The machines are behind a
 :class:`SitePhysics`: one learned machine model (:mod:`hexgym.envs.loading`) or a MuJoCo batch
 (:mod:`hexgym.envs.sites`); it exposes the simulation's arrays with a leading site axis and
 steps, pushes and re-masses sites. The arithmetic of each stage is one numba-compiled function
@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 import numpy as np
 
@@ -60,6 +60,9 @@ PILE_MARGIN = 0.6  # m: the teeth travel at most this far in one step (6 m/s), s
 CONTACT_SLOTS = 16  # bucket/stick contacts the contact sensor reports (random actions reach 7 of all kinds)
 REWARD_TERMS = ("delivery", "fill", "time", "fuel", "spill", "contact", "reach", "load", "lift", "carry")
 SHAPING_TERMS = REWARD_TERMS[6:]  # potential-based, 0 by default: each the change of a potential (see potentials)
+_DELIVERY, _FILL, _TIME, _FUEL, _SPILL, _CONTACT = (
+    REWARD_TERMS.index(term) for term in ("delivery", "fill", "time", "fuel", "spill", "contact")
+)  # their columns
 SHAPING_EMPTY_KG = 100.0  # kg: a bucket with less counts as empty (it reaches for the pile)
 SHAPING_PILE_REACHED_M = 1.0  # m from the pile's centre: reached (within its flat top, 1.0-1.4 m)
 SHAPING_LIFT_M = 1.0  # m above the pile's surface: lifted clear
@@ -129,6 +132,124 @@ class SitePhysics(Protocol):
         measures it (the reference: its pumps), else NaN (the task's account estimates it)."""
 
 
+# -- the task's state, named --------------------------------------------------------------------------
+# Each site's state is a record of SITE (a structured array over the sites) and a step's scratch one of SCRATCH:
+# the compiled stages read and write them by field. What MuJoCo and the earthwork own stays in plain arrays,
+# grouped in the named tuples below; the stages take those as plain tuples and name them again on entry
+# (``t = Tool(*tool)``, free once compiled): numba types a plain tuple at each call in a fraction of the
+# time a named one takes, and its cache index, which records the argument types, could not be read at all once a
+# class named there is renamed (numba issue 6018). A record array is one argument however many fields it has.
+BUCKET, TRUCK, SPILLED = range(3)  # columns of a site's stores (kg held) and a step's flows (kg moved into them)
+BEFORE, NOW = range(2)  # rows of the shaping potentials: after the last step, after this one
+_SHAPING = REWARD_TERMS.index(SHAPING_TERMS[0])  # the first shaping term's column
+REACH, LOAD, LIFT, CARRY = range(len(SHAPING_TERMS))  # columns of the potentials
+SITE = np.dtype([
+    # the layout: the pile's centre (world m), direction (rad) and its cos, sin; the truck's centre, direction and
+    # the cos, sin of its yaw (the bed's frame)
+    ("pile_x", float), ("pile_y", float), ("pile_direction", float), ("pile_cos", float), ("pile_sin", float),
+    ("truck_x", float), ("truck_y", float), ("truck_direction", float), ("truck_cos", float), ("truck_sin", float),
+    # the pile: an upper bound of its surface (digging only lowers it), its fullest cut line (rad, kept while the
+    # pile stands), its volume (m^3, summed again when stale); counted up by a change: cut line stale, volume
+    # stale, revision (for a renderer's copy)
+    ("pile_top", float), ("cut_direction", float), ("pile_volume", float),
+    ("cut_line_stale", np.int64), ("volume_stale", np.int64), ("revision", np.int64),
+    # the material: kg held in BUCKET, TRUCK, SPILLED; the payload the machine is massed with
+    ("stores", float, 3), ("payload_kg", float),
+    # the teeth: where last sampled (world m), their low-passed velocity (m/s), s since the sample (inf: none yet,
+    # velocity 0); whether the edge cuts (the digging force on) and the last dig's depth (m)
+    ("tip_before", float, 3), ("tip_velocity", float, 3), ("tip_interval", float), ("cutting", np.bool_),
+    ("dig_depth", float),
+    # the episode: the main joints' loads for the observation (N m), fuel (L), time (s), steps
+    ("joint_loads", float, 4), ("fuel_l", float), ("elapsed", float), ("steps", np.int64),
+])  # fmt: skip
+SCRATCH = np.dtype([
+    # the step's periods left; this interval's periods and seconds, whether clear of the pile, the teeth at its start
+    ("left", np.int64), ("interval", np.int64), ("seconds", float), ("clear", np.bool_), ("tip_start", float, 3),
+    # the step's flows (kg dug into the BUCKET, delivered to the TRUCK, SPILLED), fuel (L), contact impulse (N s)
+    ("flows", float, 3), ("fuel_l", float), ("impulse", float),
+    # the interval's digging force (N, world), whether to push it, whether the payload changed
+    ("force", float, 3), ("push", np.bool_), ("change", np.bool_),
+])  # fmt: skip
+
+
+class Schedule(NamedTuple):
+    """A step's control periods, the periods of a dig, the control period (s) and the teeth's velocity filter's
+    blend over one period."""
+
+    periods: int
+    earthwork_periods: int
+    period: float
+    blend_one: float
+
+
+class Rules(NamedTuple):
+    """The reward terms' weights (``REWARD_TERMS`` order), the truck's capacity (kg) and the time limit (s)."""
+
+    weights: np.ndarray
+    truck_capacity_kg: float
+    time_limit: float
+
+
+class Curves(NamedTuple):
+    """The machine's curves the task looks up: the boom, stick and bucket cylinders' moment arms (rows, over their
+    joint angles from ``arm_start`` by ``arm_step``) and the engine's fuel rate over its brake power."""
+
+    arms: np.ndarray
+    arm_start: np.ndarray
+    arm_step: np.ndarray
+    fuel_rates: np.ndarray
+    fuel_start: float
+    fuel_step: float
+
+
+class Piles(NamedTuple):
+    """The sites' piles as the earthwork's functions take them: heights (N, n, n), m, the world (x, y) of each
+    grid point [0, 0] (N, 2), the grid's spacing (m) and the area each point stands for (m^2)."""
+
+    heights: np.ndarray
+    origin: np.ndarray
+    spacing: float
+    cell_area: float
+
+
+class Tool(NamedTuple):
+    """Where the sites' buckets are (:class:`SitePhysics`' arrays): sites, bodies' positions and orientations,
+    the teeth's site and the bucket's body."""
+
+    site_xpos: np.ndarray
+    xpos: np.ndarray
+    xmat: np.ndarray
+    tip_site: int
+    bucket: int
+
+
+class Joints(NamedTuple):
+    """The sites' joints (:class:`SitePhysics`' arrays): positions, velocities and the main joints' addresses."""
+
+    qpos: np.ndarray
+    qvel: np.ndarray
+    qadr: np.ndarray
+    dadr: np.ndarray
+
+
+class Contacts(NamedTuple):
+    """The sites' tool-contact sensor: the sensor data, the sensor's first slot and how many contacts it reports."""
+
+    sensordata: np.ndarray
+    adr: int
+    slots: int
+
+
+class Readings(NamedTuple):
+    """What the machines report at the end of an interval, per k of a call's sites: the main joints' loads
+    (k, 4), N m, the swing's inertia times its last table acceleration (k,), N m, and the fuel they measured (k,),
+    L (NaN: none)."""
+
+    loads: np.ndarray
+    swing_torques: np.ndarray
+    measured_fuel: np.ndarray
+
+
 # -- the compiled stages ----------------------------------------------------------------------------
 @jit
 def wrap(angle: float) -> float:
@@ -147,222 +268,242 @@ def _bucket_pose(site_xpos: np.ndarray, xmat: np.ndarray, i: int, tip_site: int,
 
 
 @jit
-def _sample_tip(
-    i: int, tip: tuple, tip_before: np.ndarray, tip_velocity: np.ndarray, tip_interval: np.ndarray, period: float,
-    blend_one: float,
-) -> tuple[float, float, float]:  # fmt: skip
-    """The teeth's mean velocity since the last sample (m/s), also folded into the low-passed one."""
-    interval = tip_interval[i]
-    vx = (tip[0] - tip_before[i, 0]) / interval
-    vy = (tip[1] - tip_before[i, 1]) / interval
-    vz = (tip[2] - tip_before[i, 2]) / interval
+def _sample_tip(site: np.void, tip: tuple, period: float, blend_one: float) -> tuple[float, float, float]:
+    """The teeth's mean velocity since the ``site``'s last sample (m/s), also folded into the low-passed one."""
+    interval = site.tip_interval
+    before, velocity = site.tip_before, site.tip_velocity
+    vx = (tip[0] - before[0]) / interval
+    vy = (tip[1] - before[1]) / interval
+    vz = (tip[2] - before[2]) / interval
     blend = blend_one if interval == period else 1.0 - math.exp(-interval / _FILTER)
-    tip_velocity[i, 0] += (vx - tip_velocity[i, 0]) * blend
-    tip_velocity[i, 1] += (vy - tip_velocity[i, 1]) * blend
-    tip_velocity[i, 2] += (vz - tip_velocity[i, 2]) * blend
-    tip_before[i, 0] = tip[0]
-    tip_before[i, 1] = tip[1]
-    tip_before[i, 2] = tip[2]
+    velocity[0] += (vx - velocity[0]) * blend
+    velocity[1] += (vy - velocity[1]) * blend
+    velocity[2] += (vz - velocity[2]) * blend
+    before[0] = tip[0]
+    before[1] = tip[1]
+    before[2] = tip[2]
     return vx, vy, vz
 
 
 @jit
-def _spill(
-    i: int, tilt: float, dt: float, xpos: np.ndarray, xmat: np.ndarray, bucket: int, truck: np.ndarray,
-    stores: np.ndarray, flows: np.ndarray,
-) -> None:  # fmt: skip
-    """Let what the bucket cannot hold at ``tilt`` run out over ``dt`` s, into the bed if its mouth is over it."""
-    out = ew.spill_out(stores[i, 0], tilt, dt)
+def _spill(site: np.void, flows: np.ndarray, tilt: float, dt: float, tool: tuple, i: int) -> None:
+    """Let what the bucket of ``site`` (site ``i`` of ``tool``) cannot hold at ``tilt`` run out over ``dt`` s,
+    into the bed if its mouth is over it; the step's ``flows`` count it."""
+    out = ew.spill_out(site.stores[BUCKET], tilt, dt)
     if out <= 0.0:
         return
-    r = xmat[i, bucket]
-    mx = xpos[i, bucket, 0] + r[0] * _MOUTH_X + r[2] * _MOUTH_Z
-    my = xpos[i, bucket, 1] + r[3] * _MOUTH_X + r[5] * _MOUTH_Z
-    along, across = _bed_frame(mx, my, truck[i, 0], truck[i, 1], truck[i, 2], truck[i, 3])  # centre, cos, sin yaw
-    stores[i, 0] -= out
+    t = Tool(*tool)
+    r = t.xmat[i, t.bucket]
+    mx = t.xpos[i, t.bucket, 0] + r[0] * _MOUTH_X + r[2] * _MOUTH_Z
+    my = t.xpos[i, t.bucket, 1] + r[3] * _MOUTH_X + r[5] * _MOUTH_Z
+    along, across = _bed_frame(mx, my, site.truck_x, site.truck_y, site.truck_cos, site.truck_sin)
+    site.stores[BUCKET] -= out
     if _over_bed(along, across):
-        stores[i, 1] += out
-        flows[i, 1] += out
+        site.stores[TRUCK] += out
+        flows[TRUCK] += out
     else:
-        stores[i, 2] += out
-        flows[i, 2] += out
+        site.stores[SPILLED] += out
+        flows[SPILLED] += out
 
 
 @jit
-def begin_step(
-    ids: np.ndarray, periods: int, left: np.ndarray, flows: np.ndarray, fuel_l: np.ndarray, impulse: np.ndarray
-) -> None:
-    """Start a step of each site: all its ``periods`` left, no flows, fuel or impulse yet."""
+def begin_step(ids: np.ndarray, schedule: tuple, scratch: np.ndarray) -> None:
+    """Start a step of each site: all its :class:`Schedule` ``periods`` left, no flows, fuel or impulse yet."""
+    s = Schedule(*schedule)
     for k in range(len(ids)):
-        i = ids[k]
-        left[i] = periods
-        flows[i, 0] = flows[i, 1] = flows[i, 2] = 0.0
-        fuel_l[i] = impulse[i] = 0.0
+        step = scratch[ids[k]]
+        step.left = s.periods
+        step.flows[BUCKET] = step.flows[TRUCK] = step.flows[SPILLED] = 0.0
+        step.fuel_l = 0.0
+        step.impulse = 0.0
 
 
 @jit
-def clear_count(
-    i: int, periods: int, site_xpos: np.ndarray, tip_site: int, heights: np.ndarray, origin: np.ndarray,
-    spacing: float, top: np.ndarray,
-) -> int:  # fmt: skip
-    """Control periods (up to a step's ``periods``) within which site ``i``'s teeth surely stay out of the pile.
+def clear_count(i: int, periods: int, tool: tuple, piles: tuple, top: float) -> int:
+    """Control periods (up to a step's ``periods``) within which site ``i``'s teeth surely stay out of its pile
+    (``top``: an upper bound of its surface).
 
     The teeth travel at most ``PILE_MARGIN`` per step, ``m`` periods at most ``m / periods`` of it; the dig
     samples lie within half a bucket width of them. ``m`` periods are clear when no pile point within half a
     width plus that travel stands higher than the teeth less that travel.
     """
+    t, pl = Tool(*tool), Piles(*piles)
     per_period = PILE_MARGIN / periods
-    x, y, z = site_xpos[i, tip_site, 0], site_xpos[i, tip_site, 1], site_xpos[i, tip_site, 2]
+    x, y, z = t.site_xpos[i, t.tip_site, 0], t.site_xpos[i, t.tip_site, 1], t.site_xpos[i, t.tip_site, 2]
     whole = periods * per_period
     # the usual case first: clear over the whole step is clear over each part (less travel, a smaller window)
-    if ew.clearance(heights, origin, spacing, top[i], i, x, y, z, _HALF_WIDTH + whole, whole) >= whole:
+    if ew.clearance(pl.heights, pl.origin, pl.spacing, top, i, x, y, z, _HALF_WIDTH + whole, whole) >= whole:
         return periods
     clear = 0
     while clear < periods:
         travel = (clear + 1) * per_period
-        if ew.clearance(heights, origin, spacing, top[i], i, x, y, z, _HALF_WIDTH + travel, travel) < travel:
+        if ew.clearance(pl.heights, pl.origin, pl.spacing, top, i, x, y, z, _HALF_WIDTH + travel, travel) < travel:
             break
         clear += 1
     return clear
 
 
 @jit
-def plan(
-    ids: np.ndarray, left: np.ndarray, periods: int, earthwork_periods: int, period: float, site_xpos: np.ndarray,
-    tip_site: int, heights: np.ndarray, origin: np.ndarray, spacing: float, top: np.ndarray, force_on: np.ndarray,
-    interval: np.ndarray, seconds: np.ndarray, tip_start: np.ndarray, clear: np.ndarray,
-) -> int:  # fmt: skip
+def plan(ids: np.ndarray, schedule: tuple, tool: tuple, piles: tuple, sites: np.ndarray, scratch: np.ndarray) -> int:
     """Each site's next interval: the periods it stays clear of the pile (:func:`clear_count`, none while its
     edge cuts), else ``earthwork_periods`` with a dig; at most the ``left`` of its step.
 
-    Writes ``interval`` (periods), ``seconds``, ``clear`` (per k) and, for clear sites, the teeth's start.
+    Writes the sites' ``interval`` (periods), ``seconds``, ``clear`` and, for clear sites, the teeth's start.
     Returns 0 when all go clear for the same periods, 1 when all go clear, 2 when some dig.
     """
+    s, t = Schedule(*schedule), Tool(*tool)
     code, first = 0, -1
     for k in range(len(ids)):
         i = ids[k]
-        n = 0 if force_on[i] else min(clear_count(i, periods, site_xpos, tip_site, heights, origin, spacing, top),
-                                      left[i])  # fmt: skip
-        clear[k] = n > 0
+        site, step = sites[i], scratch[i]
+        n = 0 if site.cutting else min(clear_count(i, s.periods, tool, piles, site.pile_top), step.left)
+        step.clear = n > 0
         if n > 0:
             for a in range(3):
-                tip_start[i, a] = site_xpos[i, tip_site, a]
+                step.tip_start[a] = t.site_xpos[i, t.tip_site, a]
             if first < 0:
                 first = n
             elif n != first and code == 0:
                 code = 1
         else:
-            n = min(earthwork_periods, left[i])
+            n = min(s.earthwork_periods, step.left)
             code = 2
-        interval[i] = n
-        seconds[i] = n * period
+        step.interval = n
+        step.seconds = n * s.period
     return code
 
 
 @jit
-def end_clear(
-    ids: np.ndarray, seconds: np.ndarray, tip_start: np.ndarray, site_xpos: np.ndarray, xpos: np.ndarray,
-    xmat: np.ndarray, tip_site: int, bucket: int, tip_before: np.ndarray, tip_velocity: np.ndarray,
-    tip_interval: np.ndarray, truck: np.ndarray, stores: np.ndarray, flows: np.ndarray, payload_kg: np.ndarray,
-    change: np.ndarray,
-) -> bool:  # fmt: skip
+def end_clear(ids: np.ndarray, tool: tuple, sites: np.ndarray, scratch: np.ndarray) -> bool:
     """Close an interval clear of the pile: the teeth's mean velocity over it, the spill at its end tilt (its
-    exact exponential over the interval), the payload (:func:`payload_change`). Returns whether any changed."""
+    exact exponential over the interval), the payload (:func:`payload_change`, into ``change``). Returns whether
+    any changed."""
+    t = Tool(*tool)
     any_change = False
     for k in range(len(ids)):
         i = ids[k]
-        tip, _, _, tilt = _bucket_pose(site_xpos, xmat, i, tip_site, bucket)
+        site, step = sites[i], scratch[i]
+        tip, _, _, tilt = _bucket_pose(t.site_xpos, t.xmat, i, t.tip_site, t.bucket)
         for a in range(3):
-            tip_velocity[i, a] = (tip[a] - tip_start[i, a]) / seconds[i]
-            tip_before[i, a] = tip_start[i, a]
-        tip_interval[i] = seconds[i]
-        _spill(i, tilt, seconds[i], xpos, xmat, bucket, truck, stores, flows)
-        change[k] = payload_change(i, stores, payload_kg)
-        any_change |= change[k]
+            site.tip_velocity[a] = (tip[a] - step.tip_start[a]) / step.seconds
+            site.tip_before[a] = step.tip_start[a]
+        site.tip_interval = step.seconds
+        _spill(site, step.flows, tilt, step.seconds, tool, i)
+        step.change = payload_change(site)
+        any_change |= step.change
     return any_change
 
 
 @jit
 def begin_dig(
-    ids: np.ndarray, seconds: np.ndarray, site_xpos: np.ndarray, xpos: np.ndarray, xmat: np.ndarray, tip_site: int,
-    bucket: int, heights: np.ndarray, origin: np.ndarray, spacing: float, top: np.ndarray, tip_before: np.ndarray,
-    tip_velocity: np.ndarray, tip_interval: np.ndarray, period: float, blend_one: float, dig_depth: np.ndarray,
-    force_on: np.ndarray, truck: np.ndarray, stores: np.ndarray, flows: np.ndarray, payload_kg: np.ndarray,
-    pile_flags: np.ndarray, force: np.ndarray, push: np.ndarray, change: np.ndarray,
-) -> tuple[bool, bool, bool]:  # fmt: skip
+    ids: np.ndarray, schedule: tuple, tool: tuple, piles: tuple, sites: np.ndarray, scratch: np.ndarray
+) -> tuple[bool, bool, bool]:
     """Dig once for the next ``seconds`` per site: sample the teeth's motion (a backward difference since the last
     sample), fill and cut the pile (:func:`hexgym.envs.earthwork.dig`), or spill where the edge does not cut.
 
-    Writes the digging force (k, 3) and whether to push it (``push``: cutting now or before; a zero force
-    clears the last); a site cuts from now on where its depth is positive (``force_on``; its pile is
-    flagged changed: ``pile_flags`` columns changed, volume stale, revision). Returns whether any site pushes,
-    any payload changed (``change``) and any site cuts.
+    Writes the digging ``force`` (N, world) and whether to ``push`` it (cutting now or before; a zero force
+    clears the last); a site is ``cutting`` from now on where its depth is positive (its pile's cut line and
+    volume then stale, its revision counted up). Returns whether any site pushes, any payload changed
+    (``change``) and any site cuts.
     """
+    s, t, pl = Schedule(*schedule), Tool(*tool), Piles(*piles)
     any_push, any_change, any_cut = False, False, False
     for k in range(len(ids)):
         i = ids[k]
-        tip, lateral, teeth, tilt = _bucket_pose(site_xpos, xmat, i, tip_site, bucket)
-        vx, vy, vz = _sample_tip(i, tip, tip_before, tip_velocity, tip_interval, period, blend_one)
+        site, step = sites[i], scratch[i]
+        tip, lateral, teeth, tilt = _bucket_pose(t.site_xpos, t.xmat, i, t.tip_site, t.bucket)
+        vx, vy, vz = _sample_tip(site, tip, s.period, s.blend_one)
+        velocity = site.tip_velocity
         fx, fy, fz, taken_kg, depth = ew.dig(
-            heights, origin, spacing, top[i], i, stores[i, 0], tip[0], tip[1], tip[2], lateral[0], lateral[1],
-            lateral[2], teeth[0], teeth[1], teeth[2], vx, vy, vz, seconds[i], tip_velocity[i, 0],
-            tip_velocity[i, 1], tip_velocity[i, 2],
-        )  # fmt: skip
-        dig_depth[i] = depth
-        stores[i, 0] += taken_kg
-        flows[i, 0] += taken_kg
+            pl.heights,
+            pl.origin,
+            pl.spacing,
+            site.pile_top,
+            i,
+            site.stores[BUCKET],
+            tip[0],
+            tip[1],
+            tip[2],
+            lateral[0],
+            lateral[1],
+            lateral[2],
+            teeth[0],
+            teeth[1],
+            teeth[2],
+            vx,
+            vy,
+            vz,
+            step.seconds,
+            velocity[0],
+            velocity[1],
+            velocity[2],
+        )
+        site.dig_depth = depth
+        site.stores[BUCKET] += taken_kg
+        step.flows[BUCKET] += taken_kg
         if depth <= 0.0:
-            _spill(i, tilt, seconds[i], xpos, xmat, bucket, truck, stores, flows)
+            _spill(site, step.flows, tilt, step.seconds, tool, i)
         else:
-            pile_flags[i, 0] = pile_flags[i, 1] = 1
-            pile_flags[i, 2] += 1
+            site.cut_line_stale = 1
+            site.volume_stale = 1
+            site.revision += 1
             any_cut = True
-        push[k] = depth > 0.0 or force_on[i]
-        any_push |= push[k]
-        force_on[i] = depth > 0.0
-        force[k, 0], force[k, 1], force[k, 2] = fx, fy, fz
-        change[k] = payload_change(i, stores, payload_kg)
-        any_change |= change[k]
+        step.push = depth > 0.0 or site.cutting
+        any_push |= step.push
+        site.cutting = depth > 0.0
+        step.force[0], step.force[1], step.force[2] = fx, fy, fz
+        step.change = payload_change(site)
+        any_change |= step.change
     return any_push, any_change, any_cut
 
 
 @jit
-def follow_resistance(
-    ids: np.ndarray, site_xpos: np.ndarray, xmat: np.ndarray, tip_site: int, bucket: int, tip_before: np.ndarray,
-    tip_velocity: np.ndarray, tip_interval: np.ndarray, period: float, blend_one: float, dig_depth: np.ndarray,
-    stores: np.ndarray, force: np.ndarray,
-) -> None:  # fmt: skip
-    """Re-aim the digging force of cutting sites with the teeth's motion (sampled now) at their last dig's depth."""
+def follow_resistance(ids: np.ndarray, schedule: tuple, tool: tuple, sites: np.ndarray, force: np.ndarray) -> None:
+    """Re-aim the digging force (k, 3) of cutting sites with the teeth's motion (sampled now) at their last dig's
+    depth."""
+    s, t = Schedule(*schedule), Tool(*tool)
     for k in range(len(ids)):
         i = ids[k]
-        tip, lateral, teeth, _ = _bucket_pose(site_xpos, xmat, i, tip_site, bucket)
-        _sample_tip(i, tip, tip_before, tip_velocity, tip_interval, period, blend_one)
+        site = sites[i]
+        tip, lateral, teeth, _ = _bucket_pose(t.site_xpos, t.xmat, i, t.tip_site, t.bucket)
+        _sample_tip(site, tip, s.period, s.blend_one)
+        velocity = site.tip_velocity
         fx, fy, fz = ew.resistance(
-            dig_depth[i], stores[i, 0], lateral[0], lateral[1], lateral[2], teeth[0], teeth[1], teeth[2],
-            tip_velocity[i, 0], tip_velocity[i, 1], tip_velocity[i, 2],
-        )  # fmt: skip
+            site.dig_depth,
+            site.stores[BUCKET],
+            lateral[0],
+            lateral[1],
+            lateral[2],
+            teeth[0],
+            teeth[1],
+            teeth[2],
+            velocity[0],
+            velocity[1],
+            velocity[2],
+        )
         force[k, 0], force[k, 1], force[k, 2] = fx, fy, fz
 
 
 @jit
-def payload_change(i: int, stores: np.ndarray, payload_kg: np.ndarray) -> bool:
-    """Whether site ``i``'s bucket contents moved more than ``PAYLOAD_UPDATE_KG`` from its machine's payload, or
+def payload_change(site: np.void) -> bool:
+    """Whether the ``site``'s bucket contents moved more than ``PAYLOAD_UPDATE_KG`` from its machine's payload, or
     emptied; if so the payload becomes them (and the caller re-masses the machine: ``mj_setConst`` is slow)."""
-    bucket, payload = stores[i, 0], payload_kg[i]
+    bucket, payload = site.stores[BUCKET], site.payload_kg
     if abs(bucket - payload) > PAYLOAD_UPDATE_KG or (bucket < 1.0 and 1.0 < payload):
-        payload_kg[i] = bucket
+        site.payload_kg = bucket
         return True
     return False
 
 
 @jit
-def hard_contact_force(i: int, sensordata: np.ndarray, adr: int, slots: int) -> float:
+def hard_contact_force(i: int, contacts: tuple) -> float:
     """Site ``i``'s bucket and stick contact force on the ground and the truck beyond ``HARD_CONTACT_FORCE``
-    (capped at the machine's weight), N; -1 when it has more contacts than the sensor's ``slots``.
+    (capped at the machine's weight), N; -1 when it has more contacts than the sensor's (:class:`Contacts`) slots.
 
     From the contact sensor's depths (``CONTACT_STIFFNESS``): the machine's contacts are detected but
     inactive, the learned model stalls a joint that drives into one.
     """
+    sensordata, adr, slots = Contacts(*contacts)
     found = int(sensordata[i, adr])
     if found > slots:
         return -1.0
@@ -376,46 +517,50 @@ def hard_contact_force(i: int, sensordata: np.ndarray, adr: int, slots: int) -> 
 
 @jit
 def account(
-    ids: np.ndarray, seconds: np.ndarray, loads: np.ndarray, swing_torques: np.ndarray, qvel: np.ndarray,
-    dadr: np.ndarray, fuel_rates: np.ndarray, fuel_start: float, fuel_step: float, measured: np.ndarray,
-    sensordata: np.ndarray, contact_adr: int, slots: int, joint_loads: np.ndarray, fuel_l: np.ndarray,
-    impulse: np.ndarray, left: np.ndarray, interval: np.ndarray, going: np.ndarray,
-) -> int:  # fmt: skip
-    """Close each site's interval of ``seconds``: fuel (the machine's own measure, ``measured`` (k,) L, where it
-    has one; else the actuators' power at the interval's end through the engine's BSFC,
-    :mod:`hexgym.hydraulics.fuel`), hard-contact impulse, the joint loads (k, 4) kept for the
-    observation, and the periods ``left`` of the step. Returns how many sites have periods left (their ids first
-    in ``going``, which may be ``ids`` itself), or -1 - i for a site i with too many contacts."""
+    ids: np.ndarray,
+    curves: tuple,
+    joints: tuple,
+    contacts: tuple,
+    readings: tuple,
+    sites: np.ndarray,
+    scratch: np.ndarray,
+    going: np.ndarray,
+) -> int:
+    """Close each site's interval of ``seconds``: fuel (the machine's own measure, :class:`Readings`'
+    ``measured_fuel``, where it has one; else the actuators' power at the interval's end through the engine's
+    BSFC, :mod:`hexgym.hydraulics.fuel`), hard-contact impulse, the joint loads kept for the observation, and the
+    periods ``left`` of the step. Returns how many sites have periods left (their ids first in ``going``, which
+    may be ``ids`` itself), or -1 - i for a site i with too many contacts."""
+    c, jt, r = Curves(*curves), Joints(*joints), Readings(*readings)
     count = 0
     for k in range(len(ids)):
         i = ids[k]
+        site, step = sites[i], scratch[i]
         power = 0.0
         for j in range(1, 4):  # the front's joints, in order, then the swing
-            power += abs(loads[k, j] * qvel[i, dadr[j]])
-            joint_loads[i, j] = loads[k, j]
-        joint_loads[i, 0] = loads[k, 0]
-        power += abs(swing_torques[k] * qvel[i, dadr[0]])
-        if measured[k] == measured[k]:  # not NaN: the machine's own
-            fuel_l[i] += measured[k]
+            power += abs(r.loads[k, j] * jt.qvel[i, jt.dadr[j]])
+            site.joint_loads[j] = r.loads[k, j]
+        site.joint_loads[0] = r.loads[k, 0]
+        power += abs(r.swing_torques[k] * jt.qvel[i, jt.dadr[0]])
+        measured = r.measured_fuel[k]
+        if measured == measured:  # not NaN: the machine's own
+            step.fuel_l += measured
         else:
             brake = min(_brake_power(power), _ENGINE_POWER)
-            fuel_l[i] += ew.table_at(fuel_rates, fuel_start, fuel_step, brake) * seconds[i] / 3600.0
-        force = hard_contact_force(i, sensordata, contact_adr, slots)
+            step.fuel_l += ew.table_at(c.fuel_rates, c.fuel_start, c.fuel_step, brake) * step.seconds / 3600.0
+        force = hard_contact_force(i, contacts)
         if force < 0.0:
             return -1 - i
-        impulse[i] += force * seconds[i]
-        left[i] -= interval[i]
-        if left[i] > 0:
+        step.impulse += force * step.seconds
+        step.left -= step.interval
+        if step.left > 0:
             going[count] = i
             count += 1
     return count
 
 
 @jit
-def potentials(
-    ids: np.ndarray, site_xpos: np.ndarray, tip_site: int, heights: np.ndarray, origin: np.ndarray, spacing: float,
-    layout: np.ndarray, stores: np.ndarray, out: np.ndarray,
-) -> None:  # fmt: skip
+def potentials(ids: np.ndarray, tool: tuple, piles: tuple, sites: np.ndarray, out: np.ndarray) -> None:
     """The shaping potentials of each site into ``out[i]`` (n, 4), in ``SHAPING_TERMS`` order, from where its
     teeth are and what its bucket holds (t):
 
@@ -426,89 +571,103 @@ def potentials(
     - carry: the tonnes times how much of the way from the pile's centre to the bed's the teeth have come
       horizontally (1 over the bed's centre, 0 at the pile's distance from it or farther).
     """
+    t, pl = Tool(*tool), Piles(*piles)
     for k in range(len(ids)):
         i = ids[k]
-        x, y, z = site_xpos[i, tip_site, 0], site_xpos[i, tip_site, 1], site_xpos[i, tip_site, 2]
-        tonnes = stores[i, 0] / 1000.0
-        to_pile = math.hypot(x - layout[i, 0], y - layout[i, 1])
-        above = z - ew.height_at(heights, origin, spacing, i, x, y)
-        empty = stores[i, 0] < SHAPING_EMPTY_KG
-        out[i, 0] = -max(to_pile - SHAPING_PILE_REACHED_M, 0.0) - max(above, 0.0) if empty else 0.0
-        out[i, 1] = tonnes
-        out[i, 2] = tonnes * min(max(above, 0.0), SHAPING_LIFT_M) / SHAPING_LIFT_M
-        span = math.hypot(layout[i, 5] - layout[i, 0], layout[i, 6] - layout[i, 1])
-        out[i, 3] = tonnes * (1.0 - min(math.hypot(x - layout[i, 5], y - layout[i, 6]) / span, 1.0))
+        site = sites[i]
+        x, y, z = t.site_xpos[i, t.tip_site, 0], t.site_xpos[i, t.tip_site, 1], t.site_xpos[i, t.tip_site, 2]
+        tonnes = site.stores[BUCKET] / 1000.0
+        to_pile = math.hypot(x - site.pile_x, y - site.pile_y)
+        above = z - ew.height_at(pl.heights, pl.origin, pl.spacing, i, x, y)
+        empty = site.stores[BUCKET] < SHAPING_EMPTY_KG
+        out[i, REACH] = -max(to_pile - SHAPING_PILE_REACHED_M, 0.0) - max(above, 0.0) if empty else 0.0
+        out[i, LOAD] = tonnes
+        out[i, LIFT] = tonnes * min(max(above, 0.0), SHAPING_LIFT_M) / SHAPING_LIFT_M
+        span = math.hypot(site.truck_x - site.pile_x, site.truck_y - site.pile_y)
+        out[i, CARRY] = tonnes * (1.0 - min(math.hypot(x - site.truck_x, y - site.truck_y) / span, 1.0))
 
 
 @jit
 def finish(
-    ids: np.ndarray, weights: np.ndarray, flows: np.ndarray, fuel_step: np.ndarray, impulse: np.ndarray,
-    fuel_l: np.ndarray, steps: np.ndarray, elapsed: np.ndarray, stores: np.ndarray, capacity: float,
-    time_limit: float, before: np.ndarray, after: np.ndarray, terms: np.ndarray, rewards: np.ndarray,
+    ids: np.ndarray,
+    rules: tuple,
+    sites: np.ndarray,
+    scratch: np.ndarray,
+    potential: np.ndarray,
+    terms: np.ndarray,
+    rewards: np.ndarray,
     ended: np.ndarray,
-) -> None:  # fmt: skip
+) -> None:
     """End the step of each site: fuel and time, the reward terms (k, 10: ``REWARD_TERMS``, weighted; their sum
-    in order is the reward; the shaping terms the change of :func:`potentials` from ``before`` to ``after``,
-    which then becomes ``before``) and whether it terminated (the truck holds its capacity) or truncated (time)."""
+    in order is the reward; the shaping terms the change of the :func:`potentials` (2, n, 4) from ``BEFORE`` to
+    ``NOW``, which then becomes ``BEFORE``) and whether it terminated (the truck holds its capacity) or truncated
+    (time), (k, 2)."""
+    rule = Rules(*rules)
+    weights = rule.weights
     for k in range(len(ids)):
         i = ids[k]
-        fuel_l[i] += fuel_step[i]
-        steps[i] += 1
-        elapsed[i] = steps[i] * STEP_PERIOD
-        terms[k, 0] = weights[0] * flows[i, 1] / 1000.0
-        terms[k, 1] = weights[1] * flows[i, 0] / 1000.0
-        terms[k, 2] = -weights[2] * STEP_PERIOD
-        terms[k, 3] = -weights[3] * fuel_step[i]
-        terms[k, 4] = -weights[4] * flows[i, 2] / 1000.0
-        terms[k, 5] = -weights[5] * impulse[i] / 1000.0
-        for j in range(4):
-            terms[k, 6 + j] = weights[6 + j] * (after[i, j] - before[i, j])
-            before[i, j] = after[i, j]
+        site, step = sites[i], scratch[i]
+        site.fuel_l += step.fuel_l
+        site.steps += 1
+        site.elapsed = site.steps * STEP_PERIOD
+        terms[k, _DELIVERY] = weights[_DELIVERY] * step.flows[TRUCK] / 1000.0
+        terms[k, _FILL] = weights[_FILL] * step.flows[BUCKET] / 1000.0
+        terms[k, _TIME] = -weights[_TIME] * STEP_PERIOD
+        terms[k, _FUEL] = -weights[_FUEL] * step.fuel_l
+        terms[k, _SPILL] = -weights[_SPILL] * step.flows[SPILLED] / 1000.0
+        terms[k, _CONTACT] = -weights[_CONTACT] * step.impulse / 1000.0
+        for j in range(len(SHAPING_TERMS)):
+            terms[k, _SHAPING + j] = weights[_SHAPING + j] * (potential[NOW, i, j] - potential[BEFORE, i, j])
+            potential[BEFORE, i, j] = potential[NOW, i, j]
         total = terms[k, 0]
-        for j in range(1, 10):
+        for j in range(1, len(REWARD_TERMS)):
             total += terms[k, j]
         rewards[k] = total
-        ended[k, 0] = stores[i, 1] >= capacity
-        ended[k, 1] = elapsed[i] >= time_limit - 1e-9
+        ended[k, 0] = site.stores[TRUCK] >= rule.truck_capacity_kg
+        ended[k, 1] = site.elapsed >= rule.time_limit - 1e-9
 
 
 @jit
 def observe(
-    ids: np.ndarray, qpos: np.ndarray, qvel: np.ndarray, qadr: np.ndarray, dadr: np.ndarray, site_xpos: np.ndarray,
-    xmat: np.ndarray, tip_site: int, bucket: int, joint_loads: np.ndarray, arms: np.ndarray, arm_start: np.ndarray,
-    arm_step: np.ndarray, heights: np.ndarray, origin: np.ndarray, spacing: float, layout: np.ndarray,
-    stores: np.ndarray, truck_capacity: float, elapsed: np.ndarray, time_limit: float, cut_dir: np.ndarray,
+    ids: np.ndarray,
+    rules: tuple,
+    curves: tuple,
+    tool: tuple,
+    joints: tuple,
+    piles: tuple,
+    sites: np.ndarray,
     out: np.ndarray,
-) -> int:  # fmt: skip
+) -> int:
     """Write the observation of each site (see :class:`hexgym.envs.loading.HexLoadingEnv`) into ``out`` (k, 23,
     float32), clipped to its bounds (as float64, then rounded); returns the first site whose observation is not
     finite (-1: none)."""
+    rule, c, t, jt, pl = Rules(*rules), Curves(*curves), Tool(*tool), Joints(*joints), Piles(*piles)
     values = np.empty(OBSERVATION_SIZE)
     for k in range(len(ids)):
         i = ids[k]
-        tip, _, _, tilt = _bucket_pose(site_xpos, xmat, i, tip_site, bucket)
-        swing = qpos[i, qadr[0]]
+        site = sites[i]
+        tip, _, _, tilt = _bucket_pose(t.site_xpos, t.xmat, i, t.tip_site, t.bucket)
+        swing = jt.qpos[i, jt.qadr[0]]
         for j in range(3):
-            values[j] = qpos[i, qadr[j + 1]]
-            arm = ew.table_at(arms[j], arm_start[j], arm_step[j], values[j])
-            values[9 + j] = joint_loads[i, j + 1] / arm / 1e6  # MN
+            values[j] = jt.qpos[i, jt.qadr[j + 1]]
+            arm = ew.table_at(c.arms[j], c.arm_start[j], c.arm_step[j], values[j])
+            values[9 + j] = site.joint_loads[j + 1] / arm / 1e6  # MN
         for j in range(4):
-            values[5 + j] = qvel[i, dadr[j]]
-        # layout: pile centre x, y, direction, cos, sin; truck centre x, y, direction, cos yaw, sin yaw
-        values[3] = wrap(swing - layout[i, 2])
-        values[4] = wrap(swing - layout[i, 7])
-        values[12] = stores[i, 0] / 1000.0
-        rel_x, rel_y = tip[0] - layout[i, 0], tip[1] - layout[i, 1]
-        c, s = layout[i, 3], layout[i, 4]
-        values[13] = c * rel_x + s * rel_y
-        values[14] = -s * rel_x + c * rel_y
-        values[15] = tip[2] - ew.height_at(heights, origin, spacing, i, tip[0], tip[1])
-        values[16], values[17] = _bed_frame(tip[0], tip[1], layout[i, 5], layout[i, 6], layout[i, 8], layout[i, 9])
+            values[5 + j] = jt.qvel[i, jt.dadr[j]]
+        values[3] = wrap(swing - site.pile_direction)
+        values[4] = wrap(swing - site.truck_direction)
+        values[12] = site.stores[BUCKET] / 1000.0
+        rel_x, rel_y = tip[0] - site.pile_x, tip[1] - site.pile_y
+        cos, sin = site.pile_cos, site.pile_sin
+        values[13] = cos * rel_x + sin * rel_y
+        values[14] = -sin * rel_x + cos * rel_y
+        values[15] = tip[2] - ew.height_at(pl.heights, pl.origin, pl.spacing, i, tip[0], tip[1])
+        values[16], values[17] = _bed_frame(tip[0], tip[1], site.truck_x, site.truck_y, site.truck_cos, site.truck_sin)
         values[18] = tip[2] - _RIM
         values[19] = tilt
-        values[20] = stores[i, 1] / truck_capacity
-        values[21] = max(1.0 - elapsed[i] / time_limit, 0.0)
-        values[22] = wrap(swing - cut_dir[i])
+        values[20] = site.stores[TRUCK] / rule.truck_capacity_kg
+        values[21] = max(1.0 - site.elapsed / rule.time_limit, 0.0)
+        values[22] = wrap(swing - site.cut_direction)
         for j in range(OBSERVATION_SIZE):
             if not math.isfinite(values[j]):
                 return i
@@ -517,29 +676,28 @@ def observe(
 
 
 @jit
-def any_flagged(ids: np.ndarray, flags: np.ndarray, column: int) -> bool:
-    """Whether any site's ``flags[i, column]`` is set."""
+def any_cut_line_stale(ids: np.ndarray, sites: np.ndarray) -> bool:
+    """Whether any site's pile changed since its fullest cut line was found."""
     for k in range(len(ids)):
-        if flags[ids[k], column]:
+        if sites[ids[k]].cut_line_stale:
             return True
     return False
 
 
 @jit
-def info_stores(
-    ids: np.ndarray, heights: np.ndarray, pile_flags: np.ndarray, volume: np.ndarray, cell_area: float,
-    stores: np.ndarray, fuel_l: np.ndarray, elapsed: np.ndarray, out: np.ndarray,
-) -> None:  # fmt: skip
+def info_stores(ids: np.ndarray, piles: tuple, sites: np.ndarray, out: np.ndarray) -> None:
     """``INFO_STORES`` of each site into ``out`` (k, 6): pile, bucket, truck, spilled (kg), fuel (L), time (s); a
-    pile's volume is summed again only when flagged stale (``pile_flags[:, 1]``)."""
+    pile's volume is summed again only when stale."""
+    pl = Piles(*piles)
     for k in range(len(ids)):
         i = ids[k]
-        if pile_flags[i, 1]:
-            volume[i] = heights[i].sum() * cell_area
-            pile_flags[i, 1] = 0
-        out[k, 0] = volume[i] * _DENSITY
-        out[k, 1], out[k, 2], out[k, 3] = stores[i, 0], stores[i, 1], stores[i, 2]
-        out[k, 4], out[k, 5] = fuel_l[i], elapsed[i]
+        site = sites[i]
+        if site.volume_stale:
+            site.pile_volume = pl.heights[i].sum() * pl.cell_area
+            site.volume_stale = 0
+        out[k, 0] = site.pile_volume * _DENSITY
+        out[k, 1], out[k, 2], out[k, 3] = site.stores[BUCKET], site.stores[TRUCK], site.stores[SPILLED]
+        out[k, 4], out[k, 5] = site.fuel_l, site.elapsed
 
 
 # -- the task ---------------------------------------------------------------------------------------
@@ -569,49 +727,94 @@ class LoadingTask:
             raise ValueError(f"the machine's control period {period} s does not divide the step {STEP_PERIOD} s")
         self.time_limit, self.truck_capacity_kg = float(time_limit), float(truck_capacity_kg)
         self.weights, self.earthwork_periods = weights, int(earthwork_periods)
-        self._weights = np.array([float(weights[term]) for term in REWARD_TERMS])
-        self._blend_one = 1.0 - math.exp(-self.period / p.DIG_VELOCITY_FILTER)
         n = self.count
         self.heights = np.zeros((n, PILE_GRID_POINTS, PILE_GRID_POINTS))
         self.origin = np.zeros((n, 2))  # world (x, y) of each pile's grid point [0, 0]
-        self.top = np.zeros(n)  # upper bound of each pile's surface (digging only lowers it)
         self.spacing = PILE_GRID_SPACING
-        self._volume = np.zeros(n)
-        # per pile: changed since its fullest cut line was found, volume stale, revision (counts the cuts)
-        self.pile_flags = np.zeros((n, 3), np.int64)
         self.layouts: list[Layout | None] = [None] * n
-        # pile centre x, y, direction, cos, sin; truck centre x, y, direction, cos yaw, sin yaw
-        self.layout = np.zeros((n, 10))
-        self.truck = np.zeros((n, 4))  # the bed's frame: centre x, y, cos yaw, sin yaw
-        self.cut_dir = np.zeros(n)  # each pile's fullest cut line (rad), kept while the pile stands
-        self.stores = np.zeros((n, 3))  # bucket, truck, spilled, kg
-        self.payload_kg = np.zeros(n)  # the payload each machine is massed with
-        self.tip_before, self.tip_velocity = np.zeros((n, 3)), np.zeros((n, 3))
-        self.tip_interval = np.full(n, math.inf)  # s since tip_before was taken (inf: none yet, velocity 0)
-        self.force_on = np.zeros(n, np.bool_)
-        self.dig_depth = np.zeros(n)
-        self.joint_loads = np.zeros((n, 4))
-        self.fuel_l, self.elapsed, self.steps = np.zeros(n), np.zeros(n), np.zeros(n, np.int64)
-        # a step's scratch, per site: periods left, this interval's periods and seconds, teeth at its start,
-        # the step's flows (dug, delivered, spilled, kg), fuel (L) and contact impulse (N s)
-        self._left, self._interval = np.zeros(n, np.int64), np.zeros(n, np.int64)
-        self._seconds, self._tip_start = np.zeros(n), np.zeros((n, 3))
-        self._flows, self._fuel, self._impulse = np.zeros((n, 3)), np.zeros(n), np.zeros(n)
-        # and per k of a call's sites (written before read): clear of the pile, payload changed, the machines' loads;
-        # the sites with periods left after an interval
-        self._clear, self._change = np.zeros(n, np.bool_), np.zeros(n, np.bool_)
-        self._loads, self._swing_torques, self._measured_fuel = np.zeros((n, 4)), np.zeros(n), np.zeros(n)
+        self.sites = np.zeros(n, SITE)  # each site's state (see SITE)
+        self.sites["tip_interval"] = math.inf
+        self._scratch = np.zeros(n, SCRATCH)  # a step's, per site (see SCRATCH)
+        # per k of a call's sites (written before read): the machines' readings; the sites with periods left after
+        # an interval
+        self._readings = tuple(Readings(loads=np.zeros((n, 4)), swing_torques=np.zeros(n), measured_fuel=np.zeros(n)))
         self._going = np.zeros(n, np.int64)
         # shaping potentials after the last step and now (zeros, never computed, while every shaping weight is 0)
         self._shaping = any(float(weights[term]) != 0.0 for term in SHAPING_TERMS)
-        self._potential, self._potential_now = np.zeros((n, 4)), np.zeros((n, 4))
-        tables = kinematics.moment_arm_tables()
-        self._arms = np.array([t.values for t in tables])
-        self._arm_start = np.array([t.start for t in tables])
-        self._arm_step = np.array([t.step for t in tables])
-        rates = fuel._fuel_rate_table()
-        self._fuel_rates, self._fuel_start, self._fuel_step = np.array(rates.values), rates.start, rates.step
+        self._potential = np.zeros((2, n, len(SHAPING_TERMS)))
+        tables, rates = kinematics.moment_arm_tables(), fuel._fuel_rate_table()
+        # what the compiled stages take (see Schedule, Rules, Curves, Piles)
+        self._schedule = tuple(
+            Schedule(
+                periods=self.periods,
+                earthwork_periods=self.earthwork_periods,
+                period=self.period,
+                blend_one=1.0 - math.exp(-self.period / p.DIG_VELOCITY_FILTER),
+            )
+        )
+        self._rules = tuple(
+            Rules(
+                weights=np.array([float(weights[term]) for term in REWARD_TERMS]),
+                truck_capacity_kg=self.truck_capacity_kg,
+                time_limit=self.time_limit,
+            )
+        )
+        self._curves = tuple(
+            Curves(
+                arms=np.array([t.values for t in tables]),
+                arm_start=np.array([t.start for t in tables]),
+                arm_step=np.array([t.step for t in tables]),
+                fuel_rates=np.array(rates.values),
+                fuel_start=rates.start,
+                fuel_step=rates.step,
+            )
+        )
+        self._piles = tuple(Piles(self.heights, self.origin, self.spacing, self.spacing**2))
         self.contact_slots = CONTACT_SLOTS
+        self._machines_read: tuple[tuple, tuple, tuple] | None = None
+
+    def _machines(self) -> tuple[tuple, tuple, tuple]:
+        """The sites' machines as the compiled stages take them: a :class:`Tool`, :class:`Joints` and
+        :class:`Contacts`, made again only when the physics rebinds its arrays (an unpickled
+        :class:`hexgym.envs.sites.MachineSites`); it refreshes them in place."""
+        ph = self.physics
+        if self._machines_read is None or self._machines_read[0][0] is not ph.site_xpos:
+            tool = Tool(site_xpos=ph.site_xpos, xpos=ph.xpos, xmat=ph.xmat, tip_site=ph.tip_site, bucket=ph.bucket_body)
+            joints = Joints(qpos=ph.qpos, qvel=ph.qvel, qadr=ph.qadr, dadr=ph.dadr)
+            contacts = Contacts(sensordata=ph.sensordata, adr=ph.contact_adr, slots=self.contact_slots)
+            self._machines_read = tuple(tool), tuple(joints), tuple(contacts)
+        return self._machines_read
+
+    # -- the state by name ------------------------------------------------------------------------
+    @property
+    def stores(self) -> np.ndarray:
+        """The material each site holds (N, 3), kg: ``BUCKET``, ``TRUCK``, ``SPILLED`` (a view)."""
+        return self.sites["stores"]
+
+    @property
+    def fuel_l(self) -> np.ndarray:
+        """Diesel each site burnt this episode, L."""
+        return self.sites["fuel_l"]
+
+    @property
+    def elapsed(self) -> np.ndarray:
+        """Simulated seconds of each site's episode."""
+        return self.sites["elapsed"]
+
+    @property
+    def steps(self) -> np.ndarray:
+        """Steps of each site's episode."""
+        return self.sites["steps"]
+
+    @property
+    def cut_dir(self) -> np.ndarray:
+        """Each pile's fullest cut line (rad), as last found (:meth:`update_cut_directions`)."""
+        return self.sites["cut_direction"]
+
+    @property
+    def revision(self) -> np.ndarray:
+        """Counts each pile's changes (for a renderer's copy of it)."""
+        return self.sites["revision"]
 
     # -- episodes ---------------------------------------------------------------------------------
     def start(self, i: int, layout: Layout, pile: ew.Pile, payload_kg: float = 0.0) -> None:
@@ -621,42 +824,43 @@ class LoadingTask:
         self.layouts[i] = layout
         self.heights[i] = pile.heights
         self.origin[i] = pile.origin
-        self.top[i] = pile.top
-        self.pile_flags[i, :2] = 1
-        c, s = math.cos(layout.pile_direction), math.sin(layout.pile_direction)
-        ct, st = math.cos(layout.truck_yaw), math.sin(layout.truck_yaw)
-        (px, py), (tx, ty) = layout.pile_centre, layout.truck_centre
-        self.layout[i] = (px, py, layout.pile_direction, c, s, tx, ty, layout.truck_direction, ct, st)
-        self.truck[i] = (tx, ty, ct, st)
-        self.stores[i] = 0.0
-        self.stores[i, 0] = self.payload_kg[i] = payload_kg
-        self.tip_interval[i] = math.inf
-        self.tip_velocity[i] = 0.0
-        self.force_on[i] = False
-        self.dig_depth[i] = 0.0
-        self.fuel_l[i] = self.elapsed[i] = 0.0
-        self.steps[i] = 0
+        site = self.sites[i : i + 1]  # a view of the record
+        site["pile_top"] = pile.top
+        site["cut_line_stale"] = site["volume_stale"] = 1
+        (site["pile_x"], site["pile_y"]), (site["truck_x"], site["truck_y"]) = layout.pile_centre, layout.truck_centre
+        site["pile_direction"], site["truck_direction"] = layout.pile_direction, layout.truck_direction
+        site["pile_cos"], site["pile_sin"] = math.cos(layout.pile_direction), math.sin(layout.pile_direction)
+        site["truck_cos"], site["truck_sin"] = math.cos(layout.truck_yaw), math.sin(layout.truck_yaw)
+        site["stores"] = 0.0
+        site["stores"][:, BUCKET] = site["payload_kg"] = payload_kg
+        site["tip_interval"] = math.inf
+        site["tip_velocity"] = 0.0
+        site["cutting"] = False
+        site["dig_depth"] = site["fuel_l"] = site["elapsed"] = 0.0
+        site["steps"] = 0
 
     def finish_starts(self, ids: np.ndarray) -> None:
         """The teeth and joint loads of freshly started sites (their machines' derived quantities current)."""
         ph = self.physics
-        self.tip_before[ids] = ph.site_xpos[ids, ph.tip_site]
-        ph.loads(ids, self._loads, self._swing_torques)
-        ph.measured_fuel(ids, self._measured_fuel)  # what a start burnt is no part of the episode
-        self.joint_loads[ids] = self._loads[: len(ids)]
+        loads, swing_torques, measured_fuel = self._readings
+        self.sites["tip_before"][ids] = ph.site_xpos[ids, ph.tip_site]
+        ph.loads(ids, loads, swing_torques)
+        ph.measured_fuel(ids, measured_fuel)  # what a start burnt is no part of the episode
+        self.sites["joint_loads"][ids] = loads[: len(ids)]
         if self._shaping:
-            self._potentials(ids, self._potential)
+            potentials(ids, self._machines()[0], self._piles, self.sites, self._potential[BEFORE])
 
-    def _potentials(self, ids: np.ndarray, out: np.ndarray) -> None:
-        ph = self.physics
-        potentials(ids, ph.site_xpos, ph.tip_site, self.heights, self.origin, self.spacing, self.layout, self.stores,
-                   out)  # fmt: skip
+    def potentials_of(self, ids: np.ndarray) -> np.ndarray:
+        """:func:`potentials` of sites ``ids`` now (k, 4), in ``SHAPING_TERMS`` order."""
+        out = np.zeros((self.count, len(SHAPING_TERMS)))
+        potentials(ids, self._machines()[0], self._piles, self.sites, out)
+        return out[ids]
 
     def pile(self, i: int) -> ew.Pile:
         """A handle on site ``i``'s pile (its heights are the task's; a cut through it flags the pile changed)."""
-        flags = tuple(self.pile_flags.T)
+        flags = (self.sites["cut_line_stale"], self.sites["volume_stale"], self.sites["revision"])
         pile = ew.Pile(None, None, self.spacing, self.heights, self.origin, i, flags)
-        pile.top = float(self.top[i])
+        pile.top = float(self.sites["pile_top"][i])
         return pile
 
     # -- a step -----------------------------------------------------------------------------------
@@ -667,110 +871,96 @@ class LoadingTask:
         (L) and hard-contact impulse (N s) stay in ``step_fuel_l`` and ``step_impulse``.
         """
         k = len(ids)
-        begin_step(ids, self.periods, self._left, self._flows, self._fuel, self._impulse)
-        self._advance(ids)
+        machines = self._machines()
+        begin_step(ids, self._schedule, self._scratch)
+        self._advance(ids, machines)
         if self._shaping:
-            self._potentials(ids, self._potential_now)
+            potentials(ids, machines[0], self._piles, self.sites, self._potential[NOW])
         terms, rewards, ended = np.empty((k, len(REWARD_TERMS))), np.empty(k), np.empty((k, 2), np.bool_)
-        finish(ids, self._weights, self._flows, self._fuel, self._impulse, self.fuel_l, self.steps, self.elapsed,
-               self.stores, self.truck_capacity_kg, self.time_limit, self._potential, self._potential_now, terms,
-               rewards, ended)  # fmt: skip
+        finish(ids, self._rules, self.sites, self._scratch, self._potential, terms, rewards, ended)
         return terms, rewards, ended
 
     @property
     def step_fuel_l(self) -> np.ndarray:
         """Each site's fuel in its last step, L."""
-        return self._fuel
+        return self._scratch["fuel_l"]
 
     @property
     def step_impulse(self) -> np.ndarray:
         """Each site's hard-contact impulse in its last step, N s."""
-        return self._impulse
+        return self._scratch["impulse"]
 
-    def _advance(self, ids: np.ndarray) -> None:
+    def _advance(self, ids: np.ndarray, machines: tuple) -> None:
         """Rounds of clear or digging intervals until each site has advanced its step's periods."""
-        ph = self.physics
+        ph, scratch = self.physics, self._scratch
         while True:
-            code = plan(ids, self._left, self.periods, self.earthwork_periods, self.period, ph.site_xpos, ph.tip_site,
-                        self.heights, self.origin, self.spacing, self.top, self.force_on, self._interval,
-                        self._seconds, self._tip_start, self._clear)  # fmt: skip
+            code = plan(ids, self._schedule, machines[0], self._piles, self.sites, scratch)
             if code == 0:  # the usual case: all clear of the pile, for the same periods
-                ph.step(ids, int(self._interval[ids[0]]))
-                self._end_clear(ids)
+                ph.step(ids, int(scratch["interval"][ids[0]]))
+                self._end_clear(ids, machines)
             elif code == 1:
                 self._step_grouped(ids)
-                self._end_clear(ids)
+                self._end_clear(ids, machines)
             else:
-                clear = self._clear[: len(ids)]
-                self._dig(ids[~clear])
+                clear = scratch["clear"][ids]
+                self._dig(ids[~clear], machines)
                 if clear.any():
                     self._step_grouped(ids[clear])
-                    self._end_clear(ids[clear])
-            ids = self._account(ids)
+                    self._end_clear(ids[clear], machines)
+            ids = self._account(ids, machines)
             if not len(ids):
                 return
 
     def _step_grouped(self, ids: np.ndarray) -> None:
         """Advance each site by its interval's periods: one physics call per distinct count."""
-        periods = self._interval[ids]
+        periods = self._scratch["interval"][ids]
         for count in sorted(set(periods.tolist())):
             self.physics.step(ids[periods == count], count)
 
-    def _end_clear(self, ids: np.ndarray) -> None:
+    def _end_clear(self, ids: np.ndarray, machines: tuple) -> None:
         """After an interval clear of the pile (:func:`end_clear`): no digging force acted; re-mass the bucket."""
-        ph = self.physics
-        change = self._change
-        if end_clear(ids, self._seconds, self._tip_start, ph.site_xpos, ph.xpos, ph.xmat, ph.tip_site,
-                     ph.bucket_body, self.tip_before, self.tip_velocity, self.tip_interval, self.truck, self.stores,
-                     self._flows, self.payload_kg, change):  # fmt: skip
-            changed = ids[change[: len(ids)]]
-            ph.set_payload(changed, self.payload_kg[changed])
+        if end_clear(ids, machines[0], self.sites, self._scratch):
+            changed = ids[self._scratch["change"][ids]]
+            self.physics.set_payload(changed, self.sites["payload_kg"][changed])
 
-    def _dig(self, ids: np.ndarray) -> None:
+    def _dig(self, ids: np.ndarray, machines: tuple) -> None:
         """One dig (:func:`begin_dig`), then the interval's periods: cutting sites period by period, re-aiming their
         digging force between them (:func:`follow_resistance`)."""
-        ph = self.physics
-        k = len(ids)
-        force, push, change = np.empty((k, 3)), np.empty(k, np.bool_), np.empty(k, np.bool_)
-        any_push, any_change, any_cut = begin_dig(
-            ids, self._seconds, ph.site_xpos, ph.xpos, ph.xmat, ph.tip_site, ph.bucket_body, self.heights,
-            self.origin, self.spacing, self.top, self.tip_before, self.tip_velocity, self.tip_interval, self.period,
-            self._blend_one, self.dig_depth, self.force_on, self.truck, self.stores, self._flows, self.payload_kg,
-            self.pile_flags, force, push, change,
-        )  # fmt: skip
+        ph, sites, scratch = self.physics, self.sites, self._scratch
+        any_push, any_change, any_cut = begin_dig(ids, self._schedule, machines[0], self._piles, sites, scratch)
         if any_push:
-            ph.apply_tip_force(ids[push], force[push])
+            pushed = ids[scratch["push"][ids]]
+            ph.apply_tip_force(pushed, scratch["force"][pushed])
         if any_change:
-            ph.set_payload(ids[change], self.payload_kg[ids[change]])
-        cutting = self.force_on[ids] if any_cut else np.zeros(k, np.bool_)
+            changed = ids[scratch["change"][ids]]
+            ph.set_payload(changed, sites["payload_kg"][changed])
+        cutting = sites["cutting"][ids] if any_cut else np.zeros(len(ids), np.bool_)
+        tip_interval = sites["tip_interval"]
         if not any_cut or not cutting.all():
             still = ids[~cutting]
             self._step_grouped(still)
-            self.tip_interval[still] = self._seconds[still]
+            tip_interval[still] = scratch["seconds"][still]
         if any_cut:
             cut_ids = ids[cutting]
-            cut_periods = self._interval[cut_ids]
+            cut_periods = scratch["interval"][cut_ids]
             for start in range(int(cut_periods.max())):
                 now = cut_ids[cut_periods > start] if start else cut_ids
                 if start:
                     force = np.empty((len(now), 3))
-                    follow_resistance(now, ph.site_xpos, ph.xmat, ph.tip_site, ph.bucket_body, self.tip_before,
-                                      self.tip_velocity, self.tip_interval, self.period, self._blend_one,
-                                      self.dig_depth, self.stores, force)  # fmt: skip
+                    follow_resistance(now, self._schedule, machines[0], sites, force)
                     ph.apply_tip_force(now, force)
                 ph.step(now, 1)
-                self.tip_interval[now] = self.period
+                tip_interval[now] = self.period
 
-    def _account(self, ids: np.ndarray) -> np.ndarray:
+    def _account(self, ids: np.ndarray, machines: tuple) -> np.ndarray:
         """Fuel, hard-contact impulse and joint loads at the end of the sites' intervals (:func:`account`); returns
         the sites with periods left."""
         ph = self.physics
-        ph.loads(ids, self._loads, self._swing_torques)
-        ph.measured_fuel(ids, self._measured_fuel)
-        going = account(ids, self._seconds, self._loads, self._swing_torques, ph.qvel, ph.dadr, self._fuel_rates,
-                        self._fuel_start, self._fuel_step, self._measured_fuel, ph.sensordata, ph.contact_adr,
-                        self.contact_slots, self.joint_loads, self._fuel, self._impulse, self._left, self._interval,
-                        self._going)  # fmt: skip
+        loads, swing_torques, measured_fuel = self._readings
+        ph.loads(ids, loads, swing_torques)
+        ph.measured_fuel(ids, measured_fuel)
+        _, joints, contacts = machines
+        going = account(ids, self._curves, joints, contacts, self._readings, self.sites, self._scratch, self._going)
         if going < 0:
             raise RuntimeError(f"more than {self.contact_slots} bucket/stick contacts at environment {-1 - going}")
         return self._going[:going]
@@ -779,13 +969,10 @@ class LoadingTask:
     def observe(self, ids: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """The observations of sites ``ids`` (k, 23), float32 (written into ``out`` when given)."""
         self.update_cut_directions(ids)
-        ph = self.physics
         if out is None:
             out = np.empty((len(ids), OBSERVATION_SIZE), np.float32)
-        bad = observe(ids, ph.qpos, ph.qvel, ph.qadr, ph.dadr, ph.site_xpos, ph.xmat, ph.tip_site, ph.bucket_body,
-                      self.joint_loads, self._arms, self._arm_start, self._arm_step, self.heights, self.origin,
-                      self.spacing, self.layout, self.stores, self.truck_capacity_kg, self.elapsed, self.time_limit,
-                      self.cut_dir, out)  # fmt: skip
+        tool, joints, _ = self._machines()
+        bad = observe(ids, self._rules, self._curves, tool, joints, self._piles, self.sites, out)
         if bad >= 0:
             raise RuntimeError(
                 f"the simulation diverged (non-finite observation) at environment {bad}, t = {self.elapsed[bad]:.1f} s"
@@ -795,11 +982,12 @@ class LoadingTask:
     def update_cut_directions(self, ids: np.ndarray) -> None:
         """Find the fullest cut line (:func:`hexgym.envs.world.fullest_cut_direction`) of the piles ``ids`` that
         changed since it was last found."""
-        if not any_flagged(ids, self.pile_flags, 0):
+        if not any_cut_line_stale(ids, self.sites):
             return
-        for i in ids[self.pile_flags[ids, 0] > 0].tolist():
-            self.cut_dir[i] = fullest_cut_direction(self._height_function(i), self.layouts[i])
-            self.pile_flags[i, 0] = 0
+        stale = self.sites["cut_line_stale"]
+        for i in ids[stale[ids] > 0].tolist():
+            self.sites["cut_direction"][i] = fullest_cut_direction(self._height_function(i), self.layouts[i])
+            stale[i] = 0
 
     def _height_function(self, i: int) -> Callable[[np.ndarray], np.ndarray]:
         heights, origin, spacing = self.heights, self.origin, self.spacing
@@ -813,14 +1001,8 @@ class LoadingTask:
     def stores_of(self, ids: np.ndarray) -> np.ndarray:
         """``INFO_STORES`` of sites ``ids`` (k, 6): pile, bucket, truck, spilled (kg), fuel (L), time (s)."""
         out = np.empty((len(ids), len(INFO_STORES)))
-        info_stores(ids, self.heights, self.pile_flags, self._volume, self.spacing**2, self.stores, self.fuel_l,
-                    self.elapsed, out)  # fmt: skip
+        info_stores(ids, self._piles, self.sites, out)
         return out
-
-    @property
-    def revision(self) -> np.ndarray:
-        """Counts each pile's changes (for a renderer's copy of it)."""
-        return self.pile_flags[:, 2]
 
     def pile_kg(self) -> np.ndarray:
         """Material in each pile, kg."""
@@ -828,15 +1010,18 @@ class LoadingTask:
 
     def clear_periods_of(self, ids: np.ndarray) -> np.ndarray:
         """:func:`clear_count` of sites ``ids`` (0 where the edge cuts)."""
-        ph = self.physics
-        return np.array([0 if self.force_on[i] else clear_count(i, self.periods, ph.site_xpos, ph.tip_site,
-                         self.heights, self.origin, self.spacing, self.top) for i in ids.tolist()])  # fmt: skip
+        tool, sites = self._machines()[0], self.sites
+        return np.array(
+            [
+                0 if sites["cutting"][i] else clear_count(i, self.periods, tool, self._piles, sites["pile_top"][i])
+                for i in ids.tolist()
+            ]
+        )
 
     def hard_contact_forces(self, ids: np.ndarray) -> np.ndarray:
         """:func:`hard_contact_force` of sites ``ids``, N."""
-        ph = self.physics
-        force = np.array([hard_contact_force(i, ph.sensordata, ph.contact_adr, self.contact_slots)
-                          for i in ids.tolist()])  # fmt: skip
+        contacts = self._machines()[2]
+        force = np.array([hard_contact_force(i, contacts) for i in ids.tolist()])
         if (force < 0).any():
             raise RuntimeError(f"more than {self.contact_slots} bucket/stick contacts at environment {ids[force < 0]}")
         return force
