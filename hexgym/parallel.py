@@ -23,12 +23,14 @@ Ray is the optional extra ``hexgym[cluster]``; this module imports it only when 
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
 import pickle
 import platform
 import signal
 import socket
+import threading
 import uuid
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
@@ -88,6 +90,23 @@ def ignore_interrupts(initializer: Callable[..., None] | None = None, *initargs:
         initializer(*initargs)
 
 
+@contextlib.contextmanager
+def interrupts_held() -> Iterator[None]:
+    """Start processes with Ctrl-C ignored from their first instruction (a fresh Python installs its Ctrl-C handler
+    only where the signal is not ignored, so a Ctrl-C while it starts raises nothing there); this process holds a
+    Ctrl-C that comes meanwhile and gets it when the block ends. Outside the main thread: nothing to do."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous_mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})  # held, not lost: Linux keeps a
+    previous_handler = signal.signal(signal.SIGINT, signal.SIG_IGN)  # blocked signal pending even while ignored
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous_handler)
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous_mask)
+
+
 class LocalPool(Executor):
     """``workers`` spawned processes (this process alone for one), each set up once by ``initializer``."""
 
@@ -109,7 +128,8 @@ class LocalPool(Executor):
             return None
         if self._pool is None:
             context = multiprocessing.get_context("spawn")  # fork would copy MuJoCo and thread state
-            self._pool = context.Pool(min(self.workers, n), ignore_interrupts, (self._initializer, *self._initargs))
+            with interrupts_held():
+                self._pool = context.Pool(min(self.workers, n), ignore_interrupts, (self._initializer, *self._initargs))
         return self._pool
 
     def map_unordered(self, function: Callable[[Any], Any], items: Iterable[Any]) -> Iterator[Any]:

@@ -2094,6 +2094,26 @@ def test_ctrl_c_ends_worker_processes_at_once_without_tracebacks(tmp_path):
     assert time.monotonic() - start < 5 and "Traceback" not in err, err
 
 
+@pytest.mark.parametrize("delay_s", [0.05, 0.3, 0.8])
+def test_ctrl_c_while_the_workers_start_ends_without_tracebacks(tmp_path, delay_s):
+    """A Ctrl-C while the pool's fresh interpreters are still starting (before they could ignore it) is held back
+    from them: the parent alone ends, in one line."""
+    import time
+
+    process = subprocess.Popen([sys.executable, "-c", _POOL_SCRIPT], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True, start_new_session=True, cwd=tmp_path)  # fmt: skip
+    assert process.stdout.readline().strip() == "started"
+    time.sleep(delay_s)
+    os.killpg(process.pid, signal.SIGINT)
+    try:
+        out, err = process.communicate(timeout=15)
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+    assert process.returncode == 130 and "interrupted" in out, (out, err)
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
+
+
 def _busy_workers(parent: int, n: int) -> bool:
     """Whether ``parent`` has ``n`` pool workers that have loaded MuJoCo (past their start: running a task)."""
     found = 0
