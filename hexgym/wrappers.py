@@ -1,8 +1,8 @@
-"""Gymnasium wrappers for ``HexLoading-v0`` built on the planning layer's predictions.
+"""Gymnasium wrappers for ``HexLoading-v0``.
 
-:class:`CollisionShield` simulates each proposed action on the fast learned model before it is executed
-(:mod:`hexgym.planning`) and replaces one that would drive the bucket or the stick hard into the truck or
-the ground.
+:class:`PreviousActionWrapper` gives a policy its last action. :class:`CollisionShield` simulates each proposed
+action on the fast learned model before it is executed (:mod:`hexgym.planning`) and replaces one that would drive
+the bucket or the stick hard into the truck or the ground.
 """
 
 from __future__ import annotations
@@ -136,3 +136,30 @@ class CollisionShield(gym.Wrapper):
         state = self.__dict__.copy()
         state["_model"] = None
         return state
+
+
+class PreviousActionWrapper(gym.Wrapper):
+    """Appends the previous action (4 spools, zeros after a reset) to the observation.
+
+    For policies that need a memory of what they were doing (rl-zoo3: ``env_wrapper:
+    hexgym.wrappers.PreviousActionWrapper``). The shipped PPO settings do not use it: the scripted loader acts on
+    the state alone, and clones given their last action tended to repeat it.
+    """
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        space = env.observation_space
+        n = env.action_space.shape[0]
+        low = np.concatenate([space.low, -np.ones(n, np.float32)])
+        high = np.concatenate([space.high, np.ones(n, np.float32)])
+        self.observation_space = gym.spaces.Box(low, high, dtype=np.float32)
+        self._zeros = np.zeros(n, np.float32)
+
+    def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict]:
+        obs, info = self.env.reset(**kwargs)
+        return np.concatenate([obs, self._zeros]), info
+
+    def step(self, action: np.ndarray) -> tuple:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        executed = np.clip(np.asarray(action, np.float32), -1.0, 1.0)
+        return np.concatenate([obs, executed]), reward, terminated, truncated, info

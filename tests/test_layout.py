@@ -32,25 +32,64 @@ def _layer(module: str) -> int:
 
 
 def _imports(path: Path) -> set[str]:
+    """The hexgym modules ``path`` imports anywhere in it (function-local imports included): a name imported
+    from a package counts as the module of that name where there is one."""
     out = set()
     for node in ast.walk(ast.parse(path.read_text())):
         if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("hexgym."):
             out.add(node.module)
+            out.update(f"{node.module}.{a.name}" for a in node.names if _module_path(f"{node.module}.{a.name}"))
         elif isinstance(node, ast.Import):
             out.update(a.name for a in node.names if a.name.startswith("hexgym."))
     return out
 
 
+def _module_path(module: str) -> Path | None:
+    """The file of a hexgym module, or None."""
+    base = ROOT.joinpath(*module.split("."))
+    for path in (base.with_suffix(".py"), base / "__init__.py"):
+        if path.is_file():
+            return path
+    return None
+
+
+def _module_of(path: Path) -> str:
+    return "hexgym." + ".".join(path.relative_to(PACKAGE).with_suffix("").parts).removesuffix(".__init__")
+
+
 def test_layers_import_downwards_only():
     wrong = []
     for path in PACKAGE.rglob("*.py"):
-        module = "hexgym." + ".".join(path.relative_to(PACKAGE).with_suffix("").parts).removesuffix(".__init__")
+        module = _module_of(path)
         if module.count(".") < 1 or _layer(module) < 0:
             continue
         for target in _imports(path):
             if _layer(target) > _layer(module):
                 wrong.append(f"{module} imports {target}")
     assert not wrong, wrong
+
+
+def test_no_module_imports_itself_through_others():
+    """No import circle, function-local imports included (a package's ``__init__`` re-exporting its modules is
+    no circle: its modules never import the package)."""
+    graph = {}
+    for path in PACKAGE.rglob("*.py"):
+        module = _module_of(path)
+        graph[module] = {t for t in _imports(path) if t != module and _module_path(t) and t != "hexgym"}
+    circles, done = [], set()
+
+    def visit(module: str, trail: list[str]) -> None:
+        for target in sorted(graph.get(module, ())):
+            if target in trail:
+                circles.append(" -> ".join([*trail[trail.index(target) :], target]))
+            elif target not in done:
+                visit(target, [*trail, target])
+        done.add(module)
+
+    for module in sorted(graph):
+        if module not in done:
+            visit(module, [module])
+    assert not circles, circles
 
 
 def test_runtime_loads_no_offline_code_and_the_plugin_only_for_a_native_model():

@@ -90,7 +90,8 @@ def test_kinematic_and_simulated_teeth_agree(env):
 
 
 def test_shipped_hyperparameters_for_ppo_and_sac():
-    from hexgym.agents.training import check_hyperparams, load_hyperparams
+    from hexgym.agents.hyperparams import load_hyperparams
+    from hexgym.agents.training import check_hyperparams
 
     for algo in ("ppo", "sac"):
         hp = load_hyperparams(algo, "HexReach-v0")

@@ -865,10 +865,11 @@ def _relu_ppo(tmp: Path) -> Path:
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    from hexgym.agents.training import _parse_kwargs, save_model
+    from hexgym.agents.hyperparams import parse_kwargs
+    from hexgym.agents.training import save_model
 
     venv = DummyVecEnv([lambda: gym.make("HexLoading-v0", time_limit=1.0)])
-    kwargs = _parse_kwargs("dict(activation_fn=nn.ReLU, net_arch=dict(pi=[8], vf=[8]))")
+    kwargs = parse_kwargs("dict(activation_fn=nn.ReLU, net_arch=dict(pi=[8], vf=[8]))")
     model = PPO("MlpPolicy", venv, device="cpu", policy_kwargs=kwargs, n_steps=8, batch_size=8)
     return save_model(model, tmp / "p.zip")
 
@@ -1470,7 +1471,7 @@ def _(tmp):
 
 @case("API argument", "a wrapper registered without a name", r"register_wrapper needs a name", error=TypeError)
 def _(tmp):
-    from hexgym.agents.training import register_wrapper
+    from hexgym.agents.hyperparams import register_wrapper
 
     return lambda: register_wrapper("", print)
 

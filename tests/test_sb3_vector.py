@@ -66,10 +66,10 @@ def test_a_short_run_on_the_batch_learns_from_its_episodes(tmp_path):
 def test_the_batch_is_used_where_there_is_one_and_refused_where_not(tmp_path):
     assert batched("HexLoading-v0", "auto") and not batched("HexLoading-v0", "subproc")
     assert not batched("HexReach-v0", "auto")
-    assert not batched("HexLoading-v0", "auto", wrapper="hexgym.agents.training.PreviousActionWrapper")
+    assert not batched("HexLoading-v0", "auto", wrapper="hexgym.wrappers.PreviousActionWrapper")
     with pytest.raises(ValueError, match="HexReach-v0 has no batched vector environment"):
         batched("HexReach-v0", "batch")
     with pytest.raises(ValueError, match="env_wrapper"):
-        batched("HexLoading-v0", "batch", wrapper="hexgym.agents.training.PreviousActionWrapper")
+        batched("HexLoading-v0", "batch", wrapper="hexgym.wrappers.PreviousActionWrapper")
     with pytest.raises(ValueError, match="vec_env must be one of"):
         train("ppo", timesteps=64, log_dir=tmp_path, vec_env="threads")

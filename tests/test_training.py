@@ -6,16 +6,8 @@ import yaml
 
 from hexgym.agents.curves import read_curve
 from hexgym.agents.evaluate import load_trained, normalizer_path
-from hexgym.agents.training import (
-    HYPERPARAMS_DIR,
-    algo_kwargs,
-    check_hyperparams,
-    clone_scripted,
-    latest_checkpoint,
-    load_hyperparams,
-    make_env,
-    train,
-)
+from hexgym.agents.hyperparams import HYPERPARAMS_DIR, algo_kwargs, load_hyperparams
+from hexgym.agents.training import check_hyperparams, clone_scripted, latest_checkpoint, make_env, train
 
 # a tiny PPO on 8 s episodes, so a run of a few hundred steps takes seconds
 TINY = {
@@ -181,7 +173,7 @@ def test_behaviour_cloning_fits_the_scripted_loader(tmp_path, tiny_yaml):
 def test_previous_action_wrapper_appends_the_executed_action():
     from hexgym.agents.training import make_env
 
-    env = make_env("HexLoading-v0", "hexgym.agents.training.PreviousActionWrapper", time_limit=2.0)
+    env = make_env("HexLoading-v0", "hexgym.wrappers.PreviousActionWrapper", time_limit=2.0)
     obs, _ = env.reset(seed=0)
     assert obs.shape == (27,) == env.observation_space.shape and np.all(obs[23:] == 0.0)
     obs, *_ = env.step(np.array([2.0, 0.5, -0.5, 0.0], np.float32))

@@ -1,7 +1,7 @@
 """``hexgym train --framework rllib``: RLlib's PPO (new API stack) on HexLoading-v0, env runners across a Ray cluster.
 
 The PPO hyperparameters come from the same rl-zoo3 YAML as the Stable-Baselines3 runs
-(``training/hyperparams/ppo.yml``, :func:`hexgym.agents.training.load_hyperparams`), mapped to
+(``training/hyperparams/ppo.yml``, :func:`hexgym.agents.hyperparams.load_hyperparams`), mapped to
 RLlib's names: a training batch of ``n_steps`` x ``n_envs`` steps per iteration, minibatches of
 ``batch_size``, ``n_epochs`` passes, ``gamma``, ``gae_lambda``, ``learning_rate``, ``clip_range``,
 ``ent_coef``; the actor's hidden layers from ``policy_kwargs.net_arch.pi`` (the critic has its own
@@ -121,7 +121,7 @@ def train_rllib(
     """
     if algo != "ppo":
         raise ValueError(f"--framework rllib trains ppo only, got --algo {algo}")
-    from hexgym.agents.training import load_hyperparams
+    from hexgym.agents.hyperparams import load_hyperparams
 
     hp = load_hyperparams(algo, env_id, hyperparams)
     if hp.get("env_wrapper"):

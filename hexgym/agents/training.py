@@ -15,7 +15,6 @@ the demonstrations' discounted returns; ``hexgym train --init-from`` then fine-t
 
 from __future__ import annotations
 
-import ast
 import contextlib
 import importlib.util
 import math
@@ -34,6 +33,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from hexgym.agents.evaluate import load_trained, normalizer_path
+from hexgym.agents.hyperparams import algo_kwargs, load_hyperparams, wrapper_named
 from hexgym.agents.policy_files import (
     ObsNormalizer,
     PolicyFileError,
@@ -51,107 +51,10 @@ from hexgym.parallel import LocalPool
 if TYPE_CHECKING:
     from hexgym.agents.scripted import LoaderSettings
 
-HYPERPARAMS_DIR = Path(__file__).resolve().parents[2] / "training" / "hyperparams"
-ALGOS = ("ppo", "sac")
-# rl-zoo3 keys that are not arguments of the algorithm's constructor
 NOISE_HOLD_STEPS = 10  # DART disturbances change once a second: per-step noise would average out in the valves
-_ZOO_KEYS = ("n_envs", "n_timesteps", "policy", "normalize", "env_kwargs", "policy_kwargs", "env_wrapper")
 
 
 # -- hyperparameters ------------------------------------------------------------------------------
-_ACTIVATIONS = ("ReLU", "Tanh", "ELU", "LeakyReLU", "GELU", "SiLU", "Sigmoid", "Softplus", "Mish", "Identity")
-
-
-def _parse_kwargs(text: str | dict | bool) -> dict | bool:
-    """An rl-zoo3 keyword string such as ``"dict(norm_obs=True, net_arch=[64, 64])"`` -> a dict.
-
-    rl-zoo3 ``eval``s these strings; hexgym reads them without running them: ``dict(...)`` calls,
-    literals (numbers, strings, True/False/None, lists, tuples, {...}) and ``nn.<activation>``
-    (``torch.nn``'s ReLU, Tanh, ...) are understood, anything else is refused.
-    """
-    if not isinstance(text, str):
-        return text
-    try:
-        return _literal(ast.parse(text.strip(), mode="eval").body)
-    except (SyntaxError, ValueError, RecursionError) as exc:
-        raise ValueError(f"cannot read the hyperparameter {text!r}: {exc}") from None
-
-
-def _literal(node: ast.AST) -> Any:
-    """The value of an rl-zoo3 keyword expression (see :func:`_parse_kwargs`)."""
-    if isinstance(node, ast.Constant) and isinstance(node.value, (int, float, str, bool, type(None))):
-        return node.value
-    if isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.USub, ast.UAdd)):
-        value = _literal(node.operand)
-        if isinstance(value, (int, float)) and not isinstance(value, bool):
-            return -value if isinstance(node.op, ast.USub) else value
-    if isinstance(node, (ast.List, ast.Tuple)):
-        items = [_literal(e) for e in node.elts]
-        return items if isinstance(node, ast.List) else tuple(items)
-    if isinstance(node, ast.Dict) and all(k is not None for k in node.keys):
-        return {_literal(k): _literal(v) for k, v in zip(node.keys, node.values, strict=True)}
-    if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "dict" and not node.args:
-        if all(k.arg is not None for k in node.keywords):
-            return {k.arg: _literal(k.value) for k in node.keywords}
-    if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "nn":
-        if node.attr in _ACTIVATIONS:
-            import torch
-
-            return getattr(torch.nn, node.attr)
-        raise ValueError(f"nn.{node.attr} is not an activation hexgym knows ({', '.join(_ACTIVATIONS)})")
-    raise ValueError(f"{ast.unparse(node)!r} is not allowed: only dict(...), literals and nn.<activation>")
-
-
-def load_hyperparams(algo: str, env_id: str = ENV_ID, path: str | Path | None = None) -> dict[str, Any]:
-    """The rl-zoo3 hyperparameters of ``algo`` for ``env_id`` (``policy_kwargs``/``normalize`` parsed)."""
-    import yaml
-
-    if algo not in ALGOS:
-        raise ValueError(f"algo must be one of {ALGOS}, got {algo!r}")
-    path = Path(path) if path is not None else HYPERPARAMS_DIR / f"{algo}.yml"
-    if not path.exists():
-        raise FileNotFoundError(f"no hyperparameter file {path} (give one with --hyperparams)")
-    check_input_file(path, "hyperparameter file")
-    try:
-        table = yaml.safe_load(path.read_bytes().decode("utf-8")) or {}
-    except (yaml.YAMLError, UnicodeDecodeError, RecursionError) as exc:
-        raise ValueError(f"{path} is not a readable YAML file: {' '.join(str(exc).split())}") from None
-    if not isinstance(table, dict):
-        raise ValueError(f"{path} must map env ids to hyperparameters, not hold a {type(table).__name__}")
-    if _nodes(table) > MAX_YAML_NODES:
-        raise ValueError(f"{path} expands to more than {MAX_YAML_NODES} values (aliases within aliases?)")
-    if env_id not in table:
-        raise ValueError(f"{path} has no entry for {env_id!r} (it has {sorted(map(str, table))})")
-    if not isinstance(table[env_id], dict):
-        raise ValueError(f"{path}: the entry for {env_id!r} must be a mapping of hyperparameters")
-    hp = dict(table[env_id])
-    try:
-        _wrapper(hp.get("env_wrapper"))  # a registered name, or refused before any work
-    except ValueError as exc:
-        raise ValueError(f"{path}: {exc}") from None
-    hp["policy_kwargs"] = _parse_kwargs(hp.get("policy_kwargs", {}))
-    normalize = _parse_kwargs(hp.get("normalize", False))
-    hp["normalize"] = {"norm_obs": True, "norm_reward": False} if normalize is True else (normalize or {})
-    return hp
-
-
-MAX_YAML_NODES = 100_000  # values in a hyperparameter file, aliases expanded (a real one has ~20 per env)
-
-
-def _nodes(value: Any, limit: int = MAX_YAML_NODES) -> int:
-    """Values in a YAML document counted through its aliases (stops counting past ``limit``)."""
-    count, stack = 0, [value]
-    while stack and count <= limit:
-        item = stack.pop()
-        count += 1
-        if isinstance(item, dict):
-            stack.extend(item.keys())
-            stack.extend(item.values())
-        elif isinstance(item, (list, tuple)):
-            stack.extend(item)
-    return count
-
-
 def check_hyperparams(algo: str, hp: dict[str, Any], env_id: str = ENV_ID) -> None:
     """ValueError naming hyperparameters the algorithm or the environment does not take, before any work."""
     import inspect
@@ -184,79 +87,7 @@ def check_hyperparams(algo: str, hp: dict[str, Any], env_id: str = ENV_ID) -> No
         raise ValueError(f"env_kwargs: {exc}") from None
 
 
-def algo_kwargs(hp: dict[str, Any]) -> dict[str, Any]:
-    """The constructor arguments of the algorithm (rl-zoo3's own keys removed)."""
-    kwargs = {k: v for k, v in hp.items() if k not in _ZOO_KEYS}
-    return kwargs | {"policy_kwargs": hp.get("policy_kwargs", {})}
-
-
 # -- environments ---------------------------------------------------------------------------------
-class PreviousActionWrapper:
-    """Appends the previous action (4 spools, zeros after a reset) to the observation.
-
-    For policies that need a memory of what they were doing (rl-zoo3: ``env_wrapper:
-    hexgym.agents.training.PreviousActionWrapper``). The shipped PPO settings do not use it: the scripted
-    loader acts on the state alone, and clones given their last action tended to repeat it.
-    """
-
-    def __new__(cls, env: Any) -> Any:  # a gymnasium.Wrapper subclass, made lazily: gymnasium is imported late
-        return _previous_action_class()(env)
-
-
-def _previous_action_class() -> type:
-    import gymnasium as gym
-
-    class PreviousAction(gym.Wrapper):
-        def __init__(self, env: gym.Env) -> None:
-            super().__init__(env)
-            space = env.observation_space
-            n = env.action_space.shape[0]
-            low = np.concatenate([space.low, -np.ones(n, np.float32)])
-            high = np.concatenate([space.high, np.ones(n, np.float32)])
-            self.observation_space = gym.spaces.Box(low, high, dtype=np.float32)
-            self._zeros = np.zeros(n, np.float32)
-
-        def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict]:
-            obs, info = self.env.reset(**kwargs)
-            return np.concatenate([obs, self._zeros]), info
-
-        def step(self, action: np.ndarray) -> tuple:
-            obs, reward, terminated, truncated, info = self.env.step(action)
-            executed = np.clip(np.asarray(action, np.float32), -1.0, 1.0)
-            return np.concatenate([obs, executed]), reward, terminated, truncated, info
-
-    return PreviousAction
-
-
-WRAPPERS: dict[str, Callable[[Any], Any]] = {"hexgym.agents.training.PreviousActionWrapper": PreviousActionWrapper}
-"""The wrappers a hyperparameter file's ``env_wrapper`` may name (by this name or its last part): a file names
-a registered wrapper, never a module to import, so a hyperparameter file runs no code of its own choosing."""
-
-
-def register_wrapper(name: str, wrapper: Callable[[Any], Any]) -> None:
-    """Let ``env_wrapper: <name>`` apply ``wrapper`` (a callable taking and returning an env) in this process."""
-    if not isinstance(name, str) or not name or not callable(wrapper):
-        raise TypeError(f"register_wrapper needs a name and a callable, got {name!r} and {wrapper!r}")
-    WRAPPERS[name] = wrapper
-
-
-def _wrapper(path: Any) -> Any:
-    """The registered wrapper (:data:`WRAPPERS`) named by rl-zoo3's ``env_wrapper``, or None; nothing is imported."""
-    if path is None or path == "":
-        return None
-    if not isinstance(path, str):
-        raise ValueError(f"env_wrapper must be the name of a registered wrapper, got {path!r}")
-    short = {name.rpartition(".")[2]: wrapper for name, wrapper in WRAPPERS.items()}
-    found = WRAPPERS.get(path) or short.get(path)
-    if found is None:
-        raise ValueError(
-            f"env_wrapper {path!r} is not a registered wrapper ({', '.join(sorted(WRAPPERS))}); a hyperparameter "
-            "file names registered wrappers only, it never imports a module (from Python: "
-            "hexgym.agents.training.register_wrapper)"
-        )
-    return found
-
-
 def make_env(env_id: str = ENV_ID, wrapper: str | None = None, **env_kwargs: Any) -> Any:
     """``gymnasium.make`` after ``import hexgym`` (a subprocess of SubprocVecEnv must register the ids too).
 
@@ -267,7 +98,7 @@ def make_env(env_id: str = ENV_ID, wrapper: str | None = None, **env_kwargs: Any
     import hexgym  # noqa: F401
 
     env = gym.make(env_id, **env_kwargs)
-    wrapper_class = _wrapper(wrapper)
+    wrapper_class = wrapper_named(wrapper)
     return wrapper_class(env) if wrapper_class is not None else env
 
 
