@@ -64,7 +64,7 @@ def test_pushed_sideways_the_side_plate_resists():
     phi, delta = p.MATERIAL_FRICTION_ANGLE, p.MATERIAL_TOOL_FRICTION_ANGLE
     kp = np.cos(phi) ** 2 / (np.cos(delta) * (1 - np.sqrt(np.sin(phi + delta) * np.sin(phi) / np.cos(delta))) ** 2)
     assert 9.0 < kp < 10.5  # Coulomb's passive coefficient for 35 and 23 degrees (Rankine's 3.7 without wall friction)
-    length = np.hypot(*np.subtract(p.BUCKET_EDGE, p.BUCKET_LIP))
+    length = np.hypot(*np.subtract(BUCKET.edge, BUCKET.lip))
     assert side_plate_force(0.5) == pytest.approx(0.5 * kp * p.MATERIAL_DENSITY * p.GRAVITY * 0.25 * length)
     edge, teeth = (0.0, 1.0, 0.0), (-0.7071, 0.0, -0.7071)  # the edge along y, the teeth down towards the machine
     sideways = np.array(resistance(0.5, 0.0, *edge, *teeth, 0.0, 0.4, 0.0))  # moving along the edge at 0.4 m/s
@@ -145,11 +145,11 @@ def test_bucket_fills_to_its_heap_and_spills_when_tilted():
     assert earth.spill(0.0, into_truck=False, dt=1.0).to_ground_kg < 1e-9  # mouth up: it holds its heap
     for _ in range(100):
         earth.spill(p.MATERIAL_REPOSE_ANGLE, into_truck=False, dt=0.1)
-    assert earth.bucket_kg == pytest.approx(p.BUCKET_STRUCK_CAPACITY * p.MATERIAL_DENSITY, rel=1e-3)
+    assert earth.bucket_kg == pytest.approx(BUCKET.struck_capacity * p.MATERIAL_DENSITY, rel=1e-3)
     for _ in range(100):
         earth.spill(np.radians(150.0), into_truck=True, dt=0.1)
     assert earth.bucket_kg == 0.0
-    assert earth.truck_kg == pytest.approx(p.BUCKET_STRUCK_CAPACITY * p.MATERIAL_DENSITY, rel=1e-3)
+    assert earth.truck_kg == pytest.approx(BUCKET.struck_capacity * p.MATERIAL_DENSITY, rel=1e-3)
 
 
 def test_retained_volume_falls_with_tilt():

@@ -24,6 +24,7 @@ from hexgym.agents.scripted import (
 )
 from hexgym.envs.loading import HexLoadingEnv
 from hexgym.machine import parameters as p
+from hexgym.machine.bucket import BUCKET
 
 
 @pytest.fixture(scope="module")
@@ -34,7 +35,7 @@ def first_minute():
 
 def test_delivers_a_full_bucket_within_the_first_minute(first_minute):
     assert first_minute["sim_seconds"] == pytest.approx(60.0)
-    assert first_minute["delivered_t"] * 1000 >= p.BUCKET_STRUCK_CAPACITY * p.MATERIAL_DENSITY
+    assert first_minute["delivered_t"] * 1000 >= BUCKET.struck_capacity * p.MATERIAL_DENSITY
     assert first_minute["dumps"] >= 2 and first_minute["first_dump_s"] < 40.0
     assert first_minute["spilled_t"] < 0.5 * first_minute["delivered_t"]
 
@@ -114,7 +115,7 @@ def test_native_backend_loads_the_truck_too():
         pytest.skip("the native plugin is not built in this environment")
     env = HexLoadingEnv(backend="native")
     result = run_scripted(env, seed=0, seconds=40.0)
-    assert result["delivered_t"] * 1000 >= p.BUCKET_STRUCK_CAPACITY * p.MATERIAL_DENSITY
+    assert result["delivered_t"] * 1000 >= BUCKET.struck_capacity * p.MATERIAL_DENSITY
 
 
 def test_unknown_backend_is_refused():

@@ -39,18 +39,19 @@ import numba
 import numpy as np
 
 from hexgym.machine import parameters as p
+from hexgym.machine.bucket import BUCKET
 
 _GAMMA = p.MATERIAL_DENSITY * p.GRAVITY  # unit weight, N/m^3
 EDGE_SAMPLES = 5  # points along the cutting edge where the depth is measured
 RELAX_ITERATIONS = 3  # avalanche passes after each cut
 _RAKE_LIMITS = np.radians((5.0, 90.0))  # rake angles outside this are treated as at the limit
 EDGE_OFFSETS = np.linspace(-p.BUCKET_WIDTH / 2.0, p.BUCKET_WIDTH / 2.0, EDGE_SAMPLES)
-_MOUTH_LENGTH = float(np.hypot(*np.subtract(p.BUCKET_EDGE, p.BUCKET_LIP)))  # strike line, m
+_MOUTH_LENGTH = BUCKET.mouth_length  # strike line, m
 # plain floats for the compiled functions (numba freezes globals at compile time)
 _WIDTH = float(p.BUCKET_WIDTH)
 _DENSITY = float(p.MATERIAL_DENSITY)
 _HEAPED = float(p.BUCKET_HEAPED_CAPACITY)
-_STRUCK = float(p.BUCKET_STRUCK_CAPACITY)
+_STRUCK = BUCKET.struck_capacity
 _REPOSE = float(p.MATERIAL_REPOSE_ANGLE)
 _SPILL_TIME = float(p.BUCKET_SPILL_TIME_CONSTANT)
 _REFERENCE_SPEED = float(p.DIG_REFERENCE_SPEED)
@@ -402,7 +403,7 @@ def frustum_heights(
 
 def mouth_normal() -> np.ndarray:
     """Unit normal (bucket frame x, z) of the bucket's mouth, pointing out of the bucket."""
-    lip, edge = np.array(p.BUCKET_LIP), np.array(p.BUCKET_EDGE)
+    lip, edge = np.array(BUCKET.lip), np.array(BUCKET.edge)
     d = edge - lip
     n = np.array([-d[1], d[0]]) / np.hypot(*d)
     mid = (lip + edge) / 2.0

@@ -22,7 +22,6 @@ from hexgym.envs.task import (
     CONTACT_SLOTS,
     EARTHWORK_PERIODS,
     INFO_KEYS,
-    MOUTH_CENTRE,
     OBS_HIGH,
     OBS_LOW,
     REWARD_TERMS,
@@ -44,6 +43,7 @@ from hexgym.envs.world import (
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.machine.assets import SCENE_FILE, asset_path
+from hexgym.machine.bucket import BUCKET
 from hexgym.machine.render import ModelMirror
 from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS
 from hexgym.model.backend import backend_for, python_learned_model
@@ -55,7 +55,7 @@ PYTHON_CONTROL_PERIOD = 0.01
 MAX_TIME_LIMIT = 86_400.0  # s: an episode of at most a day (a longer one is a mistake that fills memory)
 START_NOISE = 0.1  # rad, uniform noise on the start pose's boom, stick and bucket angles
 _HOME = np.array([0.0, 0.35, 0.85, 0.75])  # the machine's keyframe `home`: bucket curled near the ground
-_MOUTH_CENTRE = np.array(MOUTH_CENTRE)  # bucket frame, m
+_MOUTH_CENTRE = np.array(BUCKET.mouth_centre)  # bucket frame, m
 _SITE = np.zeros(1, np.intp)  # the single environment is site 0 of a task of one
 OBSERVATION_NAMES = (
     "boom_angle", "stick_angle", "bucket_angle", "swing_to_pile", "swing_to_truck",
@@ -137,7 +137,7 @@ DIG_START_SWING_NOISE = 0.05  # rad about the pile's direction
 DIG_START_RADIUS_NOISE = 0.5  # m about the cut's entry radius
 DIG_START_HEIGHT = (0.3, 1.0)  # m of the teeth above the pile's top
 DIG_START_TEETH_ANGLE = (-130.0, -100.0)  # deg: the teeth's planar world direction (-90: straight down)
-_TEETH_ANGLE = math.atan2(p.BUCKET_TEETH_DIRECTION[1], p.BUCKET_TEETH_DIRECTION[0])  # in the bucket frame
+_TEETH_ANGLE = math.atan2(BUCKET.teeth_direction[1], BUCKET.teeth_direction[0])  # in the bucket frame
 _FRONT_GUESS = np.array([0.65, -0.3, 0.0])  # boom, stick, bucket near an entry pose (the search's start)
 
 

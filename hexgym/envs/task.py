@@ -49,6 +49,7 @@ from hexgym.envs.world import (
 from hexgym.hydraulics import fuel
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
+from hexgym.machine.bucket import BUCKET
 
 STEP_PERIOD = 0.1  # s: one environment step, 10 Hz, an operator's reaction time scale
 # Control periods per dig (fill, pile cut and relaxation, spill) while the teeth may be in the pile: 4 = once
@@ -71,10 +72,9 @@ INFO_KEYS = (*(f"reward_{term}" for term in REWARD_TERMS), *INFO_STORES)  # ever
 STEP_INFO_KEYS = (*INFO_KEYS, "fuel_l_step", "contact_impulse_ns")  # a step's info
 OBSERVATION_SIZE = 23
 # bucket-frame (x, z) of the teeth's direction and the mouth's normal (both have y = 0), and the mouth's centre
-_TEETH_X, _TEETH_Z = (float(v) for v in p.BUCKET_TEETH_DIRECTION)
+_TEETH_X, _TEETH_Z = BUCKET.teeth_direction
 _MOUTH_NORMAL_X, _MOUTH_NORMAL_Z = (float(v) for v in ew.mouth_normal())
-MOUTH_CENTRE = ((p.BUCKET_LIP[0] + p.BUCKET_EDGE[0]) / 2, 0.0, (p.BUCKET_LIP[1] + p.BUCKET_EDGE[1]) / 2)  # bucket frame
-_MOUTH_X, _MOUTH_Z = MOUTH_CENTRE[0], MOUTH_CENTRE[2]
+_MOUTH_X, _MOUTH_Z = BUCKET.mouth_centre[0], BUCKET.mouth_centre[2]  # bucket frame
 # the site's own functions, compiled for floats: the bed's frame, whether a point is over the bed
 _bed_frame, _over_bed = jit(world.bed_frame), jit(world.over_bed)
 _DENSITY = float(p.MATERIAL_DENSITY)

@@ -241,14 +241,10 @@ ENGINE_NO_LOAD_FUEL = 3.0  # kg/h at rated speed, no load [derived: Willans-line
 
 # --------------------------------------------------------------------------------------------
 # Earthwork / truck (HexLoading-v0, hexgym.envs). The material is MATERIAL_DENSITY's sand and
-# gravel; the bucket's profile numbers are the bucket mesh's (hexgym.tools.meshes, tested to agree).
+# gravel; the bucket's mouth and capacity are hexgym.machine.bucket's, computed from its profile.
 MATERIAL_FRICTION_ANGLE = np.radians(35.0)  # internal friction of loose sand and gravel [textbook 30-40 deg]
 MATERIAL_REPOSE_ANGLE = np.radians(34.0)  # angle of repose, dry sand and gravel [textbook 30-38 deg]
 MATERIAL_TOOL_FRICTION_ANGLE = np.radians(23.0)  # soil on steel, about 2/3 of the internal angle [textbook]
-BUCKET_STRUCK_CAPACITY = 0.938  # m^3 [derived: hexgym.tools.meshes.bucket_struck_volume()]
-BUCKET_LIP = (0.140, -0.288)  # bucket frame (x, z): the top lip M of the mouth [derived: hexgym.tools.meshes]
-BUCKET_EDGE = (1.291, -0.526)  # bucket frame: the cutting edge E (teeth root) [derived: hexgym.tools.meshes]
-BUCKET_TEETH_DIRECTION = (0.209, -0.978)  # bucket frame unit vector, edge -> out along the floor [derived]
 BUCKET_SPILL_TIME_CONSTANT = 0.3  # s: excess material leaves the bucket with this time constant [est]
 DIG_REFERENCE_SPEED = 0.05  # m/s: digging resistance reaches its full value above this edge speed [est]
 DIG_VELOCITY_FILTER = 0.1  # s: the resistance follows the edge's velocity low-passed by this [est: without

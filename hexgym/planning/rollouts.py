@@ -45,12 +45,12 @@ from hexgym.hydraulics import fuel
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.machine.assets import asset_path
+from hexgym.machine.bucket import BUCKET
 from hexgym.mbl.schema import DEFAULT_TABLE_SET
 from hexgym.model.native_backend import NativeLearnedModel
 from hexgym.model.plugin import CLEARANCE_PLUGIN_NAME, CTRL_PER_SPOOL_M
 
 _MOUTH_NORMAL = mouth_normal()  # bucket frame (x, z)
-_MOUTH_CENTRE = ((p.BUCKET_LIP[0] + p.BUCKET_EDGE[0]) / 2, 0.0, (p.BUCKET_LIP[1] + p.BUCKET_EDGE[1]) / 2)
 PAIRS = (("bucket", "truck"), ("bucket", "ground"), ("stick", "truck"), ("stick", "ground"))
 """The (tool, obstacle) pairs whose clearance is predicted, in the order of :attr:`RolloutBatch.clearance_m`."""
 DETECTION_M = 1.0  # m: contacts are reported this far apart; clearances beyond read as this
@@ -255,7 +255,7 @@ class RolloutModel:
         spec.body("bucket").add_geom(name=_TOOL_GEOMS["bucket"], type=mujoco.mjtGeom.mjGEOM_MESH,
                                      meshname=_TOOL_GEOMS["bucket"], contype=0, conaffinity=0, group=5)  # fmt: skip
         site, sensor = mujoco.mjtObj.mjOBJ_SITE, mujoco.mjtSensor
-        spec.body("bucket").add_site(name="planning_mouth", pos=list(_MOUTH_CENTRE), group=5)
+        spec.body("bucket").add_site(name="planning_mouth", pos=list(BUCKET.mouth_centre), group=5)
         spec.add_sensor(name="planning_tip", type=sensor.mjSENS_FRAMEPOS, objtype=site, objname="tip")
         spec.add_sensor(name="planning_mouth", type=sensor.mjSENS_FRAMEPOS, objtype=site, objname="planning_mouth")
         for axis, kind in (("x", sensor.mjSENS_FRAMEXAXIS), ("z", sensor.mjSENS_FRAMEZAXIS)):
