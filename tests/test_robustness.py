@@ -2075,43 +2075,39 @@ except KeyboardInterrupt:
 """
 
 
-def test_ctrl_c_ends_worker_processes_at_once_without_tracebacks(tmp_path):
-    """Ctrl-C reaches every process of the command (the terminal signals its process group): the workers
-    leave it to the parent, which stops them and ends at once, without a traceback from any of them."""
+def _interrupt_pool(cwd: Path, delay_s: float) -> tuple[int, str, str, float]:
+    """Run :data:`_POOL_SCRIPT` in its own process group and press Ctrl-C (SIGINT to the group, as a terminal
+    does) ``delay_s`` after its pool starts; returns (exit status, stdout, stderr, seconds from Ctrl-C to exit)."""
     import time
 
     process = subprocess.Popen([sys.executable, "-c", _POOL_SCRIPT], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                               text=True, start_new_session=True, cwd=tmp_path)  # fmt: skip
-    assert process.stdout.readline().strip() == "started"
-    time.sleep(2.5)  # the workers start (spawned: a fresh interpreter each) and sleep in their tasks
-    start = time.monotonic()
-    os.killpg(process.pid, signal.SIGINT)
-    try:
-        out, err = process.communicate(timeout=10)
-    finally:
-        if process.poll() is None:
-            os.killpg(process.pid, signal.SIGKILL)
-    assert process.returncode == 130 and "interrupted" in out, (out, err)
-    assert time.monotonic() - start < 5 and "Traceback" not in err, err
-
-
-@pytest.mark.parametrize("delay_s", [0.05, 0.3, 0.8])
-def test_ctrl_c_while_the_workers_start_ends_without_tracebacks(tmp_path, delay_s):
-    """A Ctrl-C while the pool's fresh interpreters are still starting (before they could ignore it) is held back
-    from them: the parent alone ends, in one line."""
-    import time
-
-    process = subprocess.Popen([sys.executable, "-c", _POOL_SCRIPT], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                               text=True, start_new_session=True, cwd=tmp_path)  # fmt: skip
+                               text=True, start_new_session=True, cwd=cwd)  # fmt: skip
     assert process.stdout.readline().strip() == "started"
     time.sleep(delay_s)
+    start = time.monotonic()
     os.killpg(process.pid, signal.SIGINT)
     try:
         out, err = process.communicate(timeout=15)
     finally:
         if process.poll() is None:
             os.killpg(process.pid, signal.SIGKILL)
-    assert process.returncode == 130 and "interrupted" in out, (out, err)
+    return process.returncode, out, err, time.monotonic() - start
+
+
+def test_ctrl_c_ends_worker_processes_at_once_without_tracebacks(tmp_path):
+    """Ctrl-C reaches every process of the command (the terminal signals its process group): the workers
+    leave it to the parent, which stops them and ends at once, without a traceback from any of them."""
+    code, out, err, seconds = _interrupt_pool(tmp_path, 2.5)  # the workers have started and sleep in their tasks
+    assert code == 130 and "interrupted" in out, (out, err)
+    assert seconds < 5 and "Traceback" not in err, err
+
+
+@pytest.mark.parametrize("delay_s", [0.05, 0.3, 0.8])
+def test_ctrl_c_while_the_workers_start_ends_without_tracebacks(tmp_path, delay_s):
+    """A Ctrl-C while the pool's fresh interpreters are still starting (before they could ignore it) is held back
+    from them: the parent alone ends, in one line."""
+    code, out, err, _ = _interrupt_pool(tmp_path, delay_s)
+    assert code == 130 and "interrupted" in out, (out, err)
     assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
 
 
