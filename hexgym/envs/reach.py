@@ -18,11 +18,11 @@ from gymnasium import spaces
 from hexgym.checks import check_choice
 from hexgym.envs import REACH_ENV_ID
 from hexgym.envs.loading import _is_number, check_open, spools_from_action
+from hexgym.envs.task import STEP_PERIOD  # 10 Hz control, as HexLoading-v0
 from hexgym.machine import kinematics
 from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS
 from hexgym.model.backend import make_learned_model
 
-STEP_PERIOD = 0.1  # s: 10 Hz control, as HexLoading-v0
 TARGET_FLOOR_M = 0.5  # targets and starts keep the teeth this high above the ground
 MIN_TARGET_DISTANCE_M = 2.0  # a target at least this far from the start
 MAX_PAYLOAD_KG = 2000.0

@@ -27,8 +27,8 @@ from hexgym.machine.physics import payload_inertia
 from hexgym.model.base import LearnedModelBase
 from hexgym.model.plugin import STATE as PLUGIN_STATE
 
-_VEL = int(mujoco.mjtStage.mjSTAGE_VEL)  # after a step: positions and velocities current, as mj_step1 leaves them
-_ACC = int(mujoco.mjtStage.mjSTAGE_ACC)
+VEL_STAGE = int(mujoco.mjtStage.mjSTAGE_VEL)  # after a step: positions and velocities current, as mj_step1 leaves them
+ACC_STAGE = int(mujoco.mjtStage.mjSTAGE_ACC)
 _ARRAYS = ("site_xpos", "xpos", "xmat", "qpos", "qvel", "sensordata")  # what the task reads
 
 
@@ -210,7 +210,7 @@ class BatchSites:
         """
         start = time.perf_counter()
         every = len(ids) == self.count  # None for every site: no ids for the batch to check
-        self.batch.step(None if every else ids, nstep=periods, stage=_VEL)
+        self.batch.step(None if every else ids, nstep=periods, stage=VEL_STAGE)
         self.seconds += time.perf_counter() - start
         self.steps += len(ids) * periods
         self.refresh(ids)
@@ -244,7 +244,7 @@ class BatchSites:
         self.body_mass[ids, self.payload_body] = mass_kg
         self.body_inertia[ids, self.payload_body] = payload_inertia(mass_kg)
         self.batch.set_const(ids)
-        self.batch.forward(ids, stage=_ACC)
+        self.batch.forward(ids, stage=ACC_STAGE)
 
     def loads(self, ids: np.ndarray, joint_loads: np.ndarray, swing_torques: np.ndarray) -> None:
         """NativeLearnedModel.joint_loads of the sites ``ids`` into ``joint_loads`` (k, 4), N m, and the swing's

@@ -27,7 +27,7 @@ from gymnasium.vector.utils import batch_space
 from hexgym.checks import check_choice, check_count
 from hexgym.envs.earthwork import jit
 from hexgym.envs.loading import HexLoadingEnv, check_open, heap_for, make_machine, native_world_model, start_machine
-from hexgym.envs.sites import BatchSites, MachineSites
+from hexgym.envs.sites import ACC_STAGE, VEL_STAGE, BatchSites, MachineSites
 from hexgym.envs.task import CONTACT_SLOTS, INFO_KEYS, REWARD_TERMS, STEP_INFO_KEYS, STEP_PERIOD, LoadingTask
 from hexgym.envs.world import Layout, World
 from hexgym.machine import parameters as p
@@ -35,8 +35,6 @@ from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS
 from hexgym.model.backend import backend_for
 from hexgym.model.plugin import CTRL_PER_SPOOL_M
 
-_VEL = int(mujoco.mjtStage.mjSTAGE_VEL)  # after a step: positions and velocities current, as mj_step1 leaves them
-_ACC = int(mujoco.mjtStage.mjSTAGE_ACC)
 _STATE = mujoco.mjtState.mjSTATE_INTEGRATION
 # the single environment's info keys, each followed by its mask's (SyncVectorEnv's order)
 _MASKED_INFO_KEYS, _MASKED_STEP_INFO_KEYS = (
@@ -281,7 +279,7 @@ class HexLoadingVectorEnv(VectorEnv):
             raise NotImplementedError("step_physics_only times the native batch; this environment runs in Python")
         self.sites.ctrl[:, self.sites.ctrl_ids] = spools_mm
         start = time.perf_counter()
-        self.sites.batch.step(None, nstep=self.task.periods, stage=_VEL)  # as BatchSites.step every site
+        self.sites.batch.step(None, nstep=self.task.periods, stage=VEL_STAGE)  # as BatchSites.step every site
         return time.perf_counter() - start
 
     def close_extras(self, **kwargs: Any) -> None:
@@ -314,7 +312,7 @@ class HexLoadingVectorEnv(VectorEnv):
         """Derived quantities of freshly loaded sites (the start's masses, ``mj_forward``) and their teeth."""
         if isinstance(self.sites, BatchSites):
             self.sites.batch.set_const(ids)
-            self.sites.batch.forward(ids, stage=_ACC)
+            self.sites.batch.forward(ids, stage=ACC_STAGE)
         self.sites.refresh(ids)
         self.task.finish_starts(ids)
 
