@@ -137,8 +137,8 @@ class SitePhysics(Protocol):
 # the compiled stages read and write them by field. What MuJoCo and the earthwork own stays in plain arrays,
 # grouped in the named tuples below; the stages take those as plain tuples and name them again on entry
 # (``t = Tool(*tool)``, free once compiled): numba types a plain tuple at each call in a fraction of the
-# time a named one takes, and its cache index, which records the argument types, could not be read at all once a
-# class named there is renamed (numba issue 6018). A record array is one argument however many fields it has.
+# time a named one takes, and its cache index, which records the argument types by the class's name, could not be
+# read at all once a class named there is renamed. A record array is one argument however many fields it has.
 BUCKET, TRUCK, SPILLED = range(3)  # columns of a site's stores (kg held) and a step's flows (kg moved into them)
 BEFORE, NOW = range(2)  # rows of the shaping potentials: after the last step, after this one
 _SHAPING = REWARD_TERMS.index(SHAPING_TERMS[0])  # the first shaping term's column
@@ -700,6 +700,11 @@ def info_stores(ids: np.ndarray, piles: tuple, sites: np.ndarray, out: np.ndarra
         out[k, 4], out[k, 5] = site.fuel_l, site.elapsed
 
 
+def _site_field(name: str, doc: str) -> property:
+    """A read-only attribute: the view of field ``name`` of every site's record (``LoadingTask.sites``)."""
+    return property(lambda self: self.sites[name], doc=doc)
+
+
 # -- the task ---------------------------------------------------------------------------------------
 class LoadingTask:
     """The loading task's state for ``count`` sites and its step (see the module docstring).
@@ -785,36 +790,13 @@ class LoadingTask:
             self._machines_read = tuple(tool), tuple(joints), tuple(contacts)
         return self._machines_read
 
-    # -- the state by name ------------------------------------------------------------------------
-    @property
-    def stores(self) -> np.ndarray:
-        """The material each site holds (N, 3), kg: ``BUCKET``, ``TRUCK``, ``SPILLED`` (a view)."""
-        return self.sites["stores"]
-
-    @property
-    def fuel_l(self) -> np.ndarray:
-        """Diesel each site burnt this episode, L."""
-        return self.sites["fuel_l"]
-
-    @property
-    def elapsed(self) -> np.ndarray:
-        """Simulated seconds of each site's episode."""
-        return self.sites["elapsed"]
-
-    @property
-    def steps(self) -> np.ndarray:
-        """Steps of each site's episode."""
-        return self.sites["steps"]
-
-    @property
-    def cut_dir(self) -> np.ndarray:
-        """Each pile's fullest cut line (rad), as last found (:meth:`update_cut_directions`)."""
-        return self.sites["cut_direction"]
-
-    @property
-    def revision(self) -> np.ndarray:
-        """Counts each pile's changes (for a renderer's copy of it)."""
-        return self.sites["revision"]
+    # -- the state by name: views of a field of every site's record ----------------------------------
+    stores = _site_field("stores", "The material each site holds (N, 3), kg: ``BUCKET``, ``TRUCK``, ``SPILLED``.")
+    fuel_l = _site_field("fuel_l", "Diesel each site burnt this episode, L.")
+    elapsed = _site_field("elapsed", "Simulated seconds of each site's episode.")
+    steps = _site_field("steps", "Steps of each site's episode.")
+    cut_dir = _site_field("cut_direction", "Each pile's fullest cut line (rad), as last found (update_cut_directions).")
+    revision = _site_field("revision", "Counts each pile's changes (for a renderer's copy of it).")
 
     # -- episodes ---------------------------------------------------------------------------------
     def start(self, i: int, layout: Layout, pile: ew.Pile, payload_kg: float = 0.0) -> None:
