@@ -102,7 +102,7 @@ TABLE_SETS["circuit"] = valve_tables(PAPER_VALVE)
 TABLE_SETS["circuit_cat"] = valve_tables(CAT_VALVE)
 VALVE_OF_TABLE_SET = {"paper": "paper", "circuit": "paper", "circuit_cat": "cat"}
 CIRCUIT_TABLE_SETS = ("circuit", "circuit_cat")  # the sets the circuit model runs
-NATIVE_TABLE_SETS = ("circuit", "paper")  # the sets the native plugin runs
+NATIVE_TABLE_SETS = ("circuit", "paper", "circuit_cat")  # the sets the native plugin runs
 DEFAULT_TABLE_SET = "circuit"
 
 

@@ -39,7 +39,7 @@ import warnings
 import mujoco
 import numpy as np
 
-from hexgym.hydraulics.circuit import PAPER_VALVE, STATE_NAMES, STATE_SIZE, HydraulicCircuit, fuel_rate, valve_layout
+from hexgym.hydraulics.circuit import STATE_NAMES, STATE_SIZE, HydraulicCircuit, fuel_rate, valve_layout
 from hexgym.machine import parameters as p
 from hexgym.mbl.schema import CIRCUIT_TABLE_SETS, VALVE_OF_TABLE_SET
 from hexgym.mbl.table import MBLTable
@@ -65,8 +65,7 @@ class CircuitModel(LearnedModel):
         model, control_period: as :class:`~hexgym.model.python_backend.LearnedModel`.
         substeps: circuit steps per control period.
         table_set: which valve the tables are of (:data:`hexgym.mbl.schema.CIRCUIT_TABLE_SETS`): ``circuit``, the
-            paper's valve, or ``circuit_cat``, a Cat two-pump valve (run by the numpy definition: the native kernel
-            runs the paper's valve).
+            paper's valve, or ``circuit_cat``, a Cat two-pump valve (the native kernel runs either).
     """
 
     def __init__(
@@ -228,8 +227,6 @@ def _native_kernel(circuit: HydraulicCircuit, tables: dict[str, MBLTable]) -> ci
     """The native kernel for this circuit and valve, or None where the library cannot be used (said once per
     process: the model then runs the definition's numpy steps, several times slower)."""
     global _fallback_said
-    if circuit.layout != PAPER_VALVE:
-        return None  # the kernel runs the paper's valve (circuit_kernel.circuit_fields)
     reason = circuit_kernel.native_reason()
     if not reason:
         return circuit_kernel.NativeCircuit(circuit, tables, STOP_CLEARANCE)
