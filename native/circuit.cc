@@ -585,9 +585,15 @@ Circuit::Circuit(const double* numbers, int count, std::vector<ValveTable> table
     Section& s = section[i];
     s.function = Index(field[kFieldSectionFunction][i], kNumFunctions, "section_function");
     s.pump = Index(field[kFieldSectionPump][i], kNumPumps, "section_pump");
-    for (int j = 0; j < kNumPassages; ++j) s.table[j] = table(field[kFieldSectionTable][kNumPassages * i + j], "section_table");
-    for (int j = 0; j < 4; ++j) s.branch[j] = Index(field[kFieldSectionBranch][4 * i + j], branches, "section_branch", -1);
-    if (s.table[kBypass] < 0) throw CircuitError("circuit field 'section_table': section " + std::to_string(i) + " has no bypass table");
+    for (int j = 0; j < kNumPassages; ++j) {
+      s.table[j] = table(field[kFieldSectionTable][kNumPassages * i + j], "section_table");
+    }
+    for (int j = 0; j < 4; ++j) {
+      s.branch[j] = Index(field[kFieldSectionBranch][4 * i + j], branches, "section_branch", -1);
+    }
+    if (s.table[kBypass] < 0) {
+      throw CircuitError("circuit field 'section_table': section " + std::to_string(i) + " has no bypass table");
+    }
     for (int j = 0; j < 4; ++j) {
       if ((s.table[j + 1] < 0) != (s.branch[j] < 0)) {
         throw CircuitError("circuit fields 'section_table', 'section_branch': section " + std::to_string(i) +
@@ -609,12 +615,15 @@ Circuit::Circuit(const double* numbers, int count, std::vector<ValveTable> table
     g.side = Index(row[2] + 1, 3, "regeneration (side + 1)") - 1;
     g.table = table(row[3], "regeneration (table)");
     g.area = row[4];
-    if (g.side == 0) throw CircuitError("circuit field 'regeneration': passage " + std::to_string(r) + " opens on no side");
+    if (g.side == 0) {
+      throw CircuitError("circuit field 'regeneration': passage " + std::to_string(r) + " opens on no side");
+    }
   }
   for (int t = 0; t < num_tables; ++t) {
     if (used[t] != 1) {
-      throw CircuitError("the valve's table " + std::to_string(t) + " of " + std::to_string(num_tables) + " is used by " +
-                         std::to_string(used[t]) + " passages of the circuit, not one (tables of another layout?)");
+      throw CircuitError("the valve's table " + std::to_string(t) + " of " + std::to_string(num_tables) +
+                         " is used by " + std::to_string(used[t]) +
+                         " passages of the circuit, not one (tables of another layout?)");
     }
   }
   ints(kFieldBypassBranch, kNumPumps, branches, bypass_branch);
@@ -635,7 +644,9 @@ Circuit::Circuit(const double* numbers, int count, std::vector<ValveTable> table
   if (!(law[kLawMaxSplits] >= 0 && law[kLawMaxSplits] <= 30)) throw CircuitError("laws: max_splits must be 0 to 30");
   valve = std::move(tables);
   for (int j = 0; j < kNumPumps; ++j) {  // LearnedValve: the mean of its sections' bypass tables at neutral
-    if (series[j].empty()) throw CircuitError("circuit field 'section_pump': pump " + std::to_string(j + 1) + " feeds no section");
+    if (series[j].empty()) {
+      throw CircuitError("circuit field 'section_pump': pump " + std::to_string(j + 1) + " feeds no section");
+    }
     double neutral = 0.0;
     for (int i : series[j]) neutral += valve[section[i].table[kBypass]](0.0);
     neutral /= static_cast<double>(series[j].size());

@@ -29,7 +29,8 @@ The period's circuit steps run natively (:class:`hexgym.model.circuit_kernel.Nat
 ``hexgym.mbl`` plugin runs, called through ``ctypes``); ``_control_period_numpy`` runs the same steps through
 :class:`HydraulicCircuit`'s numpy methods, the definition the kernel is tested against, and the fallback (several
 times slower, said once per process) where the plugin library was not built. The native plugin runs this whole
-period inside ``mj_step`` (:class:`hexgym.model.native_backend.NativeLearnedModel` with the ``circuit`` tables).
+period inside ``mj_step`` (:class:`hexgym.model.native_backend.NativeLearnedModel` with a circuit table set's
+tables); either runs any valve layout, the paper's (``circuit``) and the Cat two-pump valve (``circuit_cat``).
 """
 
 from __future__ import annotations
