@@ -37,7 +37,7 @@ constexpr const char* kAttributes[] = {
     "swing_rest_rate",  // rad/s
     "rate_range",  // lo hi per joint, rad/s (the Python path's servo ctrlrange)
     "control_period",  // s between table queries, >= one step (default: one step)
-    "table_set",  // which table set the tables directory holds: circuit, circuit_cat or paper (default: the default set)
+    "table_set",  // the tables directory's table set: circuit, paper, circuit_cat (default circuit)
     "circuit",  // the circuit's numbers (CIRCUIT_COUNTS, then CIRCUIT_FIELDS), for a circuit model's table set
     "substeps",  // the circuit's steps per control period, for a circuit model's table set
 };

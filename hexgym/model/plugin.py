@@ -46,7 +46,7 @@ CONFIG_KEYS: dict[str, str] = {
     "swing_rest_rate": "rad/s",
     "rate_range": "lo hi per joint, rad/s (the Python path's servo ctrlrange)",
     "control_period": "s between table queries, >= one step (default: one step)",
-    "table_set": "which table set the tables directory holds: circuit, circuit_cat or paper (default: the default set)",
+    "table_set": f"the tables directory's table set: {', '.join(NATIVE_TABLE_SETS)} (default {DEFAULT_TABLE_SET})",
     "circuit": "the circuit's numbers (CIRCUIT_COUNTS, then CIRCUIT_FIELDS), for a circuit model's table set",
     "substeps": "the circuit's steps per control period, for a circuit model's table set",
 }
