@@ -6,9 +6,8 @@ import numpy as np
 from numba.core.caching import NullCache
 
 from hexgym.envs import earthwork, task
-from hexgym.envs.loading import heap_for, make_machine, sample_start, start_machine
-from hexgym.envs.sites import MachineSites
-from hexgym.envs.world import World
+from hexgym.envs.loading import sample_start
+from hexgym.envs.sites import MachineSites, make_machine
 
 
 def _dispatchers(module):
@@ -28,18 +27,12 @@ def test_stepping_some_sites_leaves_the_others_untouched():
     machines = [make_machine("python", tool_contact_slots=task.CONTACT_SLOTS) for _ in range(3)]
     sites = MachineSites(machines)
     weights = dict.fromkeys(task.REWARD_TERMS, 1.0)
-    t = task.LoadingTask(3, sites, machines[0].control_period, 180.0, 13000.0, weights)
+    t = task.LoadingTask(3, sites, 180.0, 13000.0, weights)
     rng = np.random.default_rng(0)
-    for i, machine in enumerate(machines):
-        layout, q = sample_start(rng)
-        start_machine(machine, World(machine.physics.model), q, layout)
-        t.start(i, layout, heap_for(layout), machine.physics.payload_kg)
-    sites.refresh(np.arange(3))
-    t.finish_starts(np.arange(3))
+    t.start(np.arange(3), [task.SiteStart(*sample_start(rng)) for _ in range(3)])
     qpos, obs = sites.qpos.copy(), t.observe(np.arange(3))
-    sites.spools_m[:] = 0.011  # every spool fully open: all sites would move
     for _ in range(3):
-        t.step(np.array([0, 2]))
+        t.step(np.array([0, 2]), np.full((2, 4), 0.011))  # every spool fully open: the sites stepped move
     moved = [not np.array_equal(sites.qpos[i], qpos[i]) for i in range(3)]
     assert moved == [True, False, True]
     assert np.array_equal(sites.qpos[0], machines[0].physics.data.qpos)  # the gathered copy is current
