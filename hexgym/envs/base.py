@@ -29,6 +29,7 @@ import numpy as np
 from gymnasium import spaces
 
 from hexgym.checks import check_choice, check_path_type, check_positive
+from hexgym.envs.earthwork import Earthwork
 from hexgym.envs.sites import MachineSites, make_machine
 from hexgym.envs.task import (
     CONTACT_SLOTS,
@@ -113,7 +114,7 @@ def make_config(config_type: type[Config], env_id: str, config: Config | None, o
     names = {field.name for field in dataclasses.fields(config_type)}
     for name in overrides:
         if name not in names:
-            raise TypeError(f"{env_id} has no argument {name!r}")
+            raise TypeError(f"{env_id} got an unexpected keyword argument {name!r} (not one of its config's fields)")
     if config is None:
         return config_type(**overrides)
     if not isinstance(config, config_type):
@@ -230,7 +231,7 @@ class SiteEnv(gym.Env):
                 f"({frame.offwidth} x {frame.offheight})"
             )
         self.layout: Layout | None = None
-        self.earth: Any = None  # the site's material stores (hexgym.envs.earthwork.Earthwork) once reset
+        self.earth: Earthwork | None = None  # the site's material stores, a view of the task's (once reset)
 
     def _build(self) -> None:
         c = self.config

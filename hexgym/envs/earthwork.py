@@ -25,7 +25,8 @@ bucket, the truck and the ground (spilled), and only moves between them, so thei
 The arithmetic is written once, as numba-compiled functions of one site of a stack of piles
 (``heights[i]`` of an ``(N, n, n)`` array, its grid origin ``origin[i]``): the loading task
 (:mod:`hexgym.envs.task`) calls them for each of its N sites, and :class:`Pile` and
-:class:`Earthwork` are one-site handles on the same functions (tests, tools, agents).
+:class:`Earthwork` are one-site handles on the same functions (an environment's ``earth``: a view of the task's
+pile and stores; tests, tools, agents).
 """
 
 from __future__ import annotations

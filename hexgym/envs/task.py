@@ -3,11 +3,12 @@
 :class:`LoadingTask` holds what the task knows of each site beyond the machine (its pile, the
 material in the bucket, truck and on the ground, the teeth's sampled motion, fuel and time) as
 one record per site (:data:`SITE`: fields by name), and advances a step of any subset of them. The machines are behind a
-:class:`SitePhysics`: one learned machine model (:mod:`hexgym.envs.loading`) or a MuJoCo batch
-(:mod:`hexgym.envs.sites`); it exposes the simulation's arrays with a leading site axis and
-steps, pushes and re-masses sites. The arithmetic of each stage is one numba-compiled function
-over the sites (``cache=True``: compiled on the first call of a fresh install, then loaded from
-``__pycache__``), so N single environments and one batch of N give the same floats.
+:class:`SitePhysics` (learned machine models or a MuJoCo batch, :mod:`hexgym.envs.sites`): the task starts sites
+through it (:meth:`LoadingTask.start`: a :class:`SiteStart` each), hands it each step's spools
+(:meth:`LoadingTask.step`), and has it step, push and re-mass sites; it exposes the simulation's arrays with a
+leading site axis. The arithmetic of each stage is one numba-compiled function
+over the sites (:data:`hexgym.envs.compiled.jit`: compiled on the first call of a fresh install, then loaded
+from ``__pycache__``), so N single environments and one batch of N give the same floats.
 
 A step advances four 25 ms control periods per site on the single environment's schedule:
 
