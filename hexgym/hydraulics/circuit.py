@@ -50,6 +50,8 @@ faster; the swing torque returned is on the swing axis.
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -136,42 +138,184 @@ def compliance(pressure: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 # --------------------------------------------------------------------------------------------
-# The valve: spool position -> passage areas.
+# The valve: its sections, and spool position -> passage areas.
+PASSAGES = ("pa", "pb", "at", "bt")
+REGENERATION_PASSAGES = ("stick_regeneration", "stick_unloading", "boom_regeneration")
+
+
+@dataclass(frozen=True)
+class ValveSection:
+    """One spool section of the main valve: the function whose spool moves it, the pump (0 or 1) it meters from,
+    the full-open areas (m^2) of the passages it has (of ``PASSAGES``) and of its centre bypass."""
+
+    name: str
+    function: str
+    pump: int
+    areas: dict[str, float]
+
+    @property
+    def passages(self) -> tuple[str, ...]:
+        """The metering passages the section has, in ``PASSAGES`` order."""
+        return tuple(k for k in PASSAGES if k in self.areas)
+
+
+@dataclass(frozen=True)
+class ValveLayout:
+    """The main valve: its sections (the first four are one per function, in ``FUNCTIONS`` order) and whether
+    it has the swing's and the boom raise's priority over the stick and the stick's and boom's regeneration
+    (parameters in
+    :mod:`hexgym.machine.parameters`)."""
+
+    name: str
+    sections: tuple[ValveSection, ...]
+    swing_priority: bool = False
+    boom_priority: bool = False
+    stick_regeneration: bool = False
+    boom_regeneration: bool = False
+
+    def __post_init__(self) -> None:
+        check_layout(self)
+
+
+def check_layout(layout: ValveLayout) -> None:
+    """Raise ValueError, naming the section and parameter, where a layout cannot be a circuit."""
+    functions = tuple(s.function for s in layout.sections[: len(FUNCTIONS)])
+    if functions != FUNCTIONS:
+        raise ValueError(f"valve layout {layout.name!r}: its first sections must be {FUNCTIONS}, got {functions}")
+    for s in layout.sections:
+        where = f"valve layout {layout.name!r}, section {s.name!r}"
+        if s.function not in FUNCTIONS:
+            raise ValueError(f"{where}: function {s.function!r} is not one of {FUNCTIONS}")
+        if s.pump not in (0, 1):
+            raise ValueError(f"{where}: pump {s.pump!r} is not 0 or 1 (the machine has two pumps)")
+        unknown = sorted(set(s.areas) - set(PASSAGES) - {"bypass"})
+        if unknown or "bypass" not in s.areas:
+            raise ValueError(f"{where}: areas must be a bypass and some of {PASSAGES}, got {sorted(s.areas)}")
+        bad = [k for k, a in s.areas.items() if not (np.isfinite(a) and a > 0.0)]
+        if bad:
+            raise ValueError(f"{where}: area {bad[0]!r} = {s.areas[bad[0]]} m^2 is not a positive number")
+    for pump in (0, 1):
+        if not any(s.pump == pump for s in layout.sections):
+            raise ValueError(f"valve layout {layout.name!r}: pump {pump + 1} feeds no section")
+
+
+def check_circuit_parameters() -> None:
+    """Raise ValueError naming the parameter of :mod:`hexgym.machine.parameters` where the circuit's would be
+    inconsistent: a relief that opens below the pumps' standby (NFC) pressure, a pump with no flow, an oil volume
+    or bulk modulus that is not positive."""
+    reliefs = {"MAIN_RELIEF": p.MAIN_RELIEF, "SWING_RELIEF": p.SWING_RELIEF}
+    reliefs |= {f"LINE_RELIEF[{k!r}]": v for k, v in p.LINE_RELIEF.items()}
+    for name, setting in reliefs.items():
+        if not setting > p.NFC_PRESSURE_IDLE:
+            raise ValueError(
+                f"{name} = {setting / 1e6:g} MPa is not above the pumps' standby pressure NFC_PRESSURE_IDLE "
+                f"= {p.NFC_PRESSURE_IDLE / 1e6:g} MPa: the relief would pass the idle flow"
+            )
+    positive = {"PUMP_MAX_FLOW": p.PUMP_MAX_FLOW, "OIL_BULK_MODULUS": p.OIL_BULK_MODULUS}
+    positive |= {"PUMP_LINE_VOLUME": p.PUMP_LINE_VOLUME, "BYPASS_VOLUME": p.BYPASS_VOLUME}
+    positive |= {"SWING_PORT_VOLUME": p.SWING_PORT_VOLUME}
+    positive |= {f"CYLINDER_PORT_VOLUME[{k!r}]": v for k, v in p.CYLINDER_PORT_VOLUME.items()}
+    for name, value in positive.items():
+        if not (np.isfinite(value) and value > 0.0):
+            raise ValueError(f"{name} = {value} is not a positive number")
+
+
+def _sections(areas: dict[str, dict[str, float]], pumps: dict[str, int], functions: dict[str, str]) -> tuple:
+    return tuple(ValveSection(name, functions.get(name, name), pumps[name], a) for name, a in areas.items())
+
+
+# The paper's schematic (its Fig 2): pump 1 feeds boom and bucket, pump 2 stick and swing.
+PAPER_VALVE = ValveLayout("paper", _sections(p.VALVE_AREAS, PUMP_OF, {}))
+# A Cat two-pump valve: the paper's sections, boom 2 and stick 2 on the other pump, swing and boom priority over the
+# stick, stick and boom regeneration (the sources by the parameters).
+CAT_VALVE = ValveLayout(
+    "cat",
+    PAPER_VALVE.sections
+    + _sections(p.COMBINING_VALVE_AREAS, {"boom2": 1, "stick2": 0}, {"boom2": "boom", "stick2": "stick"}),
+    swing_priority=True,
+    boom_priority=True,
+    stick_regeneration=True,
+    boom_regeneration=True,
+)
+VALVE_LAYOUTS = {layout.name: layout for layout in (PAPER_VALVE, CAT_VALVE)}
+
+
+def valve_layout(name: str) -> ValveLayout:
+    """The valve layout of that name, or ValueError listing the known ones."""
+    if name not in VALVE_LAYOUTS:
+        raise ValueError(f"unknown valve layout {name!r}; choose one of {sorted(VALVE_LAYOUTS)}")
+    return VALVE_LAYOUTS[name]
+
+
 @dataclass(frozen=True)
 class SpoolAreas:
-    """Passage areas (m^2) of the four valve sections, each an array in ``FUNCTIONS`` order."""
+    """Passage areas (m^2) of the valve's sections, each an array in the layout's section order (the first four
+    one per function, ``FUNCTIONS`` order); a passage a section lacks is 0."""
 
     pa: np.ndarray  # P -> a (through the load check)
     pb: np.ndarray  # P -> b
     at: np.ndarray  # a -> T
     bt: np.ndarray  # b -> T
     bypass: np.ndarray  # centre bypass through this section
-    pump_bypass: np.ndarray | None = None  # (2,) each pump's bypass, both sections; None: their series
+    pump_bypass: np.ndarray | None = None  # (2,) each pump's bypass, all its sections; None: their series
+    stick_regeneration: float = 0.0  # stick rod -> head through the regeneration check
+    stick_unloading: float = 0.0  # stick rod -> tank through the unloading valve (when the head pressure opens it)
+    boom_regeneration: float = 0.0  # boom head -> rod through the regeneration check (boom lower)
 
 
 def _unit(z: np.ndarray) -> np.ndarray:
     return np.minimum(np.maximum(z, 0.0), 1.0)
 
 
-_AREA_MAX = {k: np.array([p.VALVE_AREAS[f][k] for f in FUNCTIONS]) for k in ("pa", "pb", "at", "bt", "bypass")}
+def _area_max(layout: ValveLayout) -> dict[str, np.ndarray]:
+    return {k: np.array([s.areas.get(k, 0.0) for s in layout.sections]) for k in (*PASSAGES, "bypass")}
 
 
-def spool_areas(spools_m: np.ndarray) -> SpoolAreas:
+_AREA_MAX = {name: _area_max(layout) for name, layout in VALVE_LAYOUTS.items()}
+_BOOM, _STICK, _SWING = FUNCTIONS.index("boom"), FUNCTIONS.index("stick"), FUNCTIONS.index("swing")
+
+
+def spool_areas(spools_m: np.ndarray, layout: ValveLayout = PAPER_VALVE) -> SpoolAreas:
     """Open-centre section areas: dead band, progressive metering, bypass closed at full stroke."""
     u = np.asarray(spools_m, dtype=float)
+    index = [FUNCTIONS.index(s.function) for s in layout.sections]
+    if len(index) != len(FUNCTIONS):
+        u = u[index]  # each section moves with its function's spool
     span = p.SPOOL_STROKE - p.SPOOL_DEAD_BAND
     up = _unit((u - p.SPOOL_DEAD_BAND) / span) ** p.METERING_EXPONENT
     down = _unit((-u - p.SPOOL_DEAD_BAND) / span) ** p.METERING_EXPONENT
     stroke = np.abs(u) - p.BYPASS_CLOSE_START
     land = 1.0 - _unit(stroke / (p.BYPASS_LAND_CLOSED - p.BYPASS_CLOSE_START))
     notch = 1.0 - _unit(stroke / (p.BYPASS_CLOSED - p.BYPASS_CLOSE_START))
-    return SpoolAreas(
-        pa=_AREA_MAX["pa"] * up,
-        pb=_AREA_MAX["pb"] * down,
-        at=_AREA_MAX["at"] * down,
-        bt=_AREA_MAX["bt"] * up,
-        bypass=(_AREA_MAX["bypass"] - p.BYPASS_NOTCH_AREA) * land + p.BYPASS_NOTCH_AREA * notch,
+    a = _AREA_MAX[layout.name] if VALVE_LAYOUTS.get(layout.name) is layout else _area_max(layout)
+    areas = SpoolAreas(
+        pa=a["pa"] * up,
+        pb=a["pb"] * down,
+        at=a["at"] * down,
+        bt=a["bt"] * up,
+        bypass=(a["bypass"] - p.BYPASS_NOTCH_AREA) * land + p.BYPASS_NOTCH_AREA * notch,
     )
+    if layout.swing_priority:  # the swing's opening throttles the stick 1 section's supply
+        swing_open = max(up[_SWING], down[_SWING])
+        cut = 1.0 - (1.0 - p.SWING_PRIORITY_STICK_SHARE) * swing_open
+        areas.pa[_STICK] *= cut
+        areas.pb[_STICK] *= cut
+    if layout.boom_priority:  # raising the boom throttles the stick 2 section's supply
+        cut = 1.0 - (1.0 - p.BOOM_PRIORITY_STICK_SHARE) * up[_BOOM]
+        stick2 = [i for i, s in enumerate(layout.sections) if s.function == "stick" and i >= len(FUNCTIONS)]
+        areas.pa[stick2] *= cut
+        areas.pb[stick2] *= cut
+    extra = {}
+    if layout.stick_regeneration:  # stick in: the return restricted, the rod's oil offered to the head
+        stick_in = up[_STICK]
+        areas.bt[_STICK] *= 1.0 - (1.0 - p.STICK_REGEN_RETURN_SHARE) * stick_in
+        extra |= {
+            "stick_regeneration": p.STICK_REGEN_AREA * stick_in,
+            "stick_unloading": p.STICK_UNLOADING_AREA * stick_in,
+        }
+    if layout.boom_regeneration:  # boom lower: the head's oil offered to the rod
+        extra["boom_regeneration"] = p.BOOM_REGEN_AREA * down[_BOOM]
+    return dataclasses.replace(areas, **extra) if extra else areas
 
 
 def relief_area(setting: float, rated_flow: float) -> float:
@@ -240,15 +384,19 @@ class _Branches:
     crack: np.ndarray  # per valve branch
     inv_span: np.ndarray
     laminar: np.ndarray
+    pilot: np.ndarray  # per valve branch: the node whose pressure opens it, or -1 for its own pressure drop
 
 
-def _build_branches() -> tuple[_Branches, dict[str, np.ndarray]]:
-    rows: list[tuple[str, int, int, float, float | None, float, float]] = []
+def _build_branches(layout: ValveLayout) -> tuple[_Branches, dict[str, np.ndarray]]:
+    """The branches and, per passage (``PASSAGES``, ``bypass``, ``stick_regeneration``, ``stick_unloading``),
+    the branches the valve's areas go to; ``"<passage>_section"`` names the section each comes from."""
+    rows: list[tuple[str, int, int, float, float | None, float, float, int]] = []
 
-    def add(name: str, frm: int, to: int, area: float = 0.0, crack=None, span=1.0, lam=0.0) -> None:
-        rows.append((name, frm, to, area, crack, span, lam))
+    def add(name: str, frm: int, to: int, area: float = 0.0, crack=None, span=1.0, lam=0.0, pilot=-1) -> None:
+        rows.append((name, frm, to, area, crack, span, lam, pilot))
 
-    groups: dict[str, list[int]] = {k: [] for k in ("pa", "pb", "at", "bt", "bypass")}
+    groups: dict[str, list[int]] = {k: [] for k in (*PASSAGES, "bypass")}
+    sections: dict[str, list[int]] = {k: [] for k in PASSAGES}
     for pump in range(2):
         groups["bypass"].append(len(rows))
         add(f"bypass{pump + 1}", pump, 2 + pump)
@@ -256,17 +404,30 @@ def _build_branches() -> tuple[_Branches, dict[str, np.ndarray]]:
         add(f"nfc_relief{pump + 1}", 2 + pump, TANK, relief_area(p.NFC_RELIEF, p.PUMP_MAX_FLOW), p.NFC_RELIEF)
         main = relief_area(p.MAIN_RELIEF, p.MAIN_RELIEF_RATED_FLOW)
         add(f"main_relief{pump + 1}", pump, TANK, main, p.MAIN_RELIEF, p.RELIEF_OVERRIDE)
-    for f in FUNCTIONS:
-        a, b = _PORTS[f]
-        pump = PUMP_OF[f]
-        for key, frm, to in (("pa", pump, a), ("pb", pump, b), ("at", a, TANK), ("bt", b, TANK)):
+    for i, section in enumerate(layout.sections):
+        a, b = _PORTS[section.function]
+        ends = {"pa": (section.pump, a), "pb": (section.pump, b), "at": (a, TANK), "bt": (b, TANK)}
+        for key in section.passages:
             groups[key].append(len(rows))
+            sections[key].append(i)
             crack = p.LOAD_CHECK_CRACKING if key in ("pa", "pb") else None
-            add(f"{f}_{key}", frm, to, 0.0, crack, p.LOAD_CHECK_SPAN)
-        for port, node in (("a", a), ("b", b)):
-            add(f"{f}_makeup_{port}", TANK, node, p.MAKEUP_AREA, p.MAKEUP_CRACKING, p.MAKEUP_SPAN)
-        _add_port_reliefs(add, f, a, b)
-    return _table(rows), {k: np.array(v) for k, v in groups.items()}
+            add(f"{section.name}_{key}", *ends[key], 0.0, crack, p.LOAD_CHECK_SPAN)
+        if i < len(FUNCTIONS):  # a function's ports, once
+            for port, node in (("a", a), ("b", b)):
+                add(f"{section.function}_makeup_{port}", TANK, node, p.MAKEUP_AREA, p.MAKEUP_CRACKING, p.MAKEUP_SPAN)
+            _add_port_reliefs(add, section.function, a, b)
+    if layout.stick_regeneration:
+        head, rod = _PORTS["stick"]
+        groups["stick_regeneration"] = [len(rows)]
+        add("stick_regeneration", rod, head, 0.0, p.LOAD_CHECK_CRACKING, p.LOAD_CHECK_SPAN)
+        groups["stick_unloading"] = [len(rows)]
+        add("stick_unloading", rod, TANK, 0.0, p.STICK_UNLOADING_PRESSURE, p.STICK_UNLOADING_SPAN, pilot=head)
+    if layout.boom_regeneration:
+        head, rod = _PORTS["boom"]
+        groups["boom_regeneration"] = [len(rows)]
+        add("boom_regeneration", head, rod, 0.0, p.LOAD_CHECK_CRACKING, p.LOAD_CHECK_SPAN)
+    out = {k: np.array(v, dtype=int) for k, v in groups.items()}
+    return _table(rows), out | {f"{k}_section": np.array(v, dtype=int) for k, v in sections.items()}
 
 
 def _add_port_reliefs(add, f: str, a: int, b: int) -> None:
@@ -298,6 +459,7 @@ def _table(rows: list) -> _Branches:
         crack=np.array([rows[i][4] for i in valve], dtype=float),
         inv_span=np.array([1.0 / rows[i][5] for i in valve]),
         laminar=np.array([r[6] for r in rows], dtype=float),
+        pilot=np.array([rows[i][7] for i in valve], dtype=int),
     )
 
 
@@ -313,10 +475,15 @@ class HydraulicCircuit:
 
     MAX_SPLITS = 6  # a step is cut to 1/64 at most
 
-    def __init__(self, valve: Callable[[np.ndarray], SpoolAreas] = spool_areas) -> None:
-        self.valve = valve  # spools (m) -> passage areas: the data sheet's law, or a learned one
+    def __init__(
+        self, valve: Callable[[np.ndarray], SpoolAreas] | None = None, layout: ValveLayout = PAPER_VALVE
+    ) -> None:
+        check_circuit_parameters()
+        self.layout = layout
+        # spools (m) -> passage areas: the data sheet's law, or a learned one
+        self.valve = functools.partial(spool_areas, layout=layout) if valve is None else valve
         self.split_count = 0
-        self.branches, self._groups = _build_branches()
+        self.branches, self._groups = _build_branches(layout)
         br = self.branches
         self.branch_index = {n: i for i, n in enumerate(br.names)}
         inc = np.zeros((N_NODES + 1, len(br.names)))
@@ -333,8 +500,11 @@ class HydraulicCircuit:
         self._port_volume = np.array([p.CYLINDER_PORT_VOLUME[n] for n in CYLINDER_NAMES])
         self._head_nodes = np.array([_PORTS[n][0] for n in CYLINDER_NAMES])
         self._rod_nodes = np.array([_PORTS[n][1] for n in CYLINDER_NAMES])
-        self._pump_sections = [np.array([i for i, f in enumerate(FUNCTIONS) if PUMP_OF[f] == k]) for k in (0, 1)]
+        self._pump_sections = [np.array([i for i, s in enumerate(layout.sections) if s.pump == k]) for k in (0, 1)]
         self._cushioned = np.array([FUNCTIONS.index(n) for n in CYLINDER_NAMES])
+        br = self.branches
+        self._piloted = br.valve[br.pilot >= 0]  # branches opened by another node's pressure
+        self._pilot_node = br.pilot[br.pilot >= 0]
         self._spool_key: bytes | None = None
         self._spool_areas = self.valve(np.zeros(len(FUNCTIONS)))
         self._eye = np.eye(STATE_SIZE)
@@ -367,8 +537,9 @@ class HydraulicCircuit:
     # ---- the layout, read-only (for the native kernel's numbers, hexgym.model.circuit_kernel) ----
     @property
     def branch_groups(self) -> dict[str, np.ndarray]:
-        """Branch indices of the valve's passages: ``pa``, ``pb``, ``at``, ``bt`` in ``FUNCTIONS`` order,
-        ``bypass`` one per pump (copies)."""
+        """Branch indices of the valve's passages: ``pa``, ``pb``, ``at``, ``bt`` in section order (the sections
+        that have the passage, ``"<passage>_section"``), ``bypass`` one per pump, the stick's ``stick_regeneration``
+        and ``stick_unloading`` where the layout has them (copies)."""
         return {k: v.copy() for k, v in self._groups.items()}
 
     @property
@@ -425,15 +596,18 @@ class HydraulicCircuit:
         sa = self._spool_areas
         area = self.branches.area.copy()
         g = self._groups
-        area[g["pa"]], area[g["pb"]] = sa.pa, sa.pb
+        area[g["pa"]], area[g["pb"]] = sa.pa[g["pa_section"]], sa.pb[g["pb_section"]]
         at, bt = sa.at.copy(), sa.bt.copy()
         c = self._cushioned  # a->T leaves the head end (retracting), b->T the rod end (extending)
         at[c] = series_area(at[c], self._cushion(np.asarray(ext)))
         bt[c] = series_area(bt[c], self._cushion(self.stroke - np.asarray(ext)))
-        area[g["at"]], area[g["bt"]] = at, bt
+        area[g["at"]], area[g["bt"]] = at[g["at_section"]], bt[g["bt_section"]]
         for k, sections in enumerate(self._pump_sections):  # the pump's spools in series
-            first, second = sa.bypass[sections]
-            area[g["bypass"][k]] = series_area(first, second) if sa.pump_bypass is None else sa.pump_bypass[k]
+            series = functools.reduce(series_area, sa.bypass[sections])
+            area[g["bypass"][k]] = series if sa.pump_bypass is None else sa.pump_bypass[k]
+        for passage in REGENERATION_PASSAGES:
+            if passage in g:
+                area[g[passage]] = getattr(sa, passage)
         return area
 
     def branch_flows(self, pressures: np.ndarray, area: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -444,13 +618,22 @@ class HydraulicCircuit:
         dp = pe[br.frm] - pe[br.to]
         r, dr = orifice_law(dp)
         opening, dopening = np.ones_like(dp), np.zeros_like(dp)
-        z = (dp[br.valve] - br.crack) * br.inv_span
-        opening[br.valve], ds = smoothstep(z)
+        drop = dp[br.valve] if len(self._piloted) == 0 else np.where(br.pilot >= 0, pe[br.pilot], dp[br.valve])
+        opening[br.valve], ds = smoothstep((drop - br.crack) * br.inv_span)
         dopening[br.valve] = ds * br.inv_span
+        dopening[self._piloted] = 0.0  # a piloted valve's opening moves with its pilot (pilot_conductance)
         cda = p.DISCHARGE_COEFFICIENT * area
         q = cda * opening * r + br.laminar * dp
         g = cda * (dopening * r + opening * dr) + br.laminar
         return q, g
+
+    def pilot_conductance(self, pressures: np.ndarray, area: np.ndarray) -> np.ndarray:
+        """d(flow)/d(pilot pressure) of each piloted branch (``branches.pilot``), m^3/(s Pa)."""
+        br, b = self.branches, self._piloted
+        dp = pressures[br.frm[b]] - np.where(br.to[b] == TANK, 0.0, pressures[np.minimum(br.to[b], N_NODES - 1)])
+        inv_span = br.inv_span[br.pilot >= 0]
+        _, ds = smoothstep((pressures[self._pilot_node] - br.crack[br.pilot >= 0]) * inv_span)
+        return p.DISCHARGE_COEFFICIENT * area[b] * orifice_law(dp)[0] * ds * inv_span
 
     @staticmethod
     def nfc_target(p_bypass: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -482,7 +665,8 @@ class HydraulicCircuit:
         if y.shape != (STATE_SIZE,) or not np.isfinite(y.sum()):
             raise ValueError(f"hydraulic state must be {STATE_SIZE} finite numbers ({STATE_NAMES})")
         pr, d = y[:N_NODES], y[N_NODES:]
-        q, g = self.branch_flows(pr, self.branch_areas(spools, ext))
+        area = self.branch_areas(spools, ext)
+        q, g = self.branch_flows(pr, area)
         net = self._inc @ q
         q_pump, dq_dd, dq_dp = self.pump_flows(pr[0:2], d)
         net[0:2] += q_pump
@@ -496,6 +680,8 @@ class HydraulicCircuit:
             return f, None, cap
         jac = np.zeros((STATE_SIZE, STATE_SIZE))
         dnet = -(self._inc * g) @ self._inc.T
+        if len(self._piloted):
+            dnet[:, self._pilot_node] += self._inc[:, self._piloted] * self.pilot_conductance(pr, area)
         dnet[0:2, 0:2] += dq_dp
         jac[:N_NODES, :N_NODES] = dnet / cap[:, None]
         jac[np.arange(N_NODES), np.arange(N_NODES)] -= pdot * dc / c

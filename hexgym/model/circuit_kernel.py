@@ -29,6 +29,7 @@ from hexgym.hydraulics.circuit import (
     FUNCTIONS,
     N_NODES,
     NODES,
+    PAPER_VALVE,
     PUMP_OF,
     REST_PRESSURE,
     STATE_SIZE,
@@ -119,6 +120,11 @@ def fault_pressure(circuit: HydraulicCircuit) -> float:
 
 def circuit_fields(circuit: HydraulicCircuit, stop_clearance: float) -> dict[str, np.ndarray]:
     """Every field of :data:`~hexgym.model.plugin.CIRCUIT_FIELDS` of ``circuit``, as an array of its shape."""
+    if circuit.layout != PAPER_VALVE:
+        raise ValueError(
+            f"the native circuit kernel runs the paper's valve layout, one section per function; the circuit's "
+            f"{circuit.layout.name!r} layout has {len(circuit.layout.sections)} sections and regeneration"
+        )
     br, groups = circuit.branches, circuit.branch_groups
     crack, inv_span = np.zeros(len(br.names)), np.zeros(len(br.names))
     crack[br.valve], inv_span[br.valve] = br.crack, br.inv_span

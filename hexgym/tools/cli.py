@@ -108,10 +108,12 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _cmd_reference_report(args: argparse.Namespace) -> int:
-    from hexgym.tools.reference_report import run_report
+    from hexgym.tools.reference_report import figures_table, run_report
 
-    print(json.dumps(run_report(args.out), indent=2))
-    print(f"plots: {Path(args.out) / 'interactions.png'}")
+    summary = run_report(args.out, valve=args.valve)
+    print(json.dumps(summary, indent=2))
+    print(figures_table(summary["published_figures"]))
+    print(f"summary: {Path(args.out) / 'summary.json'}; plots: {Path(args.out) / 'interactions.png'}")
     return 0
 
 
@@ -503,6 +505,13 @@ def build_parser() -> argparse.ArgumentParser:
         "reference-report", help="reference model: full-spool speeds, interaction plots (Figs 5-8), speed"
     )
     report.add_argument("--out", default="out/reference", help="output directory (default: out/reference)")
+    report.add_argument(
+        "--valve",
+        choices=("paper", "cat"),
+        default="paper",
+        help="main valve: the paper's schematic, or a Cat two-pump valve (both pumps on boom and stick, swing "
+        "priority, regeneration) (default: paper)",
+    )
     report.set_defaults(func=_cmd_reference_report)
 
     add_collect_parser(sub)

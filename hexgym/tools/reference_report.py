@@ -1,9 +1,10 @@
 """The reference model's behaviour in numbers and plots: ``hexgym reference-report``.
 
 Single functions at full spool (cylinder speeds, swing rpm), the paper's two interaction tests
-(boom + bucket on pump 1, swing + stick on pump 2, each against the function alone) and the
-model's speed as computing time per simulated second. Writes ``summary.json`` and
-``interactions.png``.
+(boom + bucket on pump 1, swing + stick on pump 2, each against the function alone) and a third where
+a two-pump valve shares its combined flow (boom raise + stick in), the published acceptance figures
+beside the model's (:mod:`hexgym.tools.published_figures`) and the model's speed as computing time per
+simulated second. Writes ``summary.json`` and ``interactions.png``.
 """
 
 from __future__ import annotations
@@ -17,11 +18,13 @@ from hexgym.files import save_figure, write_json
 from hexgym.hydraulics.reference import ReferenceModel
 from hexgym.model.commandlog import CommandLog
 from hexgym.model.replay import replay
+from hexgym.tools.published_figures import published_figures
 from hexgym.tools.scenarios import POSE_LOW, POSE_SWING
 
 FULL = 11.0  # mm
 # Start poses (swing, boom, stick, bucket; rad) that leave the tested strokes room to run.
 POSE_HIGH = np.array([0.0, 0.6, -0.4, 0.9])  # boom high, stick out, bucket curled
+POSE_STICK_OUT = np.array([0.0, -0.45, -0.4, 0.0])  # boom low, stick out: room to raise the boom and pull in
 
 
 def _log(rows: list[tuple[float, float, float, float, float]]) -> CommandLog:
@@ -72,14 +75,19 @@ def interaction_tests(sim: ReferenceModel) -> dict[str, dict[str, np.ndarray]]:
             "together": replay(sim, _step_log((FULL, 0, FULL, 0), end=7.0), start=POSE_SWING),
             "alone": replay(sim, _step_log((FULL, 0, 0, 0), end=7.0), start=POSE_SWING),
         },
+        "test3_boom_stick": {
+            "together": replay(sim, _step_log((0, FULL, FULL, 0), end=4.0), start=POSE_STICK_OUT),
+            "alone": replay(sim, _step_log((0, FULL, 0, 0), end=4.0), start=POSE_STICK_OUT),
+        },
     }
 
 
 def interaction_figures(tests: dict[str, dict[str, np.ndarray]]) -> dict[str, float]:
     """Mean speed of the slowed function while the other moves, together vs alone."""
-    t1, t2 = tests["test1_boom_bucket"], tests["test2_swing_stick"]
+    t1, t2, t3 = tests["test1_boom_bucket"], tests["test2_swing_stick"], tests["test3_boom_stick"]
     bucket_moving = np.abs(t1["together"]["bucket_velocity_mps"]) > 0.02
     stick_moving = np.abs(t2["together"]["stick_velocity_mps"]) > 0.02
+    boom_stick = (t3["together"]["t"] > 1.0) & (t3["together"]["t"] < 2.0)
 
     def mean(traj: np.ndarray, column: str, mask: np.ndarray) -> float:
         return round(float(np.mean(traj[column][mask])), 4)
@@ -91,6 +99,9 @@ def interaction_figures(tests: dict[str, dict[str, np.ndarray]]) -> dict[str, fl
         "test2_swing_rad_s_while_stick_moves": mean(t2["together"], "qd_swing", stick_moving),
         "test2_swing_rad_s_alone_same_time": mean(t2["alone"], "qd_swing", stick_moving),
         "test2_stick_stops_at_s": round(float(t2["together"]["t"][stick_moving][-1]), 2),
+        "test3_boom_mps_with_stick_in": mean(t3["together"], "boom_velocity_mps", boom_stick),
+        "test3_boom_mps_alone": mean(t3["alone"], "boom_velocity_mps", boom_stick),
+        "test3_stick_mps_with_boom_up": mean(t3["together"], "stick_velocity_mps", boom_stick),
     }
 
 
@@ -101,10 +112,11 @@ def plot_interactions(tests: dict[str, dict[str, np.ndarray]], path: Path) -> Pa
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(3, 2, figsize=(12, 9), sharex="col")
+    fig, axes = plt.subplots(3, 3, figsize=(17, 9), sharex="col")
     panels = [
-        ("test1_boom_bucket", "Test 1: boom + bucket (pump 1)", "boom", "bucket"),
-        ("test2_swing_stick", "Test 2: swing + stick (pump 2)", "swing", "stick"),
+        ("test1_boom_bucket", "Test 1: boom + bucket", "boom", "bucket"),
+        ("test2_swing_stick", "Test 2: swing + stick", "swing", "stick"),
+        ("test3_boom_stick", "boom raise + stick in", "boom", "stick"),
     ]
     for col, (key, title, slowed, partner) in enumerate(panels):
         together, alone = tests[key]["together"], tests[key]["alone"]
@@ -122,9 +134,9 @@ def plot_interactions(tests: dict[str, dict[str, np.ndarray]], path: Path) -> Pa
         ax.legend(loc="lower right")
         ax = axes[2, col]
         ax.plot(together["t"], together[f"{partner}_velocity_mps"], label=f"{partner} cylinder (m/s)")
-        pump = "pump1" if col == 0 else "pump2"
         ax2 = ax.twinx()
-        ax2.plot(together["t"], together[f"{pump}_pressure_pa"] / 1e6, "k:", label=f"{pump} pressure")
+        for pump, style in (("pump1", "k:"), ("pump2", "k--")):
+            ax2.plot(together["t"], together[f"{pump}_pressure_pa"] / 1e6, style, lw=0.8, label=f"{pump} pressure")
         ax2.set_ylabel("pressure (MPa)")
         ax.set(xlabel="t (s)", ylabel=f"{partner} cylinder speed (m/s)")
         ax.legend(loc="upper left")
@@ -158,17 +170,35 @@ def benchmark(sim: ReferenceModel, seconds: float = 10.0) -> dict[str, float]:
     }
 
 
-def run_report(out_dir: str | Path) -> dict[str, object]:
-    """Run everything, write ``summary.json`` and ``interactions.png`` to ``out_dir``; return the summary."""
+def run_report(out_dir: str | Path, valve: str = "paper") -> dict[str, object]:
+    """Run everything on the reference model with valve layout ``valve``, write ``summary.json`` and
+    ``interactions.png`` to ``out_dir``; return the summary."""
     out_dir = Path(out_dir)
+    sim = ReferenceModel(valve=valve)  # refuses an unknown layout before anything is written
     out_dir.mkdir(parents=True, exist_ok=True)
-    sim = ReferenceModel()
     tests = interaction_tests(sim)
     summary = {
+        "valve": valve,
         "single_function": single_function_speeds(sim),
         "interactions": interaction_figures(tests),
+        "published_figures": published_figures(valve),
         "speed": benchmark(sim),
     }
     plot_interactions(tests, out_dir / "interactions.png")
     write_json(out_dir / "summary.json", summary)
     return summary
+
+
+def figures_table(figures: dict) -> str:
+    """The published figures beside the model's, one line each (:func:`published_figures`' dict)."""
+    lines = [f"published figures, valve {figures['valve']!r} (model / published, within +-20 %):"]
+    rows = figures["cylinder_times_s"] | {f"swing_{k}": v for k, v in figures["swing"].items()}
+    for name, row in rows.items():
+        mark = "yes" if row["within"] else "NO"
+        lines.append(f"  {name:20s} {row['model']:6.2f} / {row['published']:5.1f}  ratio {row['ratio']:.2f}  {mark}")
+    for name, row in figures["relief_settings_mpa"].items():
+        low, high = row["published"]
+        lines.append(
+            f"  {name + ' relief':20s} {row['model']:6.1f} MPa in {low:g}-{high:g}  {'yes' if row['within'] else 'NO'}"
+        )
+    return "\n".join(lines)
