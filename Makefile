@@ -36,8 +36,8 @@ test-slow: $(STAMP)
 	$(BIN)/python -m pytest -q -m slow
 
 lint: $(STAMP)
-	$(BIN)/ruff check hexgym tests training assets setup.py
-	$(BIN)/ruff format --check hexgym tests training assets setup.py
+	$(BIN)/ruff check hexgym hexgym_lab experiments tests assets setup.py
+	$(BIN)/ruff format --check hexgym hexgym_lab experiments tests assets setup.py
 
 # what CI runs: the README's test command, the linter, the Python backend's run
 ci: test lint test-python

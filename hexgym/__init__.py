@@ -1,11 +1,15 @@
 """hexgym: a fast, faithful simulator of a 25-ton hydraulic excavator (Cat 325 class) on MuJoCo.
 
-The subpackages follow the data flow, each importing only those before it: :mod:`hexgym.machine`
-(parameters, kinematics, the MuJoCo linkage, assets) -> :mod:`hexgym.hydraulics` (the analytical
-circuit, fuel, the reference model) -> :mod:`hexgym.mbl` (table schema, collection, LWR, fitting,
-tables) -> :mod:`hexgym.model` (the learned model on the Python or native backend, command logs,
-replay) -> :mod:`hexgym.envs` (``HexLoading-v0``) -> :mod:`hexgym.agents` (scripted loader, training,
-evaluation, video) -> :mod:`hexgym.tools` (the ``hexgym`` command line, benchmarks, validation).
+The runtime library: what a program imports to simulate, plan and act. The subpackages follow the data
+flow, each importing only those before it: :mod:`hexgym.machine` (parameters, kinematics, the bucket, the
+MuJoCo linkage, assets) -> :mod:`hexgym.hydraulics` (the analytical circuit, fuel, the reference model) ->
+:mod:`hexgym.mbl` (the table schema and the fitted tables' lookup) -> :mod:`hexgym.model` (the learned model
+on the Python or native backend, command logs, replay) -> :mod:`hexgym.envs` (``HexLoading-v0`` and its
+siblings) -> :mod:`hexgym.planning` (optimal motions, collision prediction) -> :mod:`hexgym.wrappers` (the
+collision shield) -> :mod:`hexgym.agents` (the scripted loader, the shipped policy and loading policies).
+
+The lab beside it, :mod:`hexgym_lab` (collection, fitting, training, evaluation, benchmarks, validation,
+asset builders and the ``hexgym`` command line), imports hexgym; hexgym never imports the lab.
 
 ``import hexgym`` registers the environments and nothing more: the native plugin library is loaded
 when a native model is first built.

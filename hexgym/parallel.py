@@ -407,16 +407,3 @@ def check_nodes(timeout_s: float = PROBE_TIMEOUT_S) -> dict[str, dict]:
             raise ClusterError(f"Ray node {node} runs other versions than this driver: {', '.join(wrong)}")
         found[node] = theirs
     return found
-
-
-def add_ray_option(parser: Any, what: str = "the tasks") -> None:
-    """Add ``--ray [ADDRESS]`` to an argparse parser (dest ``ray``: None, "local" or the address)."""
-    parser.add_argument(
-        "--ray",
-        nargs="?",
-        const="local",
-        default=None,
-        metavar="ADDRESS",
-        help=f"run {what} as Ray tasks: alone, on a Ray started here with this machine's cores; with "
-        "HOST:PORT (or auto), on that running cluster (needs hexgym[cluster]; default: a local process pool)",
-    )

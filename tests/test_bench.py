@@ -5,9 +5,9 @@ import json
 import pytest
 
 from hexgym.model.plugin import native_available
-from hexgym.tools import bench
-from hexgym.tools.bench import interleaved_steps_per_second, steps_per_second, vector_steps_per_second
-from hexgym.tools.cli import main
+from hexgym_lab import bench
+from hexgym_lab.bench import interleaved_steps_per_second, steps_per_second, vector_steps_per_second
+from hexgym_lab.cli import main
 
 KEYS = (
     "learned_realtime_factor_python",
@@ -71,7 +71,7 @@ def test_batch_rollouts_are_timed_and_checked():
 
 
 def test_interleaved_rates_time_every_env_in_blocks(monkeypatch):
-    from hexgym.tools import bench
+    from hexgym_lab import bench
 
     blocks = []
     timed = bench._timed_steps

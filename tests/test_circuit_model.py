@@ -9,14 +9,14 @@ import pytest
 from hexgym.hydraulics.circuit import FUNCTIONS, PUMP_OF, HydraulicCircuit, series_area, spool_areas
 from hexgym.hydraulics.reference import ReferenceModel
 from hexgym.machine import parameters as p
-from hexgym.mbl.collect import CollectConfig, collect_operator_episode
-from hexgym.mbl.operator_logs import STYLES, operator_log, pose_from_fractions
 from hexgym.mbl.schema import TABLE_SETS, VALVE_PASSAGES
 from hexgym.mbl.table import load_tables
 from hexgym.mbl.valve import LearnedValve, identify_areas, pump_bypass_area
 from hexgym.model.circuit_model import CircuitModel
 from hexgym.model.commandlog import CommandLog
 from hexgym.model.replay import replay
+from hexgym_lab.mbl.collect import CollectConfig, collect_operator_episode
+from hexgym_lab.mbl.operator_logs import STYLES, operator_log, pose_from_fractions
 
 
 def _measure(sim: ReferenceModel, spools_m: np.ndarray) -> dict[str, float]:

@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from hexgym.tools.cli import build_parser, main
+from hexgym_lab.cli import build_parser, main
 
 SUBCOMMANDS = sorted(build_parser()._subparsers._group_actions[0].choices)
 
@@ -29,7 +29,7 @@ def test_model_json(capsys):
 
 def test_console_script_is_installed():
     result = subprocess.run(
-        [sys.executable, "-c", "from hexgym.tools.cli import main; raise SystemExit(main(['--help']))"],
+        [sys.executable, "-c", "from hexgym_lab.cli import main; raise SystemExit(main(['--help']))"],
         capture_output=True,
         text=True,
     )

@@ -16,9 +16,9 @@ from pathlib import Path
 
 import pytest
 
-from hexgym.mbl.collect import CollectConfig, chunk_path, collect, samples_digest
 from hexgym.parallel import LocalPool, executor
-from hexgym.tools.cli import build_parser
+from hexgym_lab.cli import build_parser
+from hexgym_lab.mbl.collect import CollectConfig, chunk_path, collect, samples_digest
 
 ROOT = Path(__file__).resolve().parent.parent
 TINY = CollectConfig(
@@ -64,15 +64,15 @@ def test_ray_option_on_every_parallel_command() -> None:
 
 def _hexgym(*argv: str, code: str = "") -> subprocess.CompletedProcess:
     """``hexgym ARGV`` in a fresh interpreter (``code`` run first), with a time limit."""
-    script = f"import sys\n{code}\nfrom hexgym.tools.cli import main\nsys.exit(main({list(argv)!r}))"
+    script = f"import sys\n{code}\nfrom hexgym_lab.cli import main\nsys.exit(main({list(argv)!r}))"
     return subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120, cwd=ROOT)
 
 
 def test_hexgym_and_its_cli_do_not_import_ray() -> None:
     code = (
-        "import sys, hexgym, gymnasium, hexgym.parallel, hexgym.tools.cli, hexgym.agents.evaluate\n"
+        "import sys, hexgym, gymnasium, hexgym.parallel, hexgym_lab.cli, hexgym_lab.agents.evaluate\n"
         "gymnasium.make('HexLoading-v0').reset(seed=0)\n"
-        "hexgym.tools.cli.build_parser()\n"
+        "hexgym_lab.cli.build_parser()\n"
         "print(sorted(m for m in sys.modules if m.split('.')[0] == 'ray'))"
     )
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT)
@@ -155,7 +155,7 @@ def test_a_ray_collection_interrupted_resumes_in_the_pool(ray_session, pool_data
 
 
 def test_ray_validation_suite_and_figure_equal_the_pool(ray_session, tmp_path: Path) -> None:
-    from hexgym.tools.validate import run_validation
+    from hexgym_lab.validate import run_validation
 
     kwargs = {"suite": 2, "suite_seed": 5, "suite_only": True, "suite_duration_s": 4.0}
     # two processes: one log per fresh model, as on Ray (one process replaying both logs on one model
@@ -168,7 +168,7 @@ def test_ray_validation_suite_and_figure_equal_the_pool(ray_session, tmp_path: P
 
 
 def test_ray_evaluation_equals_one_process(ray_session) -> None:
-    from hexgym.agents.evaluate import evaluate
+    from hexgym_lab.agents.evaluate import evaluate
 
     kwargs = {"episodes": 2, "seed": 3, "env_kwargs": {"time_limit": 3.0}}
     assert evaluate("scripted", ray="local", **kwargs) == evaluate("scripted", **kwargs)
@@ -247,7 +247,7 @@ def test_executor_refuses_tasks_larger_than_any_node(ray_session) -> None:
 
 @pytest.mark.slow
 def test_ray_planning_sweep_equals_the_sequential_one(ray_session) -> None:
-    from hexgym.tools.plan import run_plan
+    from hexgym_lab.plan import run_plan
 
     def figures(result: dict) -> list[dict]:
         return [{k: v for k, v in r.items() if not k.endswith("wall_s")} for r in result["per_seed"]]
@@ -273,10 +273,10 @@ def test_an_interrupted_ray_driver_keeps_its_chunks_and_resumes(ray_session, poo
     daemons = _ray_daemons()
     argv = ["collect", "--out", str(tmp_path), "--samples", "12", "--seed", str(SEED), "--ray"]
     code = (
-        "import sys\nimport hexgym.mbl.collect as c\nfrom tests.test_cluster import TINY\n"
+        "import sys\nimport hexgym_lab.mbl.collect as c\nfrom tests.test_cluster import TINY\n"
         "real = c.CollectConfig\n"  # the command's own config becomes TINY; configs read back from chunks stay
         "c.CollectConfig = lambda table_set=None, **kw: real(table_set=table_set, **kw) if kw else TINY\n"
-        "from hexgym.tools.cli import main\n"
+        "from hexgym_lab.cli import main\n"
         f"sys.exit(main({argv!r}))"
     )
     driver = subprocess.Popen([sys.executable, "-c", code], cwd=ROOT, stderr=subprocess.PIPE, text=True)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import numpy as np
@@ -11,21 +10,19 @@ import pytest
 from hexgym.hydraulics.reference import ReferenceModel
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
-from hexgym.mbl.collect import (
+from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS
+from hexgym_lab.mbl.collect import (
     CollectConfig,
     _chunk_task,
-    add_collect_parser,
     chunk_path,
     collect,
     episode_rng,
     episode_setup,
     load_dataset,
     model_fingerprint,
-    run_collect,
     run_segment,
     tip_force_world,
 )
-from hexgym.mbl.schema import TABLE_SETS
 
 TABLES = TABLE_SETS["paper"]
 # Short segments and episodes: a few seconds per collection, every code path.
@@ -185,10 +182,11 @@ def test_dataset_physics_sanity(tiny: dict[str, Path]) -> None:
 
 
 def test_cli_parser_defaults() -> None:
-    parser = argparse.ArgumentParser()
-    add_collect_parser(parser.add_subparsers(dest="command"))
+    from hexgym_lab.cli import build_parser
+
+    parser = build_parser()
     args = parser.parse_args(["collect"])
-    assert (args.out, args.seed, args.workers, args.func) == ("data", 0, 2, run_collect)
+    assert (args.out, args.seed, args.workers, args.tables, args.ray) == ("data", 0, 2, DEFAULT_TABLE_SET, None)
     assert args.samples >= 5500
     args = parser.parse_args(["collect", "--out", "x", "--samples", "10", "--seed", "3", "--workers", "1"])
     assert (args.out, args.samples, args.seed, args.workers) == ("x", 10, 3, 1)

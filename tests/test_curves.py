@@ -6,9 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from hexgym.agents.curves import CURVE_FILE, on_steps, read_curve, smoothed, summarise
-from hexgym.agents.training import CURVE_COLUMNS
-from hexgym.tools.cli import main
+from hexgym_lab.agents.curves import CURVE_FILE, on_steps, read_curve, smoothed, summarise
+from hexgym_lab.agents.training import CURVE_COLUMNS
+from hexgym_lab.cli import main
 
 
 def _run(directory, rows):

@@ -4,9 +4,9 @@ import imageio.v2 as imageio
 import imageio.v3 as iio
 import numpy as np
 
-from hexgym.agents.demo import run_demo
 from hexgym.machine.physics import ExcavatorPhysics
 from hexgym.machine.render import FrameRenderer
+from hexgym_lab.agents.demo import run_demo
 
 
 def test_renders_a_non_blank_frame_from_both_cameras():

@@ -92,7 +92,7 @@ def test_bad_arguments_are_named(kwargs, message):
 
 
 def test_evaluate_scores_the_scripted_dig_and_refuses_it_elsewhere():
-    from hexgym.agents.evaluate import evaluate_success
+    from hexgym_lab.agents.evaluate import evaluate_success
 
     result = evaluate_success("scripted", "HexDig-v0", episodes=2, seed=1000)
     assert result["success_rate"] == 1.0 and 4.0 < result["mean_time_to_success_s"] < 10.0
@@ -101,7 +101,7 @@ def test_evaluate_scores_the_scripted_dig_and_refuses_it_elsewhere():
 
 
 def test_video_films_the_dig(tmp_path):
-    from hexgym.agents.video import record_video
+    from hexgym_lab.agents.video import record_video
 
     result = record_video("scripted", tmp_path / "dig.mp4", seconds=1.0, width=96, height=64, env_id="HexDig-v0")
     assert result["frames"] == 10 and result["episodes"][0]["success"] is False and result["video"].stat().st_size

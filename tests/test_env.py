@@ -288,13 +288,6 @@ def test_spool_scaling():
     assert p.SPOOL_STROKE == pytest.approx(0.011)
 
 
-def test_fuel_estimate_tracks_the_reference_circuit():
-    from hexgym.tools.fuel_check import compare_with_reference
-
-    result = compare_with_reference()
-    assert 0.8 < result["ratio"] < 1.25  # measured 1.10 on the loading-like sequence
-
-
 def test_sampled_moment_arms_match_the_linkage():
     from hexgym.machine import kinematics
     from hexgym.machine.kinematics import tabulated_moment_arms
@@ -427,22 +420,6 @@ def test_observation_points_to_the_fullest_cut_and_follows_the_pile(env):
     for r in np.arange(centre - 2.0, centre + 1.0, 0.2):
         u.earth.pile.take((r * c, r * s), (-s, c), p.BUCKET_WIDTH, 0.0, 10.0)  # take the line it points to
     assert u.fullest_cut_direction() != pytest.approx(direction)  # the cached value followed the pile's change
-
-
-def test_fuel_check_suite_compares_the_estimate_with_the_reference(tmp_path):
-    from hexgym.tools.fuel_check import main, suite_comparison
-
-    result = suite_comparison(suite_seed=7, count=1)
-    log = result["per_log"][0]
-    assert log["reference_l"] > 0.0
-    for key in ("estimate_on_reference_motion", "estimate_on_learned_model"):
-        error = log[f"{key}_l"] / log["reference_l"] - 1.0
-        assert result["summary"][key]["median_error"] == pytest.approx(error)
-        assert abs(error) < 0.5  # measured: 16-19 % median over 16 logs of two suites (docs/hydraulics.md)
-    for bad in (["--suite", "-2"], ["--suite", "1", "--suite-seed", "-1"]):
-        with pytest.raises(SystemExit) as exit_info:
-            main(bad)
-        assert exit_info.value.code == 2
 
 
 def test_a_config_with_overrides_makes_the_same_environment():

@@ -5,18 +5,17 @@ import json
 import numpy as np
 import pytest
 
-from hexgym.agents.evaluate import (
+from hexgym.agents.policies import SHIPPED_POLICY, load_policy
+from hexgym.agents.policy_files import normalizer_path
+from hexgym_lab import cli
+from hexgym_lab.agents.evaluate import (
     FULL_ENOUGH_KG,
     METRIC_KEYS,
-    SHIPPED_POLICY,
     Episode,
     aggregate,
     evaluate,
-    load_policy,
-    normalizer_path,
     tonnes_per_hour_interval,
 )
-from hexgym.tools import cli
 
 
 def _episode(deliveries: dict[float, float], seconds: float = 60.0, seed: int = 0) -> Episode:
@@ -111,7 +110,7 @@ def test_shipped_policy_loads_and_acts():
 
 
 def test_video_writes_an_mp4_with_overlay(tmp_path, monkeypatch):
-    from hexgym.agents.video import overlay_text, record_video
+    from hexgym_lab.agents.video import overlay_text, record_video
 
     frame = np.full((60, 200, 3), 100, np.uint8)
     marked = overlay_text(frame, "t 1.0 s")
@@ -127,7 +126,7 @@ def test_video_writes_an_mp4_with_overlay(tmp_path, monkeypatch):
             seen.append(float(obs[21]))
             return np.zeros(4, np.float32)
 
-    monkeypatch.setattr("hexgym.agents.video.load_policy", lambda spec, env_id: BudgetSpy())
+    monkeypatch.setattr("hexgym_lab.agents.video.load_policy", lambda spec, env_id: BudgetSpy())
     result = record_video("scripted", tmp_path / "v.mp4", seconds=1.0, width=160, height=96)
     assert result["frames"] == 11 and result["video"].stat().st_size > 1000
     # a 1 s film of an episode that keeps its 180 s budget: the policy acts as it would in evaluation

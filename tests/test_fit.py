@@ -5,9 +5,9 @@
 import numpy as np
 import pytest
 
-from hexgym.mbl import fit
-from hexgym.mbl.baselines import synthetic_flow_sharing
 from hexgym.mbl.schema import TABLE_SETS
+from hexgym_lab.mbl import fit
+from hexgym_lab.mbl.baselines import synthetic_flow_sharing
 
 TABLES = TABLE_SETS["paper"]  # the set fit and tables default to
 
@@ -67,7 +67,7 @@ def test_wrong_or_missing_data_is_named(data_dir, tmp_path):
 
 
 def test_fitted_points_subsample_only_above_the_limit():
-    from hexgym.mbl.fit import MAX_POINTS, TableData, fitted_points
+    from hexgym_lab.mbl.fit import MAX_POINTS, TableData, fitted_points
 
     def data(n: int) -> TableData:
         return TableData(np.arange(2.0 * n).reshape(-1, 2), np.arange(float(n)), np.arange(n) // 7)
@@ -83,7 +83,7 @@ def test_fitted_points_subsample_only_above_the_limit():
 
 
 def test_episode_split_holds_out_whole_episodes():
-    from hexgym.mbl.fit import episode_split
+    from hexgym_lab.mbl.fit import episode_split
 
     episode = np.repeat(np.arange(50), 3)
     train, test = episode_split(episode, 0.2, seed=1)

@@ -1,5 +1,6 @@
-"""The package's structure: layers import downwards only, runtime loads no offline code, each
-interface is defined once (the plugin's header is generated from Python; the library and the tables
+"""The distribution's structure: the runtime library ``hexgym`` and the lab ``hexgym_lab`` beside it, hexgym
+never importing the lab; in each, layers import downwards only and no import circles; runtime loads no offline
+code; each interface is defined once (the plugin's header is generated from Python; the library and the tables
 are checked against it at load)."""
 
 import ast
@@ -17,35 +18,43 @@ from hexgym.mbl.table import MBLTable, load_table, load_tables, packaged_tables_
 from hexgym.model import plugin
 
 ROOT = Path(__file__).resolve().parent.parent
-PACKAGE = ROOT / "hexgym"
-# lower layers first: a module may import its own layer and those before it
+PACKAGE, LAB = ROOT / "hexgym", ROOT / "hexgym_lab"
+PACKAGES = ("hexgym", "hexgym_lab")
+# lower layers first: a module may import its own layer and those before it; the lab sits above all of hexgym
 LAYERS = (
     "parallel", "files", "interpolation", "machine", "hydraulics", "mbl", "model", "envs", "planning", "wrappers",
-    "agents", "tools",
+    "agents",
 )  # fmt: skip
-OFFLINE = ("hexgym.mbl.collect", "hexgym.mbl.fit", "hexgym.mbl.lwr", "hexgym.mbl.baselines", "hexgym.mbl.grid")
+# the lab's: its offline MBL pipeline, agents, then the harnesses at its top level (bench, validate, plan, ...),
+# then the command line over them all
+LAB_LAYERS = ("mbl", "agents", "harnesses", "cli", "__main__")
+OFFLINE_LIBRARIES = ("matplotlib", "stable_baselines3", "torch", "ray", "trimesh", "cmaes")
 
 
 def _layer(module: str) -> int:
-    part = module.split(".")[1]
-    return LAYERS.index(part) if part in LAYERS else -1  # hexgym.assets, hexgym itself: data, the root
+    package, part = module.split(".")[0], module.split(".")[1] if "." in module else ""
+    if package == "hexgym":
+        return LAYERS.index(part) if part in LAYERS else -1  # hexgym.assets, checks, hexgym itself: data, the root
+    if not part:
+        return -1  # the lab's package docstring
+    return len(LAYERS) + LAB_LAYERS.index(part if part in LAB_LAYERS else "harnesses")
 
 
 def _imports(path: Path) -> set[str]:
-    """The hexgym modules ``path`` imports anywhere in it (function-local imports included): a name imported
-    from a package counts as the module of that name where there is one."""
+    """The hexgym and hexgym_lab modules ``path`` imports anywhere in it (function-local imports included): a
+    name imported from a package counts as the module of that name where there is one."""
     out = set()
     for node in ast.walk(ast.parse(path.read_text())):
-        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("hexgym."):
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.split(".")[0] in PACKAGES:
             out.add(node.module)
             out.update(f"{node.module}.{a.name}" for a in node.names if _module_path(f"{node.module}.{a.name}"))
         elif isinstance(node, ast.Import):
-            out.update(a.name for a in node.names if a.name.startswith("hexgym."))
+            out.update(a.name for a in node.names if a.name.split(".")[0] in PACKAGES)
     return out
 
 
 def _module_path(module: str) -> Path | None:
-    """The file of a hexgym module, or None."""
+    """The file of a hexgym or hexgym_lab module, or None."""
     base = ROOT.joinpath(*module.split("."))
     for path in (base.with_suffix(".py"), base / "__init__.py"):
         if path.is_file():
@@ -54,14 +63,71 @@ def _module_path(module: str) -> Path | None:
 
 
 def _module_of(path: Path) -> str:
-    return "hexgym." + ".".join(path.relative_to(PACKAGE).with_suffix("").parts).removesuffix(".__init__")
+    return ".".join(path.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__")
+
+
+def _modules() -> list[Path]:
+    return sorted([*PACKAGE.rglob("*.py"), *LAB.rglob("*.py")])
+
+
+def lab_imports(source: str) -> list[tuple[str, int]]:
+    """(module, line) of every import of the lab in ``source``: import statements anywhere (module level, in a
+    function, under ``if``/``try``) and ``importlib.import_module``/``__import__`` of a literal name."""
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names = [node.module]
+        elif (
+            isinstance(node, ast.Call)
+            and getattr(node.func, "attr", getattr(node.func, "id", None)) in ("import_module", "__import__")
+            and node.args
+            and isinstance(node.args[0], ast.Constant)
+            and isinstance(node.args[0].value, str)
+        ):
+            names = [node.args[0].value]
+        else:
+            continue
+        found += [(name, node.lineno) for name in names if name.split(".")[0] == "hexgym_lab"]
+    return found
+
+
+def test_hexgym_never_imports_the_lab():
+    """The runtime library stands alone: what a program imports never reaches collection, fitting, training or
+    the command line, not even in a function that runs rarely."""
+    wrong = [
+        f"{_module_of(path)} imports {name} (line {line})"
+        for path in sorted(PACKAGE.rglob("*.py"))
+        for name, line in lab_imports(path.read_text())
+    ]
+    assert not wrong, "hexgym must not import the lab: " + "; ".join(wrong)
+
+
+def test_the_lab_import_scan_sees_local_and_dynamic_imports():
+    source = (
+        "import hexgym.envs\n"
+        "def f():\n"
+        "    from hexgym_lab.agents.evaluate import evaluate\n"
+        "    import hexgym_lab.cli as cli\n"
+        "    return importlib.import_module('hexgym_lab.validate'), __import__('hexgym_labs')\n"
+    )
+    assert lab_imports(source) == [("hexgym_lab.agents.evaluate", 3), ("hexgym_lab.cli", 4), ("hexgym_lab.validate", 5)]
+
+
+def test_importing_every_hexgym_module_loads_no_lab_module():
+    modules = [_module_of(path) for path in sorted(PACKAGE.rglob("*.py"))]
+    code = f"import importlib, sys\nfor m in {modules!r}: importlib.import_module(m)\nprint(' '.join(sys.modules))"
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
+    assert result.returncode == 0, result.stderr
+    assert [m for m in result.stdout.split() if m.split(".")[0] == "hexgym_lab"] == []
 
 
 def test_layers_import_downwards_only():
     wrong = []
-    for path in PACKAGE.rglob("*.py"):
+    for path in _modules():
         module = _module_of(path)
-        if module.count(".") < 1 or _layer(module) < 0:
+        if _layer(module) < 0:
             continue
         for target in _imports(path):
             if _layer(target) > _layer(module):
@@ -70,12 +136,12 @@ def test_layers_import_downwards_only():
 
 
 def test_no_module_imports_itself_through_others():
-    """No import circle, function-local imports included (a package's ``__init__`` re-exporting its modules is
-    no circle: its modules never import the package)."""
+    """No import circle in either package or between them, function-local imports included (a package's
+    ``__init__`` re-exporting its modules is no circle: its modules never import the package)."""
     graph = {}
-    for path in PACKAGE.rglob("*.py"):
+    for path in _modules():
         module = _module_of(path)
-        graph[module] = {t for t in _imports(path) if t != module and _module_path(t) and t != "hexgym"}
+        graph[module] = {t for t in _imports(path) if t != module and _module_path(t) and t not in PACKAGES}
     circles, done = [], set()
 
     def visit(module: str, trail: list[str]) -> None:
@@ -102,7 +168,9 @@ def test_runtime_loads_no_offline_code_and_the_plugin_only_for_a_native_model():
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
     assert result.returncode == 0, result.stderr
     loaded = set(result.stdout.split())
-    offline = [m for m in loaded if m in OFFLINE or m.startswith(("hexgym.tools", "hexgym.agents", "matplotlib"))]
+    offline = [m for m in loaded if m.split(".")[0] in ("hexgym_lab", *OFFLINE_LIBRARIES)]
+    assert not offline, offline
+    offline = [m for m in loaded if m.startswith("hexgym.agents")]  # the scripted loader: only when asked for
     assert not offline, offline
     assert "hexgym.model.python_backend" in loaded or "hexgym.model.native_backend" in loaded
 

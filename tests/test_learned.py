@@ -7,8 +7,8 @@ from hexgym.machine import kinematics
 from hexgym.model.commandlog import CommandLog
 from hexgym.model.python_backend import LearnedModel
 from hexgym.model.replay import replay
-from hexgym.tools.reference_report import POSE_LOW
-from hexgym.tools.validate import scenarios, tip_errors
+from hexgym_lab.reference_report import POSE_LOW
+from hexgym_lab.validate import scenarios, tip_errors
 
 FULL = 0.011
 

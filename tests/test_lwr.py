@@ -5,8 +5,8 @@
 import numpy as np
 import pytest
 
-from hexgym.mbl.baselines import compare_baselines, synthetic_flow_sharing
-from hexgym.mbl.lwr import (
+from hexgym_lab.mbl.baselines import compare_baselines, synthetic_flow_sharing
+from hexgym_lab.mbl.lwr import (
     LocallyWeightedRegression,
     LWRParams,
     default_scales,

@@ -8,7 +8,7 @@ import trimesh
 
 from hexgym.machine import parameters as p
 from hexgym.machine.bucket import BUCKET
-from hexgym.tools import meshes
+from hexgym_lab import meshes
 
 TOL = 0.02  # m
 

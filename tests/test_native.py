@@ -17,7 +17,7 @@ from hexgym.model import backend, native_backend, plugin
 from hexgym.model.plugin_mjcf import MBL_FULL_MODEL_FILE, MBL_MODEL_FILE, mbl_model_xml
 from hexgym.model.python_backend import LearnedModel
 from hexgym.model.replay import replay
-from hexgym.tools.validate import scenarios
+from hexgym_lab.validate import scenarios
 
 _COMPILER = shutil.which(sysconfig.get_config_var("CXX").split()[0] if sysconfig.get_config_var("CXX") else "c++")
 needs_plugin = pytest.mark.skipif(not plugin.native_available(), reason=f"native plugin: {plugin.load_plugin()}")

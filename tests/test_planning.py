@@ -155,7 +155,7 @@ def test_the_shield_works_with_make_vec_and_sb3():
 
 
 def test_shield_command_writes_the_figures(tmp_path, capsys):
-    from hexgym.tools.cli import main
+    from hexgym_lab.cli import main
 
     out, plot = tmp_path / "shield.json", tmp_path / "shield.png"
     argv = ["shield", "--policy", "random", "--episodes", "2", "--seconds", "5", "--json", str(out)]
@@ -172,7 +172,7 @@ def test_shield_command_writes_the_figures(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_shield_targets_on_random_episodes():
-    from hexgym.tools.shield import compare
+    from hexgym_lab.shield import compare
 
     result = compare("random", episodes=3, seed=0, seconds=60.0)
     assert result["contact_reduction"] >= 0.9
@@ -199,7 +199,7 @@ def test_truck_clearance_is_predicted_where_the_layout_puts_the_truck(env, model
 def test_clearance_sensors_read_the_geom_pairs_distances(model):
     """The clearance sensors (which measure only pairs whose bounding volumes are within the cutoff) read what
     MuJoCo's distance between the geoms gives, near and far, over moves about the site."""
-    from hexgym.tools.plan import start_states
+    from hexgym_lab.plan import start_states
 
     rng = np.random.default_rng(7)
     near, far = np.zeros(4, bool), np.zeros(4, bool)
@@ -565,7 +565,7 @@ def test_a_plan_with_a_fitted_swing_runs_the_fitted_spools(env, model):
 
 
 def test_plan_command_names_bad_input(capsys):
-    from hexgym.tools.cli import main
+    from hexgym_lab.cli import main
 
     assert main(["plan", "--task", "dump", "--budget", "0"]) == 2
     assert "--budget must be >= 2" in capsys.readouterr().err  # two rounds, each checked
@@ -573,7 +573,7 @@ def test_plan_command_names_bad_input(capsys):
     assert "--seeds must be A-B" in capsys.readouterr().err
     assert main(["plan", "--task", "dump", "--video", "plan.avi"]) == 2
     assert "--video must be an .mp4 file" in capsys.readouterr().err
-    from hexgym.tools.plan import run_plan
+    from hexgym_lab.plan import run_plan
 
     with pytest.raises(ValueError, match="--swing must be one of"):
         run_plan("return", [0], swing="fast")
@@ -590,7 +590,7 @@ def test_plan_command_names_bad_input(capsys):
 
 @pytest.mark.slow
 def test_plan_command_writes_the_figures(tmp_path):
-    from hexgym.tools.cli import main
+    from hexgym_lab.cli import main
 
     out = tmp_path / "plan.json"
     png = tmp_path / "plan.png"
@@ -609,7 +609,7 @@ def test_a_plan_searched_on_the_circuit_model_predicts_the_reference():
     """``search="circuit"``: the candidates are the circuit model's, so the plan's predicted fuel is the reference's
     within a few per cent, with the circuit search's margin; a plan at the goal says so."""
     from hexgym.planning.circuit_search import CIRCUIT_MARGIN_M
-    from hexgym.tools.plan import plan_task
+    from hexgym_lab.plan import plan_task
 
     result = plan_task("dump", 0, budget=40, nthread=1, search="circuit")
     assert result["search"] == "circuit" and result["margin_m"] == CIRCUIT_MARGIN_M and result["rollouts"] >= 40
@@ -621,7 +621,7 @@ def test_a_plan_searched_on_the_circuit_model_predicts_the_reference():
 def test_plan_summary_counts_the_targets_on_each_machine():
     """Faster / less fuel counted against the scripted loader on the learned model and, for the reference replay,
     against the scripted loader on the reference; a move that never reached the goal counts as neither."""
-    from hexgym.tools.plan import summarise
+    from hexgym_lab.plan import summarise
 
     def seed(learned_t, ref_t, ref_fuel, scripted_ref_t):
         return {"seed": 0, "plan_wall_s": 1.5, "rollouts": 2001, "learned_time_s": learned_t, "learned_fuel_l": 0.8,
@@ -648,7 +648,7 @@ def test_swing_switches_are_where_the_full_spool_towards_the_turn_ends():
     from types import SimpleNamespace
 
     from hexgym.planning.rollouts import bang_bang
-    from hexgym.tools.plan import _swing_switches
+    from hexgym_lab.plan import _swing_switches
 
     spools = np.zeros((100, 4))
     spools[:, 0] = bang_bang(-1.0, 40, 70, 100)  # the fast model's own turn: full, full counter-spool, closed
@@ -661,7 +661,7 @@ def test_swing_switches_are_where_the_full_spool_towards_the_turn_ends():
 
 
 def test_plot_plan_writes_a_png(tmp_path):
-    from hexgym.tools.plan import plot_plan
+    from hexgym_lab.plan import plot_plan
 
     path = np.column_stack([np.linspace(5, 0, 20), np.linspace(0, 6, 20), np.linspace(1, 3, 20)])
     result = {
@@ -678,7 +678,7 @@ def test_plan_video_films_the_plan_then_the_scripted_move(tmp_path):
     """Each step of the plan (a row per 25 ms control period, a frame per 0.1 s step) and of the scripted move."""
     import imageio.v3 as iio
 
-    from hexgym.tools.plan import plan_video
+    from hexgym_lab.plan import plan_video
 
     result = {"task": "dump", "seed": 0, "planned_spools_mm": np.full((12, 4), 3.0).tolist(),
               "scripted_spools_mm": np.full((5, 4), -3.0).tolist()}  # fmt: skip

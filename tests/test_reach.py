@@ -90,8 +90,8 @@ def test_kinematic_and_simulated_teeth_agree(env):
 
 
 def test_shipped_hyperparameters_for_ppo_and_sac():
-    from hexgym.agents.hyperparams import load_hyperparams
-    from hexgym.agents.training import check_hyperparams
+    from hexgym_lab.agents.hyperparams import load_hyperparams
+    from hexgym_lab.agents.training import check_hyperparams
 
     for algo in ("ppo", "sac"):
         hp = load_hyperparams(algo, "HexReach-v0")
@@ -102,9 +102,9 @@ def test_shipped_hyperparameters_for_ppo_and_sac():
 def test_a_trained_model_is_evaluated_by_its_success(tmp_path):
     import yaml
 
-    from hexgym.agents.evaluate import evaluate_success
-    from hexgym.agents.training import train
-    from hexgym.tools import cli
+    from hexgym_lab import cli
+    from hexgym_lab.agents.evaluate import evaluate_success
+    from hexgym_lab.agents.training import train
 
     tiny = {
         "HexReach-v0": {"n_timesteps": 128, "policy": "MlpPolicy", "normalize": "dict(norm_obs=True)", "n_steps": 64,

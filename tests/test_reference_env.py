@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 
 import hexgym  # noqa: F401  (registers the environments)
-from hexgym.agents.evaluate import METRIC_KEYS, evaluate
 from hexgym.agents.scripted import ScriptedLoader
 from hexgym.envs.loading import HexLoadingEnv
 from hexgym.envs.reference_machine import CONTROL_PERIOD, ReferenceMachine
-from hexgym.tools import cli
+from hexgym_lab import cli
+from hexgym_lab.agents.evaluate import METRIC_KEYS, evaluate
 
 
 @pytest.fixture(scope="module")

@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from hexgym.tools.reference_report import run_report
+from hexgym_lab.reference_report import run_report
 
 
 @pytest.mark.slow

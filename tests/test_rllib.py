@@ -1,4 +1,4 @@
-"""RLlib's PPO on HexLoading-v0 (:mod:`hexgym.agents.rllib`): one small iteration on a local Ray, a
+"""RLlib's PPO on HexLoading-v0 (:mod:`hexgym_lab.agents.rllib`): one small iteration on a local Ray, a
 checkpoint that resumes and that ``hexgym evaluate`` accepts. Skipped without Ray."""
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ HexLoading-v0:
 def test_rllib_ppo_trains_resumes_and_evaluates(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     import ray
 
-    from hexgym.tools.cli import main
+    from hexgym_lab.cli import main
 
     (tmp_path / "ppo.yml").write_text(SMALL)
     train = ["train", "--framework", "rllib", "--algo", "ppo", "-f", str(tmp_path / "logs"),
@@ -55,7 +55,7 @@ def test_rllib_ppo_trains_resumes_and_evaluates(tmp_path: Path, capsys: pytest.C
 
 
 def test_rllib_refuses_what_it_does_not_do(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
-    from hexgym.tools.cli import main
+    from hexgym_lab.cli import main
 
     assert main(["train", "--framework", "rllib", "--algo", "sac", "-f", str(tmp_path)]) == 2
     assert "trains ppo only" in capsys.readouterr().err

@@ -335,7 +335,7 @@ def _(tmp):
 
 @case("output path", "demo --seconds below one step", r"seconds must be at least one control step", error=ValueError)
 def _(tmp):
-    from hexgym.agents.demo import run_demo
+    from hexgym_lab.agents.demo import run_demo
 
     return lambda: run_demo(tmp / "out", duration=0.01)
 
@@ -414,7 +414,7 @@ def _(tmp):
 
 @case("output path", "clone --out not a zip", r"the model must be a .zip file", error=ValueError)
 def _(tmp):
-    from hexgym.agents.training import clone_scripted
+    from hexgym_lab.agents.training import clone_scripted
 
     return lambda: clone_scripted(tmp / "bc.pt")
 
@@ -461,7 +461,7 @@ def _(tmp):
 # -- collected data: chunks (collect, resuming) and data sets (fit, tables --bench) ----------------
 def _chunk(tmp: Path, content: bytes | None = None) -> Path:
     """Chunk 0 of the boom/bucket group in ``tmp/data``: ``content``, or an npz whose metadata is no JSON."""
-    from hexgym.mbl.collect import chunk_path
+    from hexgym_lab.mbl.collect import chunk_path
 
     path = chunk_path(tmp / "data", "boom_bucket", 0)
     if content is not None:
@@ -488,8 +488,8 @@ def _(tmp):
 
 @case("data chunk", "resume (default set) over a truncated chunk", r"chunk \S*_00000.npz is unreadable .* delete it")
 def _(tmp):
-    from hexgym.mbl.collect import CollectConfig, chunk_path
     from hexgym.mbl.schema import DEFAULT_TABLE_SET
+    from hexgym_lab.mbl.collect import CollectConfig, chunk_path
 
     buffer = __import__("io").BytesIO()
     np.savez(buffer, meta=np.array("{}"), swing_bypass_X=np.zeros((50, 1)))
@@ -499,7 +499,7 @@ def _(tmp):
 
 @case("data chunk", "resume over a text file", r"chunk .* is unreadable .* delete it to recompute it", error=ValueError)
 def _(tmp):
-    from hexgym.mbl.collect import CollectConfig, collect
+    from hexgym_lab.mbl.collect import CollectConfig, collect
 
     _chunk(tmp, b"not an npz\n")
     config = CollectConfig(table_set="paper")
@@ -508,7 +508,7 @@ def _(tmp):
 
 def _valid_chunk(tmp: Path, change: Callable[[dict], None]) -> Callable[[], Any]:
     """Chunk 0 made with this run's settings (so its metadata fits), then ``change``d; the resuming call."""
-    from hexgym.mbl import collect as c
+    from hexgym_lab.mbl import collect as c
 
     config = c.CollectConfig(table_set="paper")
     tables = config.tables("boom_bucket")
@@ -595,7 +595,7 @@ def _(tmp):
 
 @case("data set", "collect's report of a table left without samples: accepted")
 def _(tmp):
-    from hexgym.mbl.collect import coverage_report
+    from hexgym_lab.mbl.collect import coverage_report
 
     stats = {"episodes": 1, "segments": 1.0, "rejected_fraction": 0.0, "rejected_windows": 0.0, "sim_seconds": 38.0}
     arrays = {"X": np.zeros((0, 1)), "y": np.zeros(0), "episode": np.zeros(0, np.int64),
@@ -702,7 +702,7 @@ def _(tmp):
 
 # -- policies: the model zip ------------------------------------------------------------------------
 def _policy(tmp: Path, normalizer: bool = True) -> Path:
-    from hexgym.agents.evaluate import SHIPPED_POLICY
+    from hexgym.agents.policies import SHIPPED_POLICY
     from hexgym.agents.policy_files import normalizer_path
 
     path = Path(shutil.copy(SHIPPED_POLICY, tmp / "policy.zip"))
@@ -783,7 +783,7 @@ def _(tmp):
 
 @case("policy", "a crafted policy_class pickle is never loaded: accepted", marker=True)
 def _(tmp):
-    from hexgym.agents.evaluate import load_policy
+    from hexgym.agents.policies import load_policy
 
     def craft(data: dict) -> None:
         data["policy_class"][":serialized:"] = _pickled(tmp)[":serialized:"]  # readable fields say PPO's
@@ -830,7 +830,7 @@ def _sac(tmp: Path) -> Path:
     from stable_baselines3 import SAC
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
-    from hexgym.agents.training import save_model
+    from hexgym_lab.agents.training import save_model
 
     venv = VecNormalize(DummyVecEnv([lambda: gym.make("HexLoading-v0", time_limit=1.0)]))
     model = SAC(
@@ -849,7 +849,7 @@ def _(tmp):
 
 @case("policy", "SAC and a PPO with a pickled activation: accepted", marker=True)
 def _(tmp):
-    from hexgym.agents.evaluate import load_trained
+    from hexgym.agents.policies import load_trained
 
     sac, ppo = _sac(tmp), _relu_ppo(tmp)
 
@@ -865,8 +865,8 @@ def _relu_ppo(tmp: Path) -> Path:
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    from hexgym.agents.hyperparams import parse_kwargs
-    from hexgym.agents.training import save_model
+    from hexgym_lab.agents.hyperparams import parse_kwargs
+    from hexgym_lab.agents.training import save_model
 
     venv = DummyVecEnv([lambda: gym.make("HexLoading-v0", time_limit=1.0)])
     kwargs = parse_kwargs("dict(activation_fn=nn.ReLU, net_arch=dict(pi=[8], vf=[8]))")
@@ -1234,21 +1234,21 @@ def _(tmp):
 
 @case("API argument", "evaluate(seed=-1)", r"seed must be a whole number from 0", error=ValueError)
 def _(tmp):
-    from hexgym.agents.evaluate import evaluate
+    from hexgym_lab.agents.evaluate import evaluate
 
     return lambda: evaluate("scripted", episodes=1, seed=-1)
 
 
 @case("API argument", "record_video(width=0)", r"width must be a whole number >= 1", error=ValueError)
 def _(tmp):
-    from hexgym.agents.video import record_video
+    from hexgym_lab.agents.video import record_video
 
     return lambda: record_video("scripted", tmp / "v.mp4", width=0)
 
 
 @case("API argument", "run_demo(duration=nan)", r"seconds must be a finite number > 0 s, got nan", error=ValueError)
 def _(tmp):
-    from hexgym.agents.demo import run_demo
+    from hexgym_lab.agents.demo import run_demo
 
     return lambda: run_demo(tmp / "out", duration=float("nan"))
 
@@ -1264,7 +1264,7 @@ def _(tmp):
 @case("API argument", "load_trained of a pickled normaliser", r"is a pickle, which hexgym", error=PolicyFileError,
       marker=True)  # fmt: skip
 def _(tmp):
-    from hexgym.agents.evaluate import load_trained
+    from hexgym.agents.policies import load_trained
 
     path = _policy(tmp, normalizer=False)
     write(tmp / "policy_vecnormalize.pkl", evil_pickle(tmp))
@@ -1297,7 +1297,7 @@ def _rllib_checkpoint(tmp: Path, state: bytes | None = None, hidden: tuple[int, 
 
 @case("RLlib checkpoint", "weights with a crafted class file load without it", marker=True)
 def _(tmp):
-    from hexgym.agents.rllib import load_rllib_policy
+    from hexgym.agents.policies import load_rllib_policy
 
     checkpoint = _rllib_checkpoint(tmp)
 
@@ -1388,7 +1388,7 @@ for _argv, _match in (
 
 
 def _curve(tmp: Path, rows: str | bytes) -> list[str]:
-    from hexgym.agents.training import CURVE_COLUMNS
+    from hexgym_lab.agents.training import CURVE_COLUMNS
 
     rows = rows if isinstance(rows, bytes) else rows.encode()
     write(tmp / "run" / "curve.csv", (",".join(CURVE_COLUMNS) + "\n").encode() + rows)
@@ -1471,7 +1471,7 @@ def _(tmp):
 
 @case("API argument", "a wrapper registered without a name", r"register_wrapper needs a name", error=TypeError)
 def _(tmp):
-    from hexgym.agents.hyperparams import register_wrapper
+    from hexgym_lab.agents.hyperparams import register_wrapper
 
     return lambda: register_wrapper("", print)
 
@@ -1535,7 +1535,7 @@ def _available(needs: str) -> bool:
 
         return plugin.native_available()
     if needs == "view":
-        from hexgym.tools.cli import build_parser
+        from hexgym_lab.cli import build_parser
 
         return "view" in build_parser()._subparsers._group_actions[0].choices
     return True
@@ -1562,7 +1562,7 @@ _PROGRESS = re.compile(r"\d+%\|")  # a progress bar's line (collect's tqdm) is n
 @pytest.mark.filterwarnings("ignore:Detected pickle protocol")  # torch, refusing a crafted policy.pth
 @pytest.mark.parametrize("case", CORPUS, ids=[f"{c.kind}: {c.name}" for c in CORPUS])
 def test_bad_input_is_refused_and_nothing_changes(case, workdir, capsys):
-    from hexgym.tools import cli
+    from hexgym_lab import cli
 
     if case.needs and not _available(case.needs):
         pytest.skip(f"needs {case.needs}")
@@ -1809,7 +1809,7 @@ def test_full_disk_keeps_the_old_file(tmp_path):
         resource.setrlimit(resource.RLIMIT_FSIZE, (4000, 4000))
 
     argv = ["simulate", "--commands", str(log), "--out", str(out), "--dt-out", "0.05"]
-    result = subprocess.run([sys.executable, "-m", "hexgym.tools.cli", *argv], capture_output=True, text=True,
+    result = subprocess.run([sys.executable, "-m", "hexgym_lab.cli", *argv], capture_output=True, text=True,
                             preexec_fn=limit, cwd=tmp_path, env={**os.environ, "MUJOCO_GL": "egl"})  # fmt: skip
     lines = result.stderr.strip().splitlines()
     assert result.returncode == 2 and len(lines) == 1, result.stderr
@@ -1819,7 +1819,7 @@ def test_full_disk_keeps_the_old_file(tmp_path):
 
 def test_no_space_at_the_rename_keeps_the_old_file(workdir, capsys, monkeypatch):
     from hexgym import files
-    from hexgym.tools import cli
+    from hexgym_lab import cli
 
     argv = simulate(workdir)
     write(workdir / "traj.csv", "old trajectory\n")
@@ -1837,7 +1837,7 @@ def test_no_space_at_the_rename_keeps_the_old_file(workdir, capsys, monkeypatch)
 
 def test_interrupt_is_one_line_and_keeps_the_old_file(workdir, capsys, monkeypatch):
     from hexgym.model import replay
-    from hexgym.tools import cli
+    from hexgym_lab import cli
 
     argv = simulate(workdir)
     write(workdir / "traj.csv", "old trajectory\n")
@@ -1854,7 +1854,7 @@ def test_interrupt_is_one_line_and_keeps_the_old_file(workdir, capsys, monkeypat
 
 def test_an_unexpected_error_is_one_line_and_debug_shows_the_traceback(workdir, capsys, monkeypatch):
     from hexgym.model import replay
-    from hexgym.tools import cli
+    from hexgym_lab import cli
 
     argv = simulate(workdir)
 
@@ -1883,7 +1883,7 @@ FAULTS += ["a full disk at demo's picture (the pair kept)", "Ctrl-C at demo's pi
 
 
 def test_a_fit_failing_on_its_third_table_keeps_the_old_set(tmp_path, monkeypatch):
-    from hexgym.mbl import fit
+    from hexgym_lab.mbl import fit
 
     out = tmp_path / "tables"
     for name in ("boom", "bucket", "stick", "swing"):
@@ -1938,7 +1938,7 @@ def test_ctrl_c_in_a_staged_output_keeps_the_old_set_and_permissions(tmp_path):
 
 
 def test_a_replaced_file_keeps_its_permissions(workdir, capsys):
-    from hexgym.tools import cli
+    from hexgym_lab import cli
 
     argv = simulate(workdir)
     write(workdir / "traj.csv", "old trajectory\n", mode=0o600)
@@ -1977,7 +1977,7 @@ def test_demo_replaces_its_video_and_snapshot_as_a_pair(fault, workdir, capsys, 
     picture; a full disk is one line naming the picture."""
     import imageio.v3 as iio
 
-    from hexgym.tools import cli
+    from hexgym_lab import cli
 
     write(workdir / "out" / "demo.mp4", "the old video")
     write(workdir / "out" / "demo.png", "the old picture")
@@ -2002,7 +2002,7 @@ def test_demo_replaces_its_video_and_snapshot_as_a_pair(fault, workdir, capsys, 
 
 
 def test_a_json_output_on_a_full_disk_is_one_line_naming_it(workdir, capsys, monkeypatch):
-    from hexgym.tools import cli
+    from hexgym_lab import cli
 
     write(workdir / "runs.json", "the old runs")
     before = snapshot(workdir)
@@ -2050,7 +2050,7 @@ def test_a_pair_whose_second_rename_fails_says_the_set_is_mixed(tmp_path, monkey
 
 def test_two_runs_into_one_directory_are_refused(workdir, capsys):
     from hexgym.files import run_lock
-    from hexgym.tools import cli
+    from hexgym_lab import cli
 
     write(workdir / "h.yml", TINY_YAML)
     with run_lock(workdir / "logs" / "ppo_HexLoading-v0"):
@@ -2130,7 +2130,7 @@ def _interrupt_command(argv: list[str], cwd: Path, workers: int = 2) -> tuple[in
     ``workers`` pool workers run their episodes; returns (exit status, stderr, seconds from Ctrl-C to exit)."""
     import time
 
-    code = "import sys\nfrom hexgym.tools.cli import main\nsys.exit(main(sys.argv[1:]))"
+    code = "import sys\nfrom hexgym_lab.cli import main\nsys.exit(main(sys.argv[1:]))"
     process = subprocess.Popen([sys.executable, "-c", code, *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                text=True, start_new_session=True, cwd=cwd)  # fmt: skip
     try:

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 import hexgym  # noqa: F401 - registers the tasks
-from hexgym.agents.sb3_vector import SB3VectorEnv, site_infos
-from hexgym.agents.training import batched, make_vec_env, train
 from hexgym.envs.task import REWARD_TERMS
+from hexgym_lab.agents.sb3_vector import SB3VectorEnv, site_infos
+from hexgym_lab.agents.training import batched, make_vec_env, train
 
 SEED, STEPS = 11, 5  # 0.5 s episodes: each site's first episode ends at its fifth step
 

@@ -197,7 +197,7 @@ def test_a_loader_with_other_settings_loads_differently():
 
 
 def test_the_settings_search_keeps_the_best_candidate_it_met(tmp_path):
-    from hexgym.agents.loader_search import episode_figures, tune_loader
+    from hexgym_lab.agents.loader_search import episode_figures, tune_loader
 
     lines = []
     settings, score = tune_loader(tmp_path / "tuned.json", seeds=[3], generations=1, population=4, log=lines.append)
@@ -216,7 +216,7 @@ def test_the_settings_search_keeps_the_best_candidate_it_met(tmp_path):
 
 def test_the_search_leaves_the_settings_for_teaching_alone():
     """carry_blend and the like shape a clone's labels, not the deliveries: the search keeps the start's."""
-    from hexgym.agents.loader_search import SEARCHED, _to_settings, _to_unit
+    from hexgym_lab.agents.loader_search import SEARCHED, _to_settings, _to_unit
 
     start = LoaderSettings(carry_blend=0.3, drag_speed=0.9)
     assert "carry_blend" in TEACHING_SETTINGS and len(SEARCHED) == len(SETTING_RANGES) - len(TEACHING_SETTINGS)

@@ -13,7 +13,7 @@ from hexgym.mbl.schema import NATIVE_TABLE_SETS, TABLE_SETS, table_set_of
 from hexgym.mbl.table import MBLTable, load_tables, packaged_tables_dir
 from hexgym.model.plugin import native_available
 from hexgym.model.replay import replay
-from hexgym.tools.scenarios import scenarios
+from hexgym_lab.scenarios import scenarios
 
 needs_plugin = pytest.mark.skipif(not native_available(), reason="native plugin not built")
 
@@ -84,7 +84,7 @@ def test_the_plugin_refuses_an_unknown_table_set(name):
 def test_an_unknown_table_set_is_refused_listing_the_sets(name, capsys):
     from hexgym.envs.loading import HexLoadingEnv
     from hexgym.model.backend import make_learned_model
-    from hexgym.tools import cli
+    from hexgym_lab import cli
 
     listed = re.escape(f"one of {tuple(TABLE_SETS)}, got '{name}'")
     with pytest.raises(ValueError, match="tables must be " + listed):

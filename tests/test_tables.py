@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from scipy.interpolate import RegularGridInterpolator
 
-from hexgym.mbl.baselines import SPOOL_STEP, SYNTH_INPUTS, synthetic_flow_sharing
-from hexgym.mbl.grid import benchmark_lookup, build_table, suggest_axes
-from hexgym.mbl.lwr import LocallyWeightedRegression, LWRParams, default_scales
 from hexgym.mbl.table import FORMAT_VERSION, MBLTable, TableFileError, dataset_hash, load_table
+from hexgym_lab.mbl.baselines import SPOOL_STEP, SYNTH_INPUTS, synthetic_flow_sharing
+from hexgym_lab.mbl.grid import benchmark_lookup, build_table, suggest_axes
+from hexgym_lab.mbl.lwr import LocallyWeightedRegression, LWRParams, default_scales
 
 STEPS = (SPOOL_STEP, SPOOL_STEP, None, None)
 

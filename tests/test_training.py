@@ -4,10 +4,11 @@ import numpy as np
 import pytest
 import yaml
 
-from hexgym.agents.curves import read_curve
-from hexgym.agents.evaluate import load_trained, normalizer_path
-from hexgym.agents.hyperparams import HYPERPARAMS_DIR, algo_kwargs, load_hyperparams
-from hexgym.agents.training import check_hyperparams, clone_scripted, latest_checkpoint, make_env, train
+from hexgym.agents.policies import load_trained
+from hexgym.agents.policy_files import normalizer_path
+from hexgym_lab.agents.curves import read_curve
+from hexgym_lab.agents.hyperparams import HYPERPARAMS_DIR, algo_kwargs, load_hyperparams
+from hexgym_lab.agents.training import check_hyperparams, clone_scripted, latest_checkpoint, make_env, train
 
 # a tiny PPO on 8 s episodes, so a run of a few hundred steps takes seconds
 TINY = {
@@ -138,7 +139,7 @@ def test_a_stopped_run_leaves_a_usable_model(tmp_path, tiny_yaml, monkeypatch, s
 
     from stable_baselines3.common.callbacks import BaseCallback
 
-    from hexgym.agents import training
+    from hexgym_lab.agents import training
 
     class StopAfter(BaseCallback):  # stopped after 200 steps
         def _on_step(self) -> bool:
@@ -162,7 +163,7 @@ def test_behaviour_cloning_fits_the_scripted_loader(tmp_path, tiny_yaml):
     out = clone_scripted(tmp_path / "bc.zip", episodes=2, dagger_rounds=1, dagger_episodes=1, epochs=300,
                          hyperparams=tiny_yaml, log=lambda _: None)  # fmt: skip
     policy = load_trained(out)
-    from hexgym.agents.training import record_episode
+    from hexgym_lab.agents.training import record_episode
 
     demos = record_episode(seed=1000, gamma=0.99, env_kwargs={"time_limit": 8.0})  # a training episode
     predicted = np.array([policy.act(o, None) for o in demos.obs])
@@ -171,7 +172,7 @@ def test_behaviour_cloning_fits_the_scripted_loader(tmp_path, tiny_yaml):
 
 
 def test_previous_action_wrapper_appends_the_executed_action():
-    from hexgym.agents.training import make_env
+    from hexgym_lab.agents.training import make_env
 
     env = make_env("HexLoading-v0", "hexgym.wrappers.PreviousActionWrapper", time_limit=2.0)
     obs, _ = env.reset(seed=0)
@@ -185,7 +186,7 @@ def test_previous_action_wrapper_appends_the_executed_action():
 
 def test_demonstrations_are_labelled_by_the_state_derived_loader():
     from hexgym.agents.scripted import ScriptedLoader
-    from hexgym.agents.training import make_env, record_episode
+    from hexgym_lab.agents.training import make_env, record_episode
 
     demos = record_episode(seed=5, gamma=0.99, env_kwargs={"time_limit": 3.0}, noise=0.3)
     assert demos.obs.shape == (30, 23) and demos.actions.shape == (30, 4) and demos.returns.shape == (30,)
@@ -202,7 +203,7 @@ def test_cloning_runs_its_episodes_on_the_tables_asked_for(tmp_path, tiny_yaml, 
     env_kwargs), after the environment has accepted it."""
     import contextlib
 
-    import hexgym.agents.training as training
+    import hexgym_lab.agents.training as training
 
     seen = {}
     monkeypatch.setattr(training, "_worker_pool", contextlib.nullcontext)

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from hexgym.machine import kinematics
-from hexgym.mbl import operator_logs as ol
 from hexgym.mbl.schema import DEFAULT_TABLE_SET
-from hexgym.tools.cli import main
-from hexgym.tools.validate import INTERACTIONS, interaction_cases, run_validation
+from hexgym_lab.cli import main
+from hexgym_lab.mbl import operator_logs as ol
+from hexgym_lab.validate import INTERACTIONS, interaction_cases, run_validation
 
 LOGS = [ol.suite_log(7, i) for i in range(50)]
 

@@ -14,7 +14,7 @@ from hexgym.hydraulics import fuel
 from hexgym.interpolation import UniformTable
 from hexgym.machine import parameters as p
 from hexgym.machine.physics import payload_inertia
-from hexgym.tools.bench import vector_steps_per_second
+from hexgym_lab.bench import vector_steps_per_second
 
 # the default backend ("auto": native when built, unless HEXGYM_BACKEND=python) and the Python one
 BACKENDS = ["auto", "python"]

@@ -12,8 +12,8 @@ import pytest
 
 from hexgym.machine import kinematics
 from hexgym.model.plugin import native_available
-from hexgym.tools import view
-from hexgym.tools.cli import main
+from hexgym_lab import view
+from hexgym_lab.cli import main
 
 needs_plugin = pytest.mark.skipif(not native_available(), reason="the native hexgym.mbl plugin is not built")
 SWING, BOOM, STICK, BUCKET = range(4)
@@ -149,7 +149,7 @@ def xvfb_env():
 
 
 def _run_view(env: dict, *args: str) -> subprocess.Popen:
-    command = [sys.executable, "-m", "hexgym.tools.cli", "view", *args]
+    command = [sys.executable, "-m", "hexgym_lab.cli", "view", *args]
     return subprocess.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 

@@ -1,4 +1,5 @@
-"""Policy files read without running code from them: the Stable-Baselines3 model zip and its normaliser.
+"""Policy files read without running code from them: the Stable-Baselines3 model zip and its normaliser, and an
+RLlib checkpoint's weights.
 
 **Observation normaliser.** A policy trained on normalised observations needs the statistics it was
 trained with. Stable-Baselines3 pickles its ``VecNormalize`` wrapper for that, and unpickling a file
@@ -19,6 +20,10 @@ provides one for every pickled entry, built from the readable fields Stable-Base
 beside each pickle and an allow-list (the MlpPolicy of PPO or SAC, the environment's spaces, constant
 or linear schedules, ``torch.nn`` activations), and refuses a file with any other pickled entry:
 no pickle from the zip is ever loaded.
+
+**RLlib checkpoint.** ``hexgym train --framework rllib`` writes RLlib checkpoint directories. Of one,
+:func:`read_module_weights` reads the RL module's weights alone (numpy arrays through an allow-list unpickler,
+or torch's ``weights_only`` loader); its pickled class and constructor arguments are never read.
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ import base64
 import io
 import json
 import math
+import os
 import pickle
 import re
 import zipfile
@@ -552,3 +558,74 @@ def load_sb3_model(path: str | Path, observation_space: Any, action_space: Any, 
 def pickles_in(path: str | Path) -> list[str]:
     """The ``data`` entries of a model zip that are pickled (for reports and tests)."""
     return [k for k, v in read_model_data(path).items() if _serialized(v)]
+
+
+# -- RLlib checkpoints ------------------------------------------------------------------------------------
+RLLIB_CHECKPOINT = "checkpoint"  # a run directory's newest checkpoint
+RLLIB_MODULE_PATH = ("learner_group", "learner", "rl_module", "default_policy")  # RLlib's component names
+
+
+def rllib_module_path(path: str | Path) -> Path:
+    """The RL module directory inside an RLlib checkpoint (or a run directory holding ``checkpoint/``)."""
+    path = Path(path)
+    if (path / RLLIB_CHECKPOINT).is_dir() and not (path / RLLIB_MODULE_PATH[0]).exists():
+        path = path / RLLIB_CHECKPOINT
+    module = path.joinpath(*RLLIB_MODULE_PATH)
+    if not module.is_dir():
+        raise FileNotFoundError(
+            f"{path} is not an RLlib checkpoint of `hexgym train --framework rllib` (no {'/'.join(RLLIB_MODULE_PATH)})"
+        )
+    return module
+
+
+# What an RL module's state pickle (``module_state.pkl``: a dict of numpy arrays) refers to: a dict
+# class and numpy's array construction from bytes. Any other reference refuses the file unread.
+_WEIGHT_GLOBALS = {
+    ("collections", "OrderedDict"),
+    ("numpy", "dtype"), ("numpy", "ndarray"),
+    ("numpy._core.numeric", "_frombuffer"), ("numpy.core.numeric", "_frombuffer"),
+    ("numpy._core.multiarray", "_reconstruct"), ("numpy.core.multiarray", "_reconstruct"),
+}  # fmt: skip
+MAX_STATE_BYTES = 1 << 30  # an RL module's weights (hexgym's: tens of kB)
+
+
+class _WeightsUnpickler(pickle.Unpickler):
+    def find_class(self, module: str, name: str) -> Any:
+        if (module, name) in _WEIGHT_GLOBALS:
+            return super().find_class(module, name)
+        raise pickle.UnpicklingError(f"it refers to {module}.{name}; a module's weights are numpy arrays only")
+
+    def persistent_load(self, pid: Any) -> Any:
+        raise pickle.UnpicklingError("it refers to an outside object")
+
+
+def read_module_weights(module_dir: str | Path) -> dict[str, np.ndarray]:
+    """The weights of an RL module directory (``module_state.pkl``, or torch's ``module_state.pt``), read
+    without running anything from the checkpoint: numpy arrays only (``torch.load(weights_only=True)``)."""
+    module_dir = Path(module_dir)
+    found = [
+        module_dir / name for name in ("module_state.pkl", "module_state.pt") if os.path.lexists(module_dir / name)
+    ]
+    if not found:
+        raise PolicyFileError(f"RLlib checkpoint {module_dir}: no module_state.pkl (the RL module's weights)")
+    path = check_input_file(found[0], "RLlib module state")
+    if path.stat().st_size > MAX_STATE_BYTES:
+        raise PolicyFileError(f"RLlib module state {path}: {path.stat().st_size} bytes, more than {MAX_STATE_BYTES}")
+    try:
+        if path.suffix == ".pt":
+            import torch
+
+            state = torch.load(path, map_location="cpu", weights_only=True)
+            state = {k: v.numpy() if hasattr(v, "numpy") else v for k, v in state.items()}
+        else:
+            with path.open("rb") as f:
+                state = _WeightsUnpickler(f).load()
+    except Exception as exc:  # noqa: BLE001 - a damaged or crafted file: what it is, in one line
+        text = " ".join(str(exc).split())[:200] or type(exc).__name__
+        raise PolicyFileError(f"RLlib module state {path} is not an RL module's weights: {text}") from None
+    if not isinstance(state, dict) or not all(isinstance(k, str) for k in state):
+        raise PolicyFileError(f"RLlib module state {path} is not a mapping of names to arrays")
+    for key, value in state.items():
+        if not isinstance(value, np.ndarray) or value.dtype.kind != "f" or not np.all(np.isfinite(value)):
+            raise PolicyFileError(f"RLlib module state {path}: {key} is not an array of finite numbers")
+    return state

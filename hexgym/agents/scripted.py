@@ -7,10 +7,10 @@ mouth up), ``to_truck`` (lift and swing, the swing held short of the truck until
 its rim), ``dump`` (reach out and open the bucket over the bed), then ``to_pile`` again. The phase
 is not remembered: :func:`infer_phase` derives it every step from the state (payload, teeth
 relative to pile and truck, mouth tilt, swing angles), so the loader's action is a function of
-the state and it can label any state a learner reaches (DAgger, :mod:`hexgym.agents.training`). It
+the state and it can label any state a learner reaches (DAgger, :mod:`hexgym_lab.agents.training`). It
 proves the task can be done and drives the demo; :func:`run_scripted` measures cycle time,
 tonnes per hour and fuel. Its targets and thresholds are :class:`LoaderSettings` (hand-set defaults;
-:mod:`hexgym.agents.loader_search` searches them).
+:mod:`hexgym_lab.agents.loader_search` searches them).
 
 Control: the front linkage is planar, so a target is the teeth's radius and height and the
 bucket's absolute angle. Boom and stick steer the bucket pin (its error gives a saturated

@@ -1,6 +1,6 @@
 """The bucket's geometry, computed from its profile: the mouth (top lip M, cutting edge E), the teeth's direction
 and the struck and heaped capacities that the earthwork and the planner use, and the inner profile the bucket
-mesh is built on (:mod:`hexgym.tools.meshes`).
+mesh is built on (:mod:`hexgym_lab.meshes`).
 
 The profile is designed from the pins and sizes in :mod:`hexgym.machine.parameters`: the top plate leaves the lip
 M parallel to the pin line (bucket pin -> link pin), offset by ``BUCKET_PIN_STANDOFF`` so that ears carry both

@@ -1,6 +1,5 @@
-"""Memory-based learning of the actuator response (paper Sec III): the table schema (:mod:`.schema`),
-data collection on the reference model (:mod:`.collect`), locally weighted regression with
-leave-one-out selection (:mod:`.lwr`), baselines (:mod:`.baselines`), fitting (:mod:`.fit`) and the
-fitted tables' file format and lookup (:mod:`.table`). Runtime code imports only :mod:`.schema` and
-:mod:`.table`; the rest is the offline pipeline.
+"""Memory-based learning of the actuator response (paper Sec III), the part a running model needs: the table
+schema (:mod:`.schema`), the fitted tables' file format and lookup (:mod:`.table`), the parameters a table
+records (:mod:`.lwr_params`) and the learned control valve (:mod:`.valve`). Collecting the data and fitting the
+tables (LWR with leave-one-out selection, baselines) is the lab's offline pipeline, :mod:`hexgym_lab.mbl`.
 """

@@ -1,6 +1,6 @@
 """The parameters of a locally weighted regression and the checks of its arrays.
 
-Apart from :mod:`hexgym.mbl.lwr` (which fits and predicts) so that a fitted table, which records
+Apart from :mod:`hexgym_lab.mbl.lwr` (which fits and predicts) so that a fitted table, which records
 the parameters it was built with, loads without the regression's machinery.
 """
 

@@ -1,7 +1,7 @@
 """MBL tables: a fitted LWR evaluated once on a grid, then looked up by multilinear interpolation.
 
 The paper runs its learned model fast by "a locally-weighted regression scheme in conjunction with
-a table-lookup": the LWR (:mod:`hexgym.mbl.lwr`) is too slow to call every simulation step (a
+a table-lookup": the LWR (:mod:`hexgym_lab.mbl.lwr`) is too slow to call every simulation step (a
 neighbour search and a small solve per query), so each table stores the LWR's predictions at the
 nodes of a rectangular grid over its inputs and interpolates between them.
 
