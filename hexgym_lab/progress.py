@@ -6,10 +6,11 @@ whole. How progress shows (:func:`mode`):
 - ``bar``: a tqdm bar with the count, rate and time left, when standard error is a terminal at least
   :data:`MIN_BAR_COLUMNS` wide (and tqdm is installed);
 - ``lines``: one plain line per item (at most one every :data:`LINE_INTERVAL_S` seconds, and the last), when the
-  terminal is narrower, a ``dumb`` terminal, or tqdm is missing;
+  terminal is narrower or of unknown size, a ``dumb`` terminal, or tqdm is missing;
 - ``off``: nothing, with ``--quiet`` (:func:`configure`) or when standard error is not a terminal (a pipe, a log).
 
-``HEXGYM_PROGRESS=bar|lines|off`` chooses the mode whatever the terminal (``lines`` for a log file). The lines
+``HEXGYM_PROGRESS=bar|lines|off`` chooses the mode whatever the terminal (``lines`` for a log file); ``--quiet``
+still silences it. The lines
 that say where a command's outputs went (:func:`wrote`) are printed in every mode.
 """
 
@@ -17,7 +18,6 @@ from __future__ import annotations
 
 import importlib.util
 import os
-import shutil
 import sys
 import time
 from collections.abc import Iterable, Iterator
@@ -43,14 +43,16 @@ def configure(quiet: bool = False) -> None:
 def mode() -> str:
     """How progress shows now: "bar", "lines" or "off" (the module's docstring)."""
     chosen = os.environ.get(ENV_VAR, "").strip().lower()
-    if chosen:
-        if chosen not in MODES:
-            raise ValueError(f"{ENV_VAR}={chosen!r}: give one of {', '.join(MODES)}")
-        return "lines" if chosen == "bar" and not _have_tqdm() else chosen
-    if _quiet or not _stderr_is_terminal():
+    if chosen and chosen not in MODES:
+        raise ValueError(f"{ENV_VAR}={chosen!r}: give one of {', '.join(MODES)}")
+    if _quiet:
         return "off"
-    columns = shutil.get_terminal_size(fallback=(0, 0)).columns
-    if os.environ.get("TERM") == "dumb" or columns < MIN_BAR_COLUMNS or not _have_tqdm():
+    if chosen:
+        return "lines" if chosen == "bar" and not _have_tqdm() else chosen
+    if not _stderr_is_terminal():
+        return "off"
+    columns, rows = _terminal_size()  # a terminal of unknown height: tqdm would draw nothing
+    if os.environ.get("TERM") == "dumb" or columns < MIN_BAR_COLUMNS or rows < 1 or not _have_tqdm():
         return "lines"
     return "bar"
 
@@ -60,6 +62,16 @@ def _stderr_is_terminal() -> bool:
         return sys.stderr is not None and sys.stderr.isatty()
     except (AttributeError, ValueError):  # closed or replaced by an object without isatty
         return False
+
+
+def _terminal_size() -> tuple[int, int]:
+    """Standard error's terminal columns (``COLUMNS`` where it is a number) and rows; 0 where unknown."""
+    try:
+        columns, rows = os.get_terminal_size(sys.stderr.fileno())
+    except (OSError, AttributeError, ValueError):
+        columns, rows = 0, 0
+    given = os.environ.get("COLUMNS", "")
+    return (int(given) if given.isdigit() and int(given) > 0 else columns), rows
 
 
 def _have_tqdm() -> bool:
@@ -146,7 +158,7 @@ class Progress:
         elapsed = time.perf_counter() - self._start
         rate = (self.n - self._initial) / elapsed if elapsed > 0 else 0.0
         count = f"{_number(self.n)}/{_number(self.total)}" if self.total else _number(self.n)
-        parts = [f"{self.desc}: {count} {self.unit}"]
+        parts = [f"{self.desc}: {count} {self.unit if self.unit.endswith('s') else self.unit + 's'}"]
         if self.total:
             parts[0] += f" ({100.0 * self.n / self.total:.0f} %)"
         parts.append(f"{_number(rate)} {self.unit}/s, {_clock(elapsed)} elapsed")
