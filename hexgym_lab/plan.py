@@ -332,7 +332,7 @@ def summarise(results: list[dict[str, Any]]) -> dict[str, Any]:
         "median_reference_fuel_vs_scripted_reference": median(fuel_ref),
         "median_fuel_prediction_error": median([rel(r["predicted_fuel_l"], r["reference_fuel_l"]) for r in results]),
         "planned_reached": sum(bool(r["predicted_reached"]) for r in results),
-        "planned_margin_kept": sum(bool(r["predicted_margin_kept"]) for r in results),
+        "planned_margin_kept": sum(bool(r.get("predicted_margin_kept")) for r in results),
         "reference_reached": sum(r["reference_time_s"] is not None for r in results),
         "median_swing_switch_later_s": median([r["swing_switch_s"]["plan"] - r["swing_switch_s"]["fast_model"]
                                                for r in results if r.get("swing_switch_s")]),
