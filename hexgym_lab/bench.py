@@ -305,7 +305,9 @@ def print_bench(result: dict, json_path: str | Path | None = None) -> None:
             f"{result['batch_speedup']:.2f} (target >= 1.8 on 2 threads)"
         )
     if json_path is not None:
-        print(f"wrote {write_json(json_path, result)}")
+        from hexgym_lab.progress import wrote
+
+        wrote(write_json(json_path, result), "the figures")
 
 
 def _timed_with_cores(run: Callable[[], float], seconds: float) -> tuple[float, float]:

@@ -8,6 +8,12 @@ paths are checked before a command starts its work (:func:`check_arguments`): ou
 be written (a directory, under a file, read-only, the same file as an input) are refused up front.
 An unexpected exception is one line with status 2 too, naming its type, with a pointer to ``--debug``
 (an input hexgym does not check yet, or a bug).
+
+Standard output carries a command's result alone (its figures, a JSON document or a table); standard error carries
+its progress (:mod:`hexgym_lab.progress`: one style for every long command, off with ``--quiet`` anywhere on the
+line or when standard error is not a terminal) and, at the end, a ``wrote PATH (what)`` line for each output. An
+``--out`` is a file where a command makes one file and a directory where it makes several; each help says which.
+No command writes inside the installed package unless it is named as an output.
 """
 
 from __future__ import annotations
@@ -21,18 +27,28 @@ from pathlib import Path
 
 from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS  # names only: no MuJoCo, no numpy
 
-_REPOSITORY_ASSETS = Path(__file__).resolve().parents[1] / "assets"  # where build-assets writes by default
+_REPOSITORY = Path(__file__).resolve().parents[1]
+_REPOSITORY_ASSETS = _REPOSITORY / "assets"  # where build-assets writes by default, in a source checkout
+
+
+DEFAULT_FIT_DIR = "tables"  # hexgym fit writes <this>/<table set>/ under the working directory by default
+
+
+def _source_checkout() -> bool:
+    """Whether hexgym runs from its source tree (a git checkout, editable install), not an installed copy."""
+    return all((_REPOSITORY / name).exists() for name in ("pyproject.toml", "native", "assets"))
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
     from hexgym_lab.agents.demo import run_demo
+    from hexgym_lab.progress import wrote
 
     result = run_demo(args.out, fps=args.fps, width=args.width, height=args.height, duration=args.seconds)
-    metrics = result.pop("metrics")
-    for kind, path in result.items():
-        print(f"{kind}: {path}")
+    metrics = result["metrics"]
     print(f"scripted loader: {metrics['delivered_t']:.2f} t delivered in {metrics['sim_seconds']:g} s, "
           f"{metrics['dumps']} dumps, {metrics['fuel_l']:.2f} L fuel")  # fmt: skip
+    wrote(result["video"], "the film")
+    wrote(result["snapshot"], "a frame of it")
     return 0
 
 
@@ -47,14 +63,18 @@ def _cmd_scripted(args: argparse.Namespace) -> int:
     from hexgym.agents.scripted import load_settings, run_scripted
     from hexgym.envs.loading import HexLoadingEnv
     from hexgym.files import write_json
+    from hexgym_lab.progress import Progress, wrote
 
     settings = load_settings(args.loader_settings)
     env = HexLoadingEnv(time_limit=args.seconds)
-    runs = [run_scripted(env, seed=args.seed + i, settings=settings) for i in range(args.episodes)]
-    for run in runs:
-        print(json.dumps({k: v for k, v in run.items() if k != "return_terms"}))
+    runs = []
+    with Progress(args.episodes, "scripted", "episode") as progress:
+        for i in range(args.episodes):
+            runs.append(run_scripted(env, seed=args.seed + i, settings=settings))
+            progress.update()
+            print(json.dumps({k: v for k, v in runs[-1].items() if k != "return_terms"}), flush=True)
     if args.json:
-        print(f"wrote {write_json(args.json, runs)}")
+        wrote(write_json(args.json, runs), "the runs' figures")
     return 0
 
 
@@ -67,20 +87,18 @@ def _cmd_tune_loader(args: argparse.Namespace) -> int:
     settings, score = tune_loader(args.out, parse_seeds(args.seeds), generations=args.generations,
                                   population=args.population, spill_target=args.spill_target,
                                   seed=args.seed)  # fmt: skip
+    from hexgym_lab.progress import wrote
+
     print(json.dumps({"settings": asdict(settings), "score": asdict(score)}, indent=2))
-    print(f"wrote {args.out}")
+    wrote(args.out, "the best settings found")
     return 0
 
 
 def _cmd_model(args: argparse.Namespace) -> int:
-    from hexgym_lab.model_info import model_summary
+    from hexgym_lab.model_info import model_summary, model_table
 
     summary = model_summary()
-    if args.json:
-        print(json.dumps(summary, indent=2))
-    else:
-        for key, value in summary.items():
-            print(f"{key}: {value}")
+    print(json.dumps(summary, indent=2) if args.json else model_table(summary))
     return 0
 
 
@@ -100,19 +118,23 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         from hexgym.model.backend import make_learned_model
 
         model = make_learned_model(args.backend, table_set=args.tables)
+    from hexgym_lab.progress import wrote
+
     trajectory = replay(model, commands, start=args.start, payload_kg=args.payload_kg, dt_out=args.dt_out)
     write_trajectory_csv(args.out, trajectory)
-    print(f"wrote {args.out}: {len(trajectory)} rows, {commands.duration:g} s simulated")
+    wrote(args.out, f"the trajectory: {len(trajectory)} rows, {commands.duration:g} s simulated")
     return 0
 
 
 def _cmd_reference_report(args: argparse.Namespace) -> int:
+    from hexgym_lab.progress import wrote
     from hexgym_lab.reference_report import figures_table, run_report
 
     summary = run_report(args.out, valve=args.valve)
     print(json.dumps(summary, indent=2))
-    print(figures_table(summary["published_figures"]))
-    print(f"summary: {Path(args.out) / 'summary.json'}; plots: {Path(args.out) / 'interactions.png'}")
+    print(figures_table(summary["published_figures"]), file=sys.stderr)  # stdout: the JSON document alone
+    wrote(Path(args.out) / "summary.json", "the figures")
+    wrote(Path(args.out) / "interactions.png", "the interaction plots")
     return 0
 
 
@@ -120,35 +142,37 @@ def _cmd_collect(args: argparse.Namespace) -> int:
     import time
 
     from hexgym_lab.mbl.collect import CollectConfig, collect, coverage_report
+    from hexgym_lab.progress import wrote
 
     t0 = time.perf_counter()
     paths = collect(args.out, samples_per_group=args.samples, seed=args.seed, workers=args.workers,
                     config=CollectConfig(table_set=args.tables), ray=args.ray)  # fmt: skip
-    print(f"collected in {time.perf_counter() - t0:.0f} s:")
-    for table, path in paths.items():
-        print(f"{table}: {path}")
+    print(f"collected in {time.perf_counter() - t0:.0f} s")
     print(coverage_report(paths))
     sys.stdout.flush()
+    for table, path in paths.items():
+        wrote(path, f"the {table} table's data set")
+    wrote(Path(args.out) / "chunks", "the finished chunks a rerun resumes from")
     return 0
 
 
 def _cmd_fit(args: argparse.Namespace) -> int:
     from hexgym.mbl.schema import TABLE_SETS
-    from hexgym.mbl.table import packaged_tables_dir
     from hexgym_lab.mbl.fit import fit_all
+    from hexgym_lab.progress import wrote
 
     tables = TABLE_SETS[args.tables]
     names = tuple(args.only.split(",")) if args.only else tuple(tables)
     unknown = set(names) - set(tables)
     if unknown:
         raise ValueError(f"--only: unknown table(s) {sorted(unknown)}; the {args.tables} tables are {list(tables)}")
-    out = args.out or packaged_tables_dir(args.tables)
+    out = args.out or str(Path(DEFAULT_FIT_DIR) / args.tables)  # under the working directory, never the package
     from hexgym_lab.mbl.datafile import refuse_other_npz
 
     refuse_other_npz(out, names, "table")  # data sets where the tables go: refused before anything is read
     _check_data_files(args.data, names)
     for name, path in fit_all(args.data, out, seed=args.seed, names=names, table_set=args.tables).items():
-        print(f"{name}: {path}")
+        wrote(path, f"the {name} table")
     return 0
 
 
@@ -189,10 +213,15 @@ def _cmd_validate(args: argparse.Namespace) -> int:
         payload_kg=args.payload_kg,
         suite_style=args.suite_style,
     )
+    from hexgym_lab.progress import wrote
+
     print(json.dumps(summary, indent=2))
-    plots = [] if args.suite_only else ["test1.png", "test2.png", "test3.png", "interactions.png"]
-    plots += ["suite_worst.png"] if args.suite else []
-    print(f"plots: {Path(args.out)}/{', '.join(plots)}")
+    plots = {} if args.suite_only else {f"test{i}.png": f"the paper's test {i}" for i in (1, 2, 3)}
+    plots |= {} if args.suite_only else {"interactions.png": "the interactions, both models"}
+    plots |= {"suite_worst.png": "the suite's worst log"} if args.suite else {}
+    wrote(Path(args.out) / "summary.json", "the figures")
+    for name, what in plots.items():
+        wrote(Path(args.out) / name, what)
     return 0
 
 
@@ -203,7 +232,11 @@ def _cmd_build_assets(args: argparse.Namespace) -> int:
     from hexgym.model.plugin import HEADER, write_interface_header
     from hexgym.model.plugin_mjcf import MBL_FULL_MODEL_FILE, MBL_MODEL_FILE, write_mbl_model
     from hexgym_lab import meshes
+    from hexgym_lab.progress import wrote
 
+    if args.dir is None:
+        raise ValueError("--dir: give the directory to write (an installed hexgym has no assets/ of a source tree "
+                         "to regenerate, and its package is not written)")  # fmt: skip
     directory = Path(args.dir)
     scene = directory / SCENE_FILE if (directory / SCENE_FILE).is_file() else asset_path(SCENE_FILE)
     written = []
@@ -222,12 +255,10 @@ def _cmd_build_assets(args: argparse.Namespace) -> int:
             tmp.write_text(mjcf.scene_xml_around(scene.read_text(), LEAN_MODEL_FILE))
         written.append(staging / LEAN_SCENE_FILE)
     for path in written:
-        print(f"wrote {directory / Path(path).relative_to(staging)}")
+        wrote(directory / Path(path).relative_to(staging))
     header = directory.resolve().parent / HEADER
-    if directory.resolve() == _REPOSITORY_ASSETS:  # the plugin's generated interface sits beside, in native/
-        print(f"wrote {write_interface_header(header)}")
-    else:
-        print(f"not written: {header} (the plugin's interface header goes only beside the repository's assets)")
+    if _source_checkout() and directory.resolve() == _REPOSITORY_ASSETS:  # the plugin's interface, in native/
+        wrote(write_interface_header(header), "the plugin's interface header, beside the repository's assets")
     return 0
 
 
@@ -240,17 +271,24 @@ def _cmd_train(args: argparse.Namespace) -> int:
         path = train_rllib(args.algo, args.env, timesteps=args.timesteps, seed=args.seed, log_dir=args.log_dir,
                            hyperparams=args.hyperparams, num_env_runners=args.num_env_runners, ray=args.ray,
                            checkpoint_every=args.checkpoint_every)  # fmt: skip
-        print(f"checkpoint: {path}")
+        from hexgym_lab.progress import wrote
+
+        wrote(path, "the RLlib checkpoint")
         return 0
     if args.num_env_runners is not None or args.ray is not None:
         raise ValueError("--num-env-runners and --ray are for --framework rllib")
+    from hexgym.agents.policy_files import normalizer_path
     from hexgym_lab.agents.training import train
+    from hexgym_lab.progress import wrote
 
     path = train(args.algo, args.env, timesteps=args.timesteps, seed=args.seed, log_dir=args.log_dir,
                  hyperparams=args.hyperparams, n_envs=args.n_envs, init_from=args.init_from,
                  checkpoint_every=args.checkpoint_every, progress_bar=not args.no_progress,
-                 report=not args.quiet, vec_env=args.vec_env)  # fmt: skip
-    print(f"model: {path}")
+                 vec_env=args.vec_env)  # fmt: skip
+    wrote(path, "the trained model")
+    wrote(normalizer_path(path), "its observation normaliser")
+    wrote(Path(path).parent / "curve.csv", "the learning curve")
+    wrote(Path(path).parent / "checkpoints", "the checkpoints a rerun resumes from")
     return 0
 
 
@@ -262,7 +300,13 @@ def _cmd_clone(args: argparse.Namespace) -> int:
                           hyperparams=args.hyperparams, select_episodes=args.select_episodes,
                           rounds_dir=args.rounds_dir, loss=args.loss, tables=args.tables,
                           loader_settings=args.loader_settings)  # fmt: skip
-    print(f"model: {path}")
+    from hexgym.agents.policy_files import normalizer_path
+    from hexgym_lab.progress import wrote
+
+    wrote(path, "the cloned model")
+    wrote(normalizer_path(path), "its observation normaliser")
+    if args.rounds_dir:
+        wrote(args.rounds_dir, "each round's clone, round<k>.zip")
     return 0
 
 
@@ -270,6 +314,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     from hexgym.envs import ENV_ID
     from hexgym.files import write_json
     from hexgym_lab.agents.evaluate import evaluate, evaluate_success
+    from hexgym_lab.progress import wrote
 
     if args.env != ENV_ID:
         if args.policy == "shipped" or args.model != "learned" or args.ray or args.workers != 1 or args.loader_settings:
@@ -280,8 +325,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         result = evaluate_success(args.policy, args.env, args.episodes, args.seed, env_kwargs)
         print(json.dumps(result, indent=2))
         if args.json:
-            write_json(args.json, result)
-            print(f"wrote {args.json}")
+            wrote(write_json(args.json, result), "the figures")
         return 0
     env_kwargs = {"model": args.model} | ({"time_limit": args.seconds} if args.seconds is not None else {})
     if args.tables != DEFAULT_TABLE_SET:  # with --model reference, the environment refuses it in one line
@@ -290,40 +334,43 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
                       workers=args.workers, ray=args.ray, loader_settings=args.loader_settings)  # fmt: skip
     print(json.dumps({k: v for k, v in result.items() if k != "per_episode"}, indent=2))
     if args.json:
-        print(f"wrote {args.json}")
+        wrote(args.json, "the figures, per episode too")
     return 0
 
 
 def _cmd_curves(args: argparse.Namespace) -> int:
     from hexgym.files import write_json
     from hexgym_lab.agents.curves import plot_curves, read_curve, summarise
+    from hexgym_lab.progress import wrote
 
     curves = {str(run): read_curve(run) for run in args.runs}
     summary = summarise(curves, args.success_level)
     print(json.dumps(summary, indent=2))
-    print(f"wrote {plot_curves(curves, args.out, args.title)}")
+    wrote(plot_curves(curves, args.out, args.title), "the figure")
     if args.json:
-        print(f"wrote {write_json(args.json, summary)}")
+        wrote(write_json(args.json, summary), "the summary")
     return 0
 
 
 def _cmd_shield(args: argparse.Namespace) -> int:
+    from hexgym_lab.progress import wrote
     from hexgym_lab.shield import compare, print_comparison
 
     result = compare(args.policy, args.episodes, args.seed, args.seconds, args.horizon, json_out=args.json)
     print_comparison(result)
     if args.json:
-        print(f"wrote {args.json}")
+        wrote(args.json, "the figures, per episode too")
     if args.plot:
         from hexgym_lab.shield import plot_comparison
 
-        print(f"wrote {plot_comparison(result, args.plot)}")
+        wrote(plot_comparison(result, args.plot), "the figures per episode")
     return 0
 
 
 def _cmd_plan(args: argparse.Namespace) -> int:
     from hexgym.checks import parse_seeds
     from hexgym_lab.plan import run_plan
+    from hexgym_lab.progress import wrote
 
     if args.video is not None and not args.video.endswith(".mp4"):
         raise ValueError(f"--video must be an .mp4 file, got {args.video}")
@@ -336,13 +383,13 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     if args.plot:
         from hexgym_lab.plan import plot_plan
 
-        print(f"wrote {plot_plan(result.get('per_seed', [result])[0], args.plot)}")
+        wrote(plot_plan(result.get("per_seed", [result])[0], args.plot), "the (first) seed's plan")
     if args.video:
         from hexgym_lab.plan import plan_video
 
-        print(f"wrote {plan_video(result.get('per_seed', [result])[0], args.video)}")
+        wrote(plan_video(result.get("per_seed", [result])[0], args.video), "the (first) seed's move, filmed")
     if args.json:
-        print(f"wrote {args.json}")
+        wrote(args.json, "the figures, every seed's")
     return 0
 
 
@@ -353,9 +400,11 @@ def _cmd_video(args: argparse.Namespace) -> int:
         args.policy, args.out, camera=args.camera, episodes=args.episodes, seed=args.seed, seconds=args.seconds,
         width=args.width, height=args.height, snapshot=args.snapshot, model=args.model, env_id=args.env,
     )  # fmt: skip
-    print(f"video: {result['video']} ({result['frames']} frames)")
+    from hexgym_lab.progress import wrote
+
+    wrote(result["video"], f"the film, {result['frames']} frames")
     if "snapshot" in result:
-        print(f"snapshot: {result['snapshot']}")
+        wrote(result["snapshot"], "a frame from the first episode's middle")
     return 0
 
 
@@ -368,14 +417,17 @@ def _cmd_view(args: argparse.Namespace) -> int:
     spools = ", ".join(f"{v:+.2f}" for v in result["spools_mm"])
     print(f"viewer closed after {result['sim_seconds']:.2f} s simulated, {result['frames']} frames; spools {spools} mm")
     if args.screenshot:
-        print(f"screenshot: {args.screenshot}")
+        from hexgym_lab.progress import wrote
+
+        wrote(args.screenshot, "the window before it closed")
     return 0
 
 
 def _cmd_convert_normalizer(args: argparse.Namespace) -> int:
     from hexgym.agents.policy_files import convert_pickled_normalizer
+    from hexgym_lab.progress import wrote
 
-    print(f"wrote {convert_pickled_normalizer(args.pkl, args.out)}")
+    wrote(convert_pickled_normalizer(args.pkl, args.out), "the normaliser as JSON")
     return 0
 
 
@@ -467,14 +519,18 @@ def _strict_numbers(parser: argparse.ArgumentParser) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser with all subcommands (numbers parsed strictly: :func:`_strict_numbers`)."""
+    from hexgym_lab.agents.loader_search import MIN_POPULATION
     from hexgym_lab.mbl.collect import DEFAULT_SAMPLES
 
     parser = _Parser(prog="hexgym", description="A hydraulic excavator (Cat 325 class) simulator for robot learning.")
     parser.add_argument("--debug", action="store_true", help="show the traceback of an error (or HEXGYM_DEBUG=1)")
+    parser.add_argument("--quiet", action="store_true", help="no progress on standard error (anywhere on the "
+                        "line; also when it is not a terminal; HEXGYM_PROGRESS=bar|lines|off chooses)")  # fmt: skip
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     demo = sub.add_parser("demo", help="the scripted loader on HexLoading-v0, filmed: an MP4 and a PNG")
-    demo.add_argument("--out", default="out", help="output directory (default: out)")
+    demo.add_argument("--out", default="out", metavar="DIR", help="output directory: demo.mp4 (the film) and "
+                      "demo.png (a frame of it) (default: out)")  # fmt: skip
     demo.add_argument(
         "--fps", type=float, default=None, help="playback rate; frames are taken at 10 Hz (default: 10, real time)"
     )
@@ -499,17 +555,19 @@ def build_parser() -> argparse.ArgumentParser:
     scripted.set_defaults(func=_cmd_scripted)
 
     tune = sub.add_parser("tune-loader", help="search the scripted loader's settings (CMA-ES) for t/h at low spill")
-    tune.add_argument("--out", required=True, help="JSON file of the best settings found")
+    tune.add_argument("--out", required=True, metavar="FILE.json", help="output file: the best settings found "
+                      "(JSON, for --loader-settings), rewritten after each generation")  # fmt: skip
     tune.add_argument("--seeds", default="100-105", metavar="A-B", help="episode seeds scored (default: 100-105)")
     tune.add_argument("--generations", type=int, default=14, help="CMA-ES generations (default: 14)")
-    tune.add_argument("--population", type=int, default=10, help="candidates per generation (default: 10)")
+    tune.add_argument("--population", type=int, default=10, help=f"candidates per generation, at least "
+                      f"{MIN_POPULATION}: CMA-ES learns its covariance from them (default: 10)")  # fmt: skip
     tune.add_argument("--spill-target", type=float, default=0.05, help="spilled fraction above which the score "
                       "is penalised (default: 0.05)")  # fmt: skip
     tune.add_argument("--seed", type=int, default=1, help="the search's own seed (default: 1)")
     tune.set_defaults(func=_cmd_tune_loader)
 
-    model = sub.add_parser("model", help="print the machine model's masses, joint ranges and cylinders")
-    model.add_argument("--json", action="store_true", help="print JSON")
+    model = sub.add_parser("model", help="print the machine model's masses, joint ranges and cylinders: a table")
+    model.add_argument("--json", action="store_true", help="print JSON (the same figures, SI units, for programs)")
     model.set_defaults(func=_cmd_model)
 
     simulate = sub.add_parser("simulate", help="replay a spool command log (CSV) and write the trajectory (CSV)")
@@ -517,7 +575,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--model", choices=["reference", "learned"], default="reference", help="machine model (default: reference)"
     )
     simulate.add_argument("--commands", required=True, help="command log CSV: t,swing,boom,stick,bucket (s, mm)")
-    simulate.add_argument("--out", required=True, help="trajectory CSV to write")
+    simulate.add_argument("--out", required=True, metavar="FILE.csv", help="output file: the trajectory (CSV, "
+                          "a row per --dt-out)")  # fmt: skip
     simulate.add_argument("--start", default="home", help="keyframe to start from (default: home)")
     simulate.add_argument("--payload-kg", type=float, default=0.0, help="material in the bucket, kg (default: 0)")
     simulate.add_argument("--dt-out", type=float, default=0.05, help="output row interval, s (default: 0.05)")
@@ -533,7 +592,8 @@ def build_parser() -> argparse.ArgumentParser:
     report = sub.add_parser(
         "reference-report", help="reference model: full-spool speeds, interaction plots (Figs 5-8), speed"
     )
-    report.add_argument("--out", default="out/reference", help="output directory (default: out/reference)")
+    report.add_argument("--out", default="out/reference", metavar="DIR", help="output directory: summary.json "
+                        "(the figures) and interactions.png (default: out/reference)")  # fmt: skip
     report.add_argument(
         "--valve",
         choices=("paper", "cat"),
@@ -546,7 +606,8 @@ def build_parser() -> argparse.ArgumentParser:
     collect = sub.add_parser(
         "collect", help="drive the reference model through motion sequences: MBL training data (slow, resumable)"
     )
-    collect.add_argument("--out", default="data", help="output folder for <table>.npz and chunks/ (default: data)")
+    collect.add_argument("--out", default="data", metavar="DIR", help="output directory: <table>.npz (a data set "
+                         "per table) and chunks/ (what a rerun resumes from) (default: data)")  # fmt: skip
     collect.add_argument(
         "--samples",
         type=int,
@@ -568,7 +629,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     fit = sub.add_parser("fit", help="fit the four MBL tables (LWR + leave-one-out selection) from collected data")
     fit.add_argument("--data", default="data", help="directory with <table>.npz data sets (default: data)")
-    fit.add_argument("--out", default=None, help="where to write the tables (default: the packaged tables)")
+    fit.add_argument("--out", default=None, metavar="DIR", help="output directory: <table>.npz, a fitted table "
+                     f"each (default: {DEFAULT_FIT_DIR}/<--tables> in the working directory; to replace the packaged "
+                     "tables, name their directory, hexgym/mbl_tables/<--tables>)")  # fmt: skip
     fit.add_argument("--seed", type=int, default=0, help="seed of the held-out split and the search (default: 0)")
     fit.add_argument("--tables", **_TABLES_OPTION)
     fit.add_argument("--only", default="", help="comma-separated subset, e.g. boom,stick (default: all)")
@@ -586,7 +649,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="learned vs reference model on the paper's three tests, the interactions both ways and "
         "(--suite N) N random operator-like logs: plots, tip errors, speed",
     )
-    validate.add_argument("--out", default="out/validate", help="output directory (default: out/validate)")
+    validate.add_argument("--out", default="out/validate", metavar="DIR", help="output directory: summary.json, "
+                          "test1-3.png, interactions.png and with --suite suite_worst.png "
+                          "(default: out/validate)")  # fmt: skip
     validate.add_argument("--suite", type=int, default=0, help="random operator-like logs to add (default: 0)")
     validate.add_argument("--suite-seed", type=int, default=0, help="seed of the suite's logs (default: 0)")
     validate.add_argument("--workers", type=int, default=None, help="processes (default: one per CPU)")
@@ -613,8 +678,11 @@ def build_parser() -> argparse.ArgumentParser:
     build = sub.add_parser("build-assets", help="regenerate assets/meshes and assets/cat325.xml (developers)")
     build.add_argument(
         "--dir",
-        default=str(_REPOSITORY_ASSETS),
-        help="directory to write (default: the repository's assets/; there also native/plugin_interface.h)",
+        default=str(_REPOSITORY_ASSETS) if _source_checkout() else None,
+        metavar="DIR",
+        help="output directory: meshes/, the MJCF models and scenes (a new one gets the packaged scene.xml); "
+        "nothing is written outside it, but for the source tree's own assets/: native/plugin_interface.h "
+        "(default: a source tree's assets/; an installed hexgym needs --dir)",
     )
     build.set_defaults(func=_cmd_build_assets)
 
@@ -716,7 +784,9 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
     train.add_argument("--env", default="HexLoading-v0", help="environment id (default: HexLoading-v0)")
     train.add_argument("--timesteps", type=int, default=None, help="total steps (default: the YAML's n_timesteps)")
     train.add_argument("--seed", type=int, default=0, help="seed (default: 0)")
-    train.add_argument("-f", "--log-dir", default="logs", help="run directory root (default: logs)")
+    train.add_argument("-f", "--log-dir", default="logs", metavar="DIR", help="output directory: the run's "
+                       "<algo>_<env>/ (model.zip, its normaliser, curve.csv, checkpoints/, tb/) "
+                       "(default: logs)")  # fmt: skip
     train.add_argument("--hyperparams", default=None, help="rl-zoo3 YAML (default: hexgym_lab/hyperparams/<algo>.yml)")
     train.add_argument("--n-envs", type=int, default=None, help="parallel environments (default: the YAML's n_envs "
                        "on the batched environment, else one per core)")  # fmt: skip
@@ -726,12 +796,13 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
                        "there is one (default: auto)")  # fmt: skip
     train.add_argument("--init-from", default=None, help="start from this model .zip, e.g. from `hexgym clone`")
     train.add_argument("--checkpoint-every", type=int, default=20000, help="steps between checkpoints")
-    train.add_argument("--no-progress", action="store_true", help="no progress bar")
-    train.add_argument("--quiet", action="store_true", help="no line per rollout (tonnes delivered, returns, rate)")
+    train.add_argument("--no-progress", action="store_true", help="no step count (the line per rollout stays; "
+                       "--quiet: neither)")  # fmt: skip
     train.set_defaults(func=_cmd_train)
 
     clone = sub.add_parser("clone", help="behaviour-clone the scripted loader (with DAgger) into a PPO model")
-    clone.add_argument("--out", required=True, help="model .zip to write (statistics beside it)")
+    clone.add_argument("--out", required=True, metavar="FILE.zip", help="output file: the model (its "
+                       "observation normaliser beside it, <name>_vecnormalize.json)")  # fmt: skip
     clone.add_argument("--episodes", type=int, default=16, help="scripted episodes (default: 16)")
     clone.add_argument("--dagger-rounds", type=int, default=4, help="DAgger rounds (default: 4)")
     clone.add_argument("--dagger-episodes", type=int, default=8, help="episodes per DAgger round (default: 8)")
@@ -740,7 +811,8 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
     clone.add_argument("--seed", type=int, default=1000, help="first episode seed (default: 1000)")
     clone.add_argument("--select-episodes", type=int, default=0, help="score each round's clone on N more "
                        "episodes and keep the best (default: 0: the last)")  # fmt: skip
-    clone.add_argument("--rounds-dir", default=None, help="also keep each round's clone here (round<k>.zip)")
+    clone.add_argument("--rounds-dir", default=None, metavar="DIR", help="also an output directory: each round's "
+                       "clone, round<k>.zip")  # fmt: skip
     clone.add_argument("--hyperparams", default=None, help="PPO YAML giving the network (default: ppo.yml)")
     clone.add_argument("--tables", choices=tuple(TABLE_SETS), default=None,
                        help="the learned model the episodes run on (default: the environment's, paper); the "
@@ -757,8 +829,9 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
 
     curves = sub.add_parser("curves", help="learning curves of hexgym train runs (seeds): figure and summary")
     curves.add_argument("runs", nargs="+", help="run directories (<log-dir>/<algo>_<env>) or their curve.csv")
-    curves.add_argument("--out", required=True, help="figure (.png): mean and min-max band over the runs")
-    curves.add_argument("--json", default=None, help="also write the summary here")
+    curves.add_argument("--out", required=True, metavar="FILE.png", help="output file: the figure, mean and "
+                        "min-max band over the runs")  # fmt: skip
+    curves.add_argument("--json", default=None, metavar="OUT", help="also write the summary to this JSON file")
     curves.add_argument("--title", default="", help="the figure's title")
     curves.add_argument("--success-level", type=float, default=0.9, help="report the steps to reach this "
                         "smoothed success rate (default: 0.9)")  # fmt: skip
@@ -782,7 +855,7 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
 
     video = sub.add_parser("video", help="render rollouts of a policy to an MP4 with a time/payload overlay")
     video.add_argument("--policy", default="shipped", help=policy_help + " (default: shipped)")
-    video.add_argument("--out", required=True, help="MP4 file to write")
+    video.add_argument("--out", required=True, metavar="FILE.mp4", help="output file: the film (MP4)")
     video.add_argument("--camera", choices=("chase", "cab"), default="chase", help="camera (default: chase)")
     video.add_argument("--episodes", type=int, default=1, help="episodes (default: 1)")
     video.add_argument("--seed", type=int, default=0, help="first seed (default: 0)")
@@ -803,7 +876,8 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
     convert = sub.add_parser("convert-normalizer", help="convert a pickled VecNormalize (*_vecnormalize.pkl) to "
                              "the JSON normaliser hexgym reads (nothing in the pickle is run)")  # fmt: skip
     convert.add_argument("pkl", help="the pickled normaliser, e.g. model_vecnormalize.pkl")
-    convert.add_argument("--out", default=None, help="JSON to write (default: beside it, .json)")
+    convert.add_argument("--out", default=None, metavar="FILE.json", help="output file: the normaliser (JSON) "
+                         "(default: beside the pickle, .json)")  # fmt: skip
     convert.set_defaults(func=_cmd_convert_normalizer)
 
 
@@ -811,7 +885,7 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
 # Option values, by option name, whatever the command: (check, argument) for hexgym.checks.
 _COUNTS = {"episodes": 1, "steps": 1, "samples": 1, "epochs": 1, "workers": 1, "n_envs": 1, "timesteps": 1,
            "frames": 1, "dagger_episodes": 1, "checkpoint_every": 1, "suite": 0, "dagger_rounds": 0,
-           "select_episodes": 0, "width": 1, "height": 1, "num_env_runners": 1}  # fmt: skip
+           "select_episodes": 0, "width": 1, "height": 1, "num_env_runners": 1, "generations": 1}  # fmt: skip
 _SEEDS = ("seed", "suite_seed")
 _POSITIVE = {"seconds": "s", "dt_out": "s"}
 # Paths, by (command, option): files and directories written, files and directories read.
@@ -925,9 +999,14 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("MUJOCO_GL", "egl")  # offscreen rendering without a display
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in argv or os.environ.get("HEXGYM_DEBUG", "") not in ("", "0")
-    argv = [a for a in argv if a != "--debug"]
+    quiet = "--quiet" in argv
+    argv = [a for a in argv if a not in ("--debug", "--quiet")]
     args = build_parser().parse_args(argv)
     try:
+        from hexgym_lab import progress
+
+        progress.configure(quiet=quiet)
+        progress.mode()  # a bad HEXGYM_PROGRESS is refused before the work starts
         check_arguments(args, given_options(argv))
         return args.func(args)
     except KeyboardInterrupt:

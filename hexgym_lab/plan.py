@@ -7,7 +7,9 @@ starts from rest at those angles. Then:
 
 - the planner (:func:`hexgym.planning.planner.plan_motion`) plans on the native learned model (``search="fast"``)
   or, offline, on the circuit model (``search="circuit"``), its search started from the scripted loader's move
-  (``warm_start``): ``predicted_*`` are its final rollout's figures;
+  (``warm_start``): ``predicted_*`` are its final rollout's figures; ``target_margin_m`` is the clearance from truck
+  and ground the search aims to keep (every period closer costs: a target, not a bound), ``predicted_margin_kept``
+  whether the final rollout kept it (its least clearance is ``predicted_min_clearance_m``);
 - by default the plan is checked, trimmed and if need be mended on the circuit model
   (:func:`~hexgym.planning.planner.plan_checked`): ``checked_*`` are the check's figures (time to the goal,
   clearance, goal error, fuel to the plan's end);
@@ -57,6 +59,7 @@ from hexgym.planning.planner import (
     swing_target,
 )
 from hexgym.planning.rollouts import MachineState, RolloutModel
+from hexgym_lab.progress import track
 
 TASKS = ("dump", "return")
 SWINGS = ("knots", "bang-bang")
@@ -231,7 +234,8 @@ def plan_task(
             searched.close()
         model.close()
     return {
-        "task": task, "seed": seed, "w_fuel": w_fuel, "margin_m": margin_m, "horizon_s": horizon_s, "swing": swing,
+        "task": task, "seed": seed, "w_fuel": w_fuel, "horizon_s": horizon_s, "swing": swing,
+        "target_margin_m": margin_m, "predicted_margin_kept": bool(plan.min_clearance_m >= margin_m),
         "search": search, "tables": model.table_set,
         "plan_message": checked.message if checked else plan.message, "plan_wall_s": plan.wall_s,
         "rollouts": plan.rollouts, "predicted_reached": plan.reached, "predicted_time_s": plan.time_s,
@@ -328,6 +332,7 @@ def summarise(results: list[dict[str, Any]]) -> dict[str, Any]:
         "median_reference_fuel_vs_scripted_reference": median(fuel_ref),
         "median_fuel_prediction_error": median([rel(r["predicted_fuel_l"], r["reference_fuel_l"]) for r in results]),
         "planned_reached": sum(bool(r["predicted_reached"]) for r in results),
+        "planned_margin_kept": sum(bool(r.get("predicted_margin_kept")) for r in results),
         "reference_reached": sum(r["reference_time_s"] is not None for r in results),
         "median_swing_switch_later_s": median([r["swing_switch_s"]["plan"] - r["swing_switch_s"]["fast_model"]
                                                for r in results if r.get("swing_switch_s")]),
@@ -387,8 +392,9 @@ def run_plan(
     _search_of(search)
     start = time.perf_counter()
     jobs = [(task, s, w_fuel, budget, nthread, margin_m, check, swing, search) for s in seeds]
-    with executor(workers, ray, cpus_per_task=nthread) as pool:
-        results = pool.map(_plan_job, jobs)
+    with executor(workers, ray, cpus_per_task=nthread) as pool:  # as they finish (the progress), then in seed order
+        done = track(pool.map_unordered(_plan_job, jobs), f"plan {task}", "seed", total=len(jobs))
+        results = sorted(done, key=lambda result: seeds.index(result["seed"]))
     out: dict[str, Any] = results[0] if len(results) == 1 else {
         "task": task, "w_fuel": w_fuel, "summary": summarise(results), "per_seed": results,
     }  # fmt: skip
@@ -436,7 +442,7 @@ def plot_plan(result: dict[str, Any], out: str | Path) -> Path:
         ax.legend(fontsize=8, ncol=4)
 
     def seconds(key: str) -> str:
-        return "-" if result.get(key) is None else f"{result[key]:.1f} s"
+        return "goal not reached" if result.get(key) is None else f"{result[key]:.1f} s"
 
     title = (
         f"learned model: planned {seconds('learned_time_s')}, {result['learned_fuel_l']:.4f} L; scripted "

@@ -18,6 +18,7 @@ from hexgym.files import save_figure, write_json
 from hexgym.hydraulics.reference import ReferenceModel
 from hexgym.model.commandlog import CommandLog
 from hexgym.model.replay import replay
+from hexgym_lab.progress import Progress
 from hexgym_lab.published_figures import published_figures
 from hexgym_lab.scenarios import POSE_LOW, POSE_SWING
 
@@ -176,14 +177,14 @@ def run_report(out_dir: str | Path, valve: str = "paper") -> dict[str, object]:
     out_dir = Path(out_dir)
     sim = ReferenceModel(valve=valve)  # refuses an unknown layout before anything is written
     out_dir.mkdir(parents=True, exist_ok=True)
-    tests = interaction_tests(sim)
-    summary = {
-        "valve": valve,
-        "single_function": single_function_speeds(sim),
-        "interactions": interaction_figures(tests),
-        "published_figures": published_figures(valve),
-        "speed": benchmark(sim),
-    }
+    with Progress(3, "reference-report", "part") as progress:
+        tests = interaction_tests(sim)
+        progress.update()
+        summary = {"valve": valve, "single_function": single_function_speeds(sim)}
+        progress.update()
+        summary |= {"interactions": interaction_figures(tests), "published_figures": published_figures(valve),
+                    "speed": benchmark(sim)}  # fmt: skip
+        progress.update()
     plot_interactions(tests, out_dir / "interactions.png")
     write_json(out_dir / "summary.json", summary)
     return summary

@@ -26,6 +26,7 @@ from hexgym.agents.policies import Policy, load_policy
 from hexgym.files import save_figure, write_json
 from hexgym.mbl.schema import DEFAULT_TABLE_SET
 from hexgym.wrappers import CollisionShield
+from hexgym_lab.progress import Progress
 
 
 class RandomPolicy:
@@ -89,13 +90,15 @@ def compare(
         raise ValueError(f"--horizon must be > 0 and at most 60 s, got {horizon_s}")
     kwargs = {} if seconds is None else {"time_limit": seconds}
     runs: dict[str, list[dict[str, float]]] = {"without": [], "with": []}
-    for label in runs:
-        env = gym.make("HexLoading-v0", **kwargs)
-        if label == "with":
-            env = CollisionShield(env, horizon_s=horizon_s)
-        for k in range(episodes):
-            runs[label].append(run_episode(env, _policy(policy_spec, seed + k), seed + k))
-        env.close()
+    with Progress(2 * episodes, "shield", "episode") as progress:
+        for label in runs:
+            env = gym.make("HexLoading-v0", **kwargs)
+            if label == "with":
+                env = CollisionShield(env, horizon_s=horizon_s)
+            for k in range(episodes):
+                runs[label].append(run_episode(env, _policy(policy_spec, seed + k), seed + k))
+                progress.update(shield=label)
+            env.close()
     out: dict[str, Any] = {"policy": policy_spec, "episodes": episodes, "seed": seed, "horizon_s": horizon_s}
     out["tables"] = DEFAULT_TABLE_SET  # the learned model the episodes and the shield's predictions run
     for label, eps in runs.items():
@@ -117,6 +120,13 @@ def compare(
     return out
 
 
+def reduction_text(result: dict[str, Any]) -> str:
+    """The contact reduction as the printout and the plot both say it: two decimals, so that 99.96 % never reads as
+    100.0 % (``n/a`` without contacts to reduce)."""
+    reduction = result["contact_reduction"]
+    return "n/a" if reduction is None else f"{100 * reduction:.2f} %"
+
+
 def print_comparison(result: dict[str, Any]) -> None:
     """The figures as a few lines."""
     r = result
@@ -125,7 +135,7 @@ def print_comparison(result: dict[str, Any]) -> None:
         return "n/a" if v is None else f"{100 * v:+.1f} %"
 
     print(f"policy {r['policy']}, {r['episodes']} episodes from seed {r['seed']}, horizon {r['horizon_s']} s")
-    reduction = "n/a" if r["contact_reduction"] is None else f"{100 * r['contact_reduction']:.1f} %"
+    reduction = reduction_text(r)
     print(f"  hard contacts per hour: {r['contacts_per_hour_without']:.1f} without, {r['contacts_per_hour_with']:.1f} "
           f"with the shield (reduction {reduction})")  # fmt: skip
     print(f"  tonnes per hour:        {r['tonnes_per_hour_without']:.1f} without, {r['tonnes_per_hour_with']:.1f} with "
@@ -168,9 +178,9 @@ def plot_comparison(result: dict[str, Any], out: str | Path) -> Path:
     axes[2].bar(seeds, per_hour["with"]["interventions"], 0.6, color="C1")
     axes[2].set(xlabel="episode seed", ylabel="interventions per hour", xticks=seeds,
                 title=f"interventions (shield {result['shield_ms_per_step']:.2f} ms/step)")  # fmt: skip
-    reduction = result["contact_reduction"]
+    reduction = "" if result["contact_reduction"] is None else f" ({reduction_text(result)} fewer)"
     fig.suptitle(f"collision shield, policy {result['policy']}, horizon {result['horizon_s']} s: hard contacts "
                  f"{result['contacts_per_hour_without']:.1f} -> {result['contacts_per_hour_with']:.1f} per hour"
-                 + ("" if reduction is None else f" ({100 * reduction:.2f} % fewer)"), fontsize=10)  # fmt: skip
+                 f"{reduction}", fontsize=10)  # fmt: skip
     fig.tight_layout()
     return save_figure(fig, out)

@@ -54,6 +54,7 @@ from hexgym.model.python_backend import LearnedModel
 from hexgym.model.replay import replay
 from hexgym.parallel import executor
 from hexgym_lab.mbl.operator_logs import STYLES, pose_from_fractions, suite_log
+from hexgym_lab.progress import track
 from hexgym_lab.scenarios import POSE_CYCLE, ramped_log, scenarios  # noqa: F401 (POSE_CYCLE: re-exported)
 
 DT_OUT = 0.05  # s
@@ -285,7 +286,8 @@ def run_jobs(
     jobs = sorted(jobs, key=lambda job: -job[1].duration)
     recipe = _worker_recipe(learned)
     with executor(min(workers, max(len(jobs), 1)), ray, initializer=_init_worker, initargs=(recipe,)) as pool:
-        return {result["name"]: result for result in pool.map_unordered(_run_job, jobs)}
+        runs = track(pool.map_unordered(_run_job, jobs), "validate: interactions and suite", "run", total=len(jobs))
+        return {result["name"]: result for result in runs}
 
 
 def _suite_entry(result: dict[str, object], description: dict[str, object]) -> dict[str, object]:
@@ -383,7 +385,7 @@ def run_validation(
         test_payload = 0.0 if payload_kg is None else float(payload_kg)
         if not suite_only:
             reference = ReferenceModel(valve=VALVE_OF_TABLE_SET[learned.table_set])
-            for name, (log, pose) in scenarios().items():
+            for name, (log, pose) in track(scenarios().items(), "validate: the paper's tests", "test"):
                 result = run_test(name, log, pose, reference, learned, test_payload)
                 plot_test(result, out_dir / f"{name}.png")
                 summary[name] = {**_tip_error_figures(result), "payload_kg": test_payload}

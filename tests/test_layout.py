@@ -25,9 +25,9 @@ LAYERS = (
     "parallel", "files", "interpolation", "machine", "hydraulics", "mbl", "model", "envs", "planning", "wrappers",
     "agents",
 )  # fmt: skip
-# the lab's: its offline MBL pipeline, agents, then the harnesses at its top level (bench, validate, plan, ...),
-# then the command line over them all
-LAB_LAYERS = ("mbl", "agents", "harnesses", "cli", "__main__")
+# the lab's: progress (what every long job shows), its offline MBL pipeline, agents, then the harnesses at its top
+# level (bench, validate, plan, ...), then the command line over them all
+LAB_LAYERS = ("progress", "mbl", "agents", "harnesses", "cli", "__main__")
 OFFLINE_LIBRARIES = ("matplotlib", "stable_baselines3", "torch", "ray", "trimesh", "cmaes")
 
 

@@ -601,7 +601,8 @@ def test_plan_command_writes_the_figures(tmp_path):
                 "reference_fuel_l", "reference_goal_error_m", "reference_min_clearance_m", "scripted_time_s",
                 "scripted_fuel_l", "scripted_reference_time_s", "scripted_reference_fuel_l"):  # fmt: skip
         assert key in result, key
-    assert result["margin_m"] == 0.8  # loaded: the default margin is the loaded one
+    assert result["target_margin_m"] == 0.8  # loaded: the default margin is the loaded one
+    assert result["predicted_margin_kept"] == (result["predicted_min_clearance_m"] >= 0.8)
     assert result["scripted_reference_time_s"] > 0 and result["scripted_reference_fuel_l"] > 0
 
 
@@ -612,7 +613,7 @@ def test_a_plan_searched_on_the_circuit_model_predicts_the_reference():
     from hexgym_lab.plan import plan_task
 
     result = plan_task("dump", 0, budget=40, nthread=1, search="circuit")
-    assert result["search"] == "circuit" and result["margin_m"] == CIRCUIT_MARGIN_M and result["rollouts"] >= 40
+    assert result["search"] == "circuit" and result["target_margin_m"] == CIRCUIT_MARGIN_M and result["rollouts"] >= 40
     assert result["predicted_fuel_l"] == pytest.approx(result["reference_fuel_l"], rel=0.03)
     assert result["predicted_reached"] and result["reference_time_s"] is not None
     assert "at the goal" in result["plan_message"]

@@ -62,7 +62,8 @@ def test_hyperparameter_errors(tmp_path, tiny_yaml):
         load_hyperparams("ppo", "Other-v0", path=tiny_yaml)
 
 
-def test_short_ppo_run_saves_reloads_and_resumes(tmp_path, tiny_yaml, capsys):
+def test_short_ppo_run_saves_reloads_and_resumes(tmp_path, tiny_yaml, capsys, monkeypatch):
+    monkeypatch.setenv("HEXGYM_PROGRESS", "lines")  # the rollout lines show where progress does (standard error)
     path = train("ppo", timesteps=256, seed=0, log_dir=tmp_path, hyperparams=tiny_yaml, n_envs=2,
                  checkpoint_every=128, progress_bar=False)  # fmt: skip
     assert path.is_file() and normalizer_path(path).is_file()
@@ -76,12 +77,13 @@ def test_short_ppo_run_saves_reloads_and_resumes(tmp_path, tiny_yaml, capsys):
     # the same command with a larger budget continues from the checkpoint
     train("ppo", timesteps=384, seed=0, log_dir=tmp_path, hyperparams=tiny_yaml, n_envs=2,
           checkpoint_every=128, progress_bar=False)  # fmt: skip
-    out = capsys.readouterr().out
-    assert "resuming from" in out
+    captured = capsys.readouterr()
+    assert "resuming from" in captured.out
     assert load_trained(path).model.num_timesteps >= 384
     # a line per rollout of 2 envs x 64 steps (two in the first run, one resumed): steps so far, tonnes
     # delivered, episodes ended and their return, the rate
-    lines = [line for line in out.splitlines() if "| rollout:" in line]
+    lines = [line for line in captured.err.splitlines() if "| rollout:" in line]
+    assert not [line for line in captured.out.splitlines() if "| rollout:" in line]
     assert [line.split()[0] for line in lines] == ["128", "256", "384"]
     assert all("t delivered" in line and "steps/s" in line for line in lines)
     assert "2 episodes ended, mean return" in lines[1]  # each env's 8 s episode ends at its step 80

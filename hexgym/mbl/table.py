@@ -401,8 +401,8 @@ def require_packaged(table_set: str) -> Path:
     if not directory.is_dir():
         raise FileNotFoundError(
             f"the {table_set} tables are not shipped: make them with `hexgym collect --tables {table_set} --out DATA`"
-            f" then `hexgym fit --tables {table_set} --data DATA` (which writes them into the package), or pass"
-            " the directory `hexgym fit --out` wrote"
+            f" then `hexgym fit --tables {table_set} --data DATA` (which writes tables/{table_set}/), and pass that"
+            " directory (or fit with --out naming the package's mbl_tables/ to ship them)"
         )
     return directory
 

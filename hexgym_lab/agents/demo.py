@@ -7,12 +7,14 @@ and returns. Frames are taken at the environment's 10 Hz control rate.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from hexgym.agents.scripted import run_scripted
 from hexgym.checks import check_positive, check_seed
 from hexgym.envs.loading import STEP_PERIOD, HexLoadingEnv
 from hexgym.files import check_output_dir, check_output_file
+from hexgym_lab.progress import CountingList, Progress
 
 DEMO_DURATION = 60.0  # s of simulated time: two loading cycles
 DEMO_SEED = 0
@@ -45,8 +47,9 @@ def run_demo(
         check_output_file(Path(out_dir) / name, "demo output")
     env = HexLoadingEnv(render_mode="rgb_array", width=width, height=height, time_limit=max(duration, 0.1))
     fps = float(fps) if fps is not None else float(env.metadata["render_fps"])
-    frames: list = []
-    metrics = run_scripted(env, seed=seed, seconds=duration, frames=frames)
+    with Progress(math.ceil(duration / STEP_PERIOD - 1e-9), "demo", "frame") as progress:
+        frames = CountingList(progress)
+        metrics = run_scripted(env, seed=seed, seconds=duration, frames=frames)
     env.close()
     snapshot = frames[int(len(frames) * 0.45)]  # mid-cycle: the loaded bucket on its way
     video, picture = Path(out_dir) / "demo.mp4", Path(out_dir) / "demo.png"

@@ -25,6 +25,7 @@ from hexgym.files import check_output_file, write_json
 from hexgym.machine import parameters as p
 from hexgym.mbl.schema import DEFAULT_TABLE_SET
 from hexgym.parallel import executor
+from hexgym_lab.progress import track
 
 HEAPED_BUCKET_KG = p.BUCKET_HEAPED_CAPACITY * p.MATERIAL_DENSITY
 # A dump counts as a full-enough bucket from half a heaped bucket (~1.07 t): the scripted loader's
@@ -180,8 +181,9 @@ def evaluate(
     policy = load_policy(policy_spec, loader_settings=loader_settings)
     seeds = [seed + i for i in range(int(episodes))]
     with executor(min(workers, len(seeds)), ray, initializer=_init_worker, initargs=(policy, env_kwargs)) as pool:
-        try:
-            runs = pool.map(_run_seed, seeds)
+        try:  # as they finish (the progress), then in seed order (the figures)
+            done = track(pool.map_unordered(_run_seed, seeds), "evaluate", "episode", total=len(seeds))
+            runs = sorted(done, key=lambda episode: episode.seed)
         finally:
             _close_worker()  # the environment of a run in this process
     model = (env_kwargs or {}).get("model", "learned")
@@ -226,7 +228,8 @@ def evaluate_success(
     policy = load_policy(model_path, env_id)
     env = gym.make(env_id, **(env_kwargs or {}))
     try:
-        runs = [run_success_episode(env, policy, s) for s in range(seed, seed + int(episodes))]
+        seeds = range(seed, seed + int(episodes))
+        runs = [run_success_episode(env, policy, s) for s in track(seeds, "evaluate", "episode")]
     finally:
         env.close()
     successes, returns = [ok for ok, _, _ in runs], [total for _, _, total in runs]

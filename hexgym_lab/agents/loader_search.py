@@ -13,9 +13,9 @@ seed set here and measure the result on others (``hexgym scripted --loader-setti
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -23,7 +23,9 @@ from hexgym.agents.scripted import SETTING_RANGES, TEACHING_SETTINGS, LoaderSett
 from hexgym.checks import check_count, check_range
 from hexgym.files import check_output_file
 from hexgym.parallel import LocalPool
+from hexgym_lab.progress import Progress
 
+MIN_POPULATION = 4  # candidates per generation: fewer, CMA-ES has no covariance to learn from
 SPILL_PENALTY = 15.0  # t/h per percentage point of spill above the target
 CONTACT_PENALTY = 20.0  # t/h per unit of the task's contact reward per episode (-1: 100 kN s of hard contact)
 START_SIGMA = 0.15  # of each setting's range: the search's first step
@@ -92,17 +94,19 @@ def tune_loader(
     spill_target: float = 0.05,
     seed: int = 1,
     workers: int | None = None,
-    log: Any = print,
+    log: Callable[[str], None] | None = None,
 ) -> tuple[LoaderSettings, Score]:
     """CMA-ES over the loader's settings from the defaults; the best met is written to ``out`` (JSON) after each
     generation and returned. Ctrl-C stops the workers at once; ``out`` then holds the best of the generations
-    finished (or its old content, before the first)."""
+    finished (or its old content, before the first). ``population``: candidates per generation, at least
+    :data:`MIN_POPULATION`. Progress (:mod:`hexgym_lab.progress`): a count of candidates scored, and a line per
+    generation (to ``log`` where given)."""
     try:
         from cmaes import CMA
     except ImportError:
         raise ImportError("the loader search needs the cmaes package: pip install 'hexgym[train]'") from None
     check_count("generations", generations)
-    check_count("population", population, 4)  # fewer: CMA-ES has no covariance to learn from
+    check_count("population", population, MIN_POPULATION)
     check_range("spill_target", spill_target, 0.0, 1.0, "(fraction)")
     if not seeds:
         raise ValueError("seeds: give at least one episode seed")
@@ -111,9 +115,11 @@ def tune_loader(
     optimiser = CMA(mean=_to_unit(start), sigma=START_SIGMA, bounds=np.array([[0.0, 1.0]] * len(SEARCHED)),
                     seed=seed, population_size=population)  # fmt: skip
     workers = max(1, min(workers or os.cpu_count() or 1, len(seeds)))
-    with LocalPool(workers) as pool:
+    with LocalPool(workers) as pool, Progress(1 + generations * population, "tune-loader", "candidate") as progress:
+        say = log or progress.note
         best = (start, score(start, seeds, pool, spill_target))
-        log(f"defaults: {_describe(best[1])}")
+        say(f"defaults: {_describe(best[1])}")
+        progress.update(best_t_per_h=f"{best[1].tonnes_per_hour:.1f}")
         for generation in range(generations):
             told = []
             for _ in range(population):
@@ -123,9 +129,10 @@ def tune_loader(
                 told.append((z, -result.objective))
                 if result.objective > best[1].objective:
                     best = (candidate, result)
+                progress.update(best_t_per_h=f"{best[1].tonnes_per_hour:.1f}")
             optimiser.tell(told)
             best[0].save(out)  # what was found is kept, however the search ends
-            log(f"generation {generation}: best so far {_describe(best[1])} (written to {out})")
+            say(f"generation {generation}: best so far {_describe(best[1])} (written to {out})")
     return best
 
 

@@ -48,6 +48,7 @@ from hexgym.envs import ENV_ID
 from hexgym.files import atomic_paths, check_input_file, check_output_dir, check_output_file, run_lock
 from hexgym.parallel import LocalPool
 from hexgym_lab.agents.hyperparams import algo_kwargs, load_hyperparams, wrapper_named
+from hexgym_lab.progress import Progress
 
 if TYPE_CHECKING:
     from hexgym.agents.scripted import LoaderSettings
@@ -314,8 +315,9 @@ def train(
 ) -> Path:
     """Train (or resume) ``algo`` on ``env_id`` to ``timesteps`` steps in all; the final model's path.
 
-    ``report``: print a line per rollout (tonnes delivered, episodes ended and their mean return, steps
-    per second); every rollout's figures are appended to the run directory's ``curve.csv`` either way.
+    ``progress_bar``: count the steps (:mod:`hexgym_lab.progress`: a bar, or lines, on standard error where it
+    shows progress); ``report``: a line per rollout there too (tonnes delivered, episodes ended and their mean
+    return, steps per second); every rollout's figures are appended to the run directory's ``curve.csv`` either way.
     Interrupted (Ctrl-C or SIGTERM), the run saves its newest state as ``model.zip`` before stopping.
 
     Resumes from the newest checkpoint of the run directory when there is one; otherwise starts
@@ -365,15 +367,17 @@ def train(
                 venv = VecNormalize(venv, **hp["normalize"])
             model = _new_model(algo_class, hp, venv, seed=seed, tensorboard_log=tensorboard)
         remaining = total - model.num_timesteps if resume else total
+        done = model.num_timesteps if resume else 0
+        progress = Progress(done + remaining, "train", "step", initial=done, count=progress_bar)
         callbacks = [
             _checkpoint_callback(run_dir / "checkpoints", checkpoint_every),
-            _rollout_report_callback(print if report else None, run_dir / "curve.csv"),
+            _rollout_report_callback(progress.note if report else None, run_dir / "curve.csv"),
+            _progress_callback(progress),
         ]
         try:
             if remaining > 0:
-                with _terminate_as_interrupt():
-                    model.learn(remaining, callback=callbacks, progress_bar=progress_bar and _progress_bar_available(),
-                                reset_num_timesteps=resume is None, tb_log_name=algo)  # fmt: skip
+                with _terminate_as_interrupt(), progress:
+                    model.learn(remaining, callback=callbacks, reset_num_timesteps=resume is None, tb_log_name=algo)
         except KeyboardInterrupt:
             # a stopped run leaves its newest state as a usable model (with its normaliser), then stops
             path = save_model(model, run_dir / "model.zip")
@@ -402,8 +406,16 @@ def _terminate_as_interrupt() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
-def _progress_bar_available() -> bool:
-    return all(importlib.util.find_spec(name) for name in ("tqdm", "rich"))
+def _progress_callback(progress: Progress) -> Any:
+    """A callback that counts the run's steps in ``progress`` (a resumed run's from its checkpoint's count)."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class StepProgress(BaseCallback):
+        def _on_step(self) -> bool:
+            progress.set(self.num_timesteps)
+            return True
+
+    return StepProgress()
 
 
 # -- behaviour cloning from the scripted loader ----------------------------------------------------
@@ -610,7 +622,7 @@ def clone_scripted(
     loss: str = "mse",
     tables: str | None = None,
     loader_settings: str | Path | None = None,
-    log: Any = print,
+    log: Callable[[str], None] | None = None,
 ) -> Path:
     """Behaviour-clone the scripted loader into a PPO model saved at ``out`` (+ VecNormalize statistics).
 
@@ -623,7 +635,8 @@ def clone_scripted(
     clone is kept in ``rounds_dir`` (``round<k>.zip``) when given. ``loss``: the actor's fit
     (:func:`fit_to_demonstrations`). ``tables``: the learned model the episodes run on (``HexLoading-v0``'s
     ``tables``; default the hyperparameters' ``env_kwargs``, else the environment's default).
-    ``loader_settings``: a JSON file of the teaching loader's settings (``hexgym tune-loader``).
+    ``loader_settings``: a JSON file of the teaching loader's settings (``hexgym tune-loader``). Progress
+    (:mod:`hexgym_lab.progress`): a count of rounds and a line per round (to ``log`` where given).
     """
     _loss_power(loss)  # bad arguments fail here, before minutes of recording
     for name, value, minimum in (("episodes", episodes, 1), ("dagger_rounds", dagger_rounds, 0),
@@ -645,16 +658,17 @@ def clone_scripted(
     if tables is not None:
         hp["env_kwargs"] = {**(hp.get("env_kwargs") or {}), "tables": tables}
     check_hyperparams("ppo", hp)
-    with _worker_pool() as pool, tempfile.TemporaryDirectory() as tmp:  # workers start once (torch, MuJoCo: s)
+    progress = Progress(dagger_rounds + 1, "clone", "round")
+    with _worker_pool() as pool, tempfile.TemporaryDirectory() as tmp, progress:  # workers start once (torch: s)
         rounds = Path(rounds_dir) if rounds_dir is not None else Path(tmp)
         return _clone_rounds(Path(out), rounds, hp, pool, episodes, dagger_rounds, dagger_episodes, noise, epochs,
-                             seed, select_episodes, loss, teacher, log)  # fmt: skip
+                             seed, select_episodes, loss, teacher, log or progress.note, progress)  # fmt: skip
 
 
 def _clone_rounds(
     out: Path, rounds: Path, hp: dict[str, Any], pool: LocalPool, episodes: int, dagger_rounds: int,
     dagger_episodes: int, noise: float, epochs: int, seed: int, select_episodes: int, loss: str,
-    teacher: LoaderSettings, log: Any,
+    teacher: LoaderSettings, log: Callable[[str], None], progress: Progress,
 ) -> Path:  # fmt: skip
     """:func:`clone_scripted`'s rounds, recording and scoring in ``pool``."""
     gamma = float(hp.get("gamma", 0.99))
@@ -680,6 +694,7 @@ def _clone_rounds(
             if best is None or delivered >= best[0]:  # ties: the later round, fitted on more data
                 best = (delivered, path)
         log(message)
+        progress.update()
         if round_ == dagger_rounds:
             break
         seeds = list(range(next_seed, next_seed + dagger_episodes))

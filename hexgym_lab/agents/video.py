@@ -21,6 +21,7 @@ from hexgym.envs.loading import STEP_PERIOD
 from hexgym.files import check_output_file
 from hexgym.machine.render import CAMERAS, check_frame_memory, write_mp4
 from hexgym_lab.agents.evaluate import run_episode, run_success_episode
+from hexgym_lab.progress import CountingList, Progress
 
 OVERLAY_HEIGHT = 28  # px: the text strip at the top of each frame
 
@@ -120,7 +121,8 @@ def record_video(
     limit = env.unwrapped.time_limit if seconds is None else min(seconds, env.unwrapped.time_limit)
     steps = math.ceil(limit / STEP_PERIOD - 1e-9) + 1
     check_frame_memory(int(episodes) * steps, width, height)
-    frames: list[np.ndarray] = []
+    progress = Progress(int(episodes) * steps, "video", "frame")
+    frames: list[np.ndarray] = CountingList(progress)
     summaries = []
     still = None  # the snapshot's frame: the middle of the first episode
     try:
@@ -132,6 +134,7 @@ def record_video(
             if i == 0:
                 still = frames[len(frames) // 2]
     finally:
+        progress.close()
         env.close()
     fps = float(env.metadata["render_fps"])
     pair = None if snapshot is None else (still, snapshot)  # the video and its snapshot are replaced together

@@ -91,6 +91,7 @@ from hexgym_lab.mbl.datafile import refuse_other_npz
 from hexgym_lab.mbl.operator_logs import DT as OPERATOR_DT
 from hexgym_lab.mbl.operator_logs import DURATION_S as OPERATOR_DURATION_S
 from hexgym_lab.mbl.operator_logs import operator_log
+from hexgym_lab.progress import Progress
 
 GENERATOR_VERSION = 2  # 2: the operator group's rows run to the end of each log
 DEFAULT_SAMPLES = 6400  # per group: the paper had 5500 (boom/bucket) and 6400 (stick/swing) points
@@ -818,17 +819,12 @@ def collect(
 
 
 class _ProgressBar:
-    """A tqdm bar over samples (per group, capped at the target), or nothing without tqdm."""
+    """Progress over samples (per group, capped at the target): :mod:`hexgym_lab.progress`."""
 
     def __init__(self, targets: dict[str, int], enabled: bool) -> None:
-        self._bar, self._caps = None, targets
+        self._caps = targets
         self._counts: dict[str, int] = {}
-        if enabled:
-            try:
-                from tqdm.auto import tqdm
-            except ImportError:
-                return
-            self._bar = tqdm(total=sum(targets.values()), unit="sample", desc="collect", smoothing=0.05)
+        self._bar = Progress(sum(targets.values()), "collect", "sample") if enabled else None
 
     def set(self, counts: dict[str, int]) -> None:
         self._counts = {g: min(self._caps[g], n) for g, n in counts.items()}
@@ -840,9 +836,7 @@ class _ProgressBar:
 
     def _refresh(self) -> None:
         if self._bar is not None:
-            self._bar.n = sum(self._counts.values())
-            self._bar.set_postfix(self._counts, refresh=False)
-            self._bar.refresh()
+            self._bar.set(sum(self._counts.values()), **self._counts)
 
     def close(self) -> None:
         if self._bar is not None:

@@ -110,12 +110,13 @@ def fit_all(
     """
     from hexgym.files import staged_dir
     from hexgym_lab.mbl.datafile import refuse_other_npz
+    from hexgym_lab.progress import track
 
     names = names or tuple(TABLE_SETS[table_set])
     directory = table_path(names[0], out_dir, table_set).parent
     refuse_other_npz(directory, names, "table")
     fitted = {}
-    for name in names:
+    for name in track(names, "fit", "table"):
         data = fitted_points(load_table_data(Path(data_dir) / f"{name}.npz", name, table_set), seed=seed)
         fitted[name] = fit_table(name, data, seed=seed, table_set=table_set)
     with staged_dir(directory) as staging:
