@@ -25,15 +25,21 @@ from hexgym_lab.film import caption, overlay_text
 WIDTH, HEIGHT = 320, 192
 
 
-def _project(model: mujoco.MjModel, data: mujoco.MjData, camera: str, points: np.ndarray) -> np.ndarray:
-    """Pixel (column, row) of world ``points`` (n, 3) in a WIDTH x HEIGHT frame of ``camera``; nan behind it."""
-    cam = model.camera(camera).id
-    rel = (points - data.cam_xpos[cam]) @ data.cam_xmat[cam].reshape(3, 3)  # camera frame: x right, y up, -z ahead
-    focal = HEIGHT / 2 / math.tan(math.radians(model.cam_fovy[cam]) / 2)
+def _pixels(rel: np.ndarray, fovy_deg: float) -> np.ndarray:
+    """Pixel (column, row) in a WIDTH x HEIGHT frame of points ``rel`` (n, 3) in a camera's frame (x right, y up,
+    looking along -z); nan behind the camera."""
+    focal = HEIGHT / 2 / math.tan(math.radians(fovy_deg) / 2)
     with np.errstate(divide="ignore", invalid="ignore"):
-        pixels = np.column_stack([WIDTH / 2 + focal * rel[:, 0] / -rel[:, 2], HEIGHT / 2 - focal * rel[:, 1] / -rel[:, 2]])
-    pixels[rel[:, 2] >= 0] = np.nan
+        ahead = -rel[:, 2]
+        pixels = np.column_stack([WIDTH / 2 + focal * rel[:, 0] / ahead, HEIGHT / 2 - focal * rel[:, 1] / ahead])
+    pixels[ahead <= 0] = np.nan
     return pixels
+
+
+def _project(model: mujoco.MjModel, data: mujoco.MjData, camera: str, points: np.ndarray) -> np.ndarray:
+    """Pixel (column, row) of world ``points`` (n, 3) in a WIDTH x HEIGHT frame of ``camera``."""
+    cam = model.camera(camera).id
+    return _pixels((points - data.cam_xpos[cam]) @ data.cam_xmat[cam].reshape(3, 3), model.cam_fovy[cam])
 
 
 @pytest.fixture(scope="module")
@@ -112,10 +118,7 @@ def test_site_camera_holds_machine_pile_and_truck(seed):
     position, quat = site_camera(layout, WIDTH / HEIGHT, 55.0)
     xmat = np.empty(9)
     mujoco.mju_quat2Mat(xmat, quat)
-    rel = (site_points(layout) - position) @ xmat.reshape(3, 3)
-    assert (rel[:, 2] < 0).all()  # all ahead of the camera
-    focal = HEIGHT / 2 / math.tan(math.radians(55.0) / 2)
-    column, row = WIDTH / 2 + focal * rel[:, 0] / -rel[:, 2], HEIGHT / 2 - focal * rel[:, 1] / -rel[:, 2]
+    column, row = _pixels((site_points(layout) - position) @ xmat.reshape(3, 3), 55.0).T
     assert (column >= 0).all() and (column <= WIDTH).all() and (row >= 0).all() and (row <= HEIGHT).all()
     assert np.ptp(column) > 0.8 * WIDTH or np.ptp(row) > 0.8 * HEIGHT  # and fill the frame
 
