@@ -181,17 +181,22 @@ def _add_pile(spec: mujoco.MjSpec) -> None:
     )  # fmt: skip
 
 
+@functools.cache
+def _bucket_load_meshes() -> tuple[tuple[list[float], list[int]], ...]:
+    """Vertices and faces (flat lists) of the drawn bucket load at each fill level (computed once)."""
+    meshes = (fill_mesh(level / LOAD_LEVELS * BUCKET.heaped_capacity) for level in range(1, LOAD_LEVELS + 1))
+    return tuple((vertices.ravel().tolist(), faces.ravel().tolist()) for vertices, faces in meshes)
+
+
 def _add_bucket_load(spec: mujoco.MjSpec) -> None:
     """The soil in the bucket: a mesh per fill level (:data:`LOAD_LEVELS`, up to the heaped capacity) in the
     bucket's frame, all hidden (transparent) until :meth:`World.show_loads` shows one."""
     bucket = spec.body("bucket")
     if bucket is None:
         raise AssetError("the machine model has no body 'bucket'")
-    for level in range(1, LOAD_LEVELS + 1):
-        vertices, faces = fill_mesh(level / LOAD_LEVELS * BUCKET.heaped_capacity)
+    for level, (vertices, faces) in enumerate(_bucket_load_meshes(), start=1):
         name = f"bucket_load_{level}"
-        spec.add_mesh(name=name, uservert=vertices.ravel().tolist(), userface=faces.ravel().tolist(),
-                      inertia=mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL)  # fmt: skip
+        spec.add_mesh(name=name, uservert=vertices, userface=faces, inertia=mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL)
         bucket.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_MESH, meshname=name, material="pile",
                         rgba=[*_SAND[:3], 0.0], **_DRAWN)  # fmt: skip
 
