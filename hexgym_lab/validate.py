@@ -46,7 +46,7 @@ from hexgym.hydraulics.reference import ReferenceModel
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.machine.physics import MAX_PAYLOAD_KG
-from hexgym.mbl.schema import DEFAULT_TABLE_SET, NATIVE_TABLE_SETS
+from hexgym.mbl.schema import DEFAULT_TABLE_SET, NATIVE_TABLE_SETS, VALVE_OF_TABLE_SET
 from hexgym.model.backend import make_learned_model
 from hexgym.model.circuit_model import CircuitModel
 from hexgym.model.commandlog import CommandLog
@@ -245,21 +245,23 @@ def _worker_recipe(learned: LearnedModel | None) -> object:
     """What a worker process needs to build ``learned`` itself: a circuit model's tables, control period and
     substeps (its native kernel is a library handle, which cannot be pickled); any other model as it is."""
     if isinstance(learned, CircuitModel):
-        return ("circuit", learned.tables, learned.control_period, learned.substeps)
+        return ("circuit", learned.tables, learned.control_period, learned.substeps, learned.table_set)
     return learned
 
 
 def _init_worker(recipe: object) -> None:
     """Build this process's reference model, and build or take its learned model (once per worker) from
     :func:`_worker_recipe`'s recipe (``None``: the packaged default tables' model)."""
-    _worker_models["reference"] = ReferenceModel()
     if recipe is None:
         _worker_models["learned"] = make_learned_model("python")
     elif isinstance(recipe, tuple) and recipe[0] == "circuit":
-        _, tables, control_period, substeps = recipe
-        _worker_models["learned"] = CircuitModel(tables, control_period=control_period, substeps=substeps)
+        _, tables, control_period, substeps, table_set = recipe
+        _worker_models["learned"] = CircuitModel(
+            tables, control_period=control_period, substeps=substeps, table_set=table_set
+        )
     else:
         _worker_models["learned"] = recipe
+    _worker_models["reference"] = ReferenceModel(valve=VALVE_OF_TABLE_SET[_worker_models["learned"].table_set])
 
 
 def _run_job(job: tuple[str, CommandLog, np.ndarray, float]) -> dict[str, object]:
@@ -380,7 +382,7 @@ def run_validation(
         }
         test_payload = 0.0 if payload_kg is None else float(payload_kg)
         if not suite_only:
-            reference = ReferenceModel()
+            reference = ReferenceModel(valve=VALVE_OF_TABLE_SET[learned.table_set])
             for name, (log, pose) in scenarios().items():
                 result = run_test(name, log, pose, reference, learned, test_payload)
                 plot_test(result, out_dir / f"{name}.png")

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hexgym.hydraulics.circuit import FUNCTIONS, PUMP_OF, HydraulicCircuit, series_area, spool_areas
+from hexgym.hydraulics.circuit import CAT_VALVE, FUNCTIONS, PUMP_OF, HydraulicCircuit, series_area, spool_areas
 from hexgym.hydraulics.reference import ReferenceModel
 from hexgym.machine import parameters as p
 from hexgym.mbl.schema import TABLE_SETS, VALVE_PASSAGES
@@ -20,15 +20,16 @@ from hexgym_lab.mbl.operator_logs import STYLES, operator_log, pose_from_fractio
 
 
 def _measure(sim: ReferenceModel, spools_m: np.ndarray) -> dict[str, float]:
-    """One step of the reference, then the areas identified from what it measured."""
+    """One step of the reference, then the areas identified from what it measured (its valve's tables)."""
     before = sim.state[:12].copy()
     sim.step(spools_m)
     ph = sim.physics
     flows, _, _ = HydraulicCircuit.pump_flows(sim.state[0:2], sim.state[12:14])
     ext, vel = ph.cylinder_extensions(), ph.cylinder_velocities()
     rates = (sim.state[:12] - before) / sim.timestep
+    rate = float(ph.joint_velocities()[0])
     return identify_areas(
-        sim.state[:12], rates, sim.circuit.volumes(ext), flows, spools_m, ext, vel, float(ph.joint_velocities()[0])
+        sim.state[:12], rates, sim.circuit.volumes(ext), flows, spools_m, ext, vel, rate, sim.circuit.layout
     )
 
 
@@ -57,6 +58,37 @@ def test_identification_recovers_the_data_sheet_valve() -> None:
         assert np.median(samples[key]) == pytest.approx(area, rel=0.03), key
     # the stick's passages with the swing at 6 mm are not the pump's bypass with the partner at neutral
     assert "stick_bypass_area_m2" not in samples and "swing_bypass_area_m2" not in samples
+
+
+@pytest.mark.parametrize(
+    "spools_mm, pose, expected",
+    [  # both pumps feeding the boom; the stick's two sections and its regeneration; the swing's priority
+        ((0, 9, 0, 0), (0, -0.4, 0.2, 0), {"boom_pa": ("pa", 1), "boom2_pa": ("pa", 4), "boom_bt": ("bt", 1)}),
+        ((0, 0, 7, 0), (0, 0.3, -0.6, 0), {"stick_pa": ("pa", 2), "stick2_pa": ("pa", 5), "stick_bt": ("bt", 2)}),
+        ((0, -7, 0, 0), (0, 0.5, 0, 0), {"boom_pb": ("pb", 1), "boom_at": ("at", 1)}),
+        ((6, 0, -7, 0), "home", {"stick_at": ("at", 2), "swing_bt": ("bt", 0)}),
+    ],
+)
+def test_identification_recovers_the_cat_valve(spools_mm, pose, expected) -> None:
+    """On the reference with the Cat two-pump valve each pump's balance splits a function's flow between its two
+    sections, and what the inlet takes beyond them is the regeneration passage's: the data sheet's areas."""
+    sim = ReferenceModel(valve="cat")
+    sim.reset(pose if isinstance(pose, str) else np.array(pose))
+    spools = np.array(spools_mm) * 1e-3
+    samples: dict[str, list[float]] = {}
+    for k in range(500):
+        for key, value in _measure(sim, spools).items():
+            if k > 250 and not np.isnan(value):
+                samples.setdefault(key.removesuffix("_area_m2"), []).append(value)
+    true = spool_areas(spools, CAT_VALVE)
+    for table, (passage, section) in expected.items():
+        assert table in samples, f"no sample of {table}"
+        assert np.median(samples[table]) == pytest.approx(getattr(true, passage)[section], rel=0.01), table
+    for table in ("stick_regeneration", "boom_regeneration"):
+        if table in samples:
+            assert np.median(samples[table]) == pytest.approx(getattr(true, table), rel=0.01), table
+    if spools_mm[0]:  # the stick 1 passage throttled by the swing's priority: the table holds it unthrottled
+        assert np.median(samples["stick_pb"]) == pytest.approx(spool_areas(spools * [0, 1, 1, 1], CAT_VALVE).pb[2])
 
 
 def test_collected_valve_samples_match_the_data_sheet() -> None:

@@ -96,4 +96,5 @@ def test_an_unknown_table_set_is_refused_listing_the_sets(name, capsys):
             make_learned_model(backend, table_set=name)
     with pytest.raises(SystemExit):
         cli.main(["simulate", "--model", "learned", "--tables", name, "--commands", "x.csv", "--out", "y.csv"])
-    assert f"invalid choice: '{name}' (choose from 'paper', 'circuit')" in capsys.readouterr().err
+    choices = ", ".join(f"'{s}'" for s in TABLE_SETS)
+    assert f"invalid choice: '{name}' (choose from {choices})" in capsys.readouterr().err

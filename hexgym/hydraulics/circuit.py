@@ -176,6 +176,12 @@ class ValveLayout:
     def __post_init__(self) -> None:
         check_layout(self)
 
+    @property
+    def regeneration_passages(self) -> tuple[str, ...]:
+        """The regeneration passages the layout has (of ``REGENERATION_PASSAGES``)."""
+        stick = ("stick_regeneration", "stick_unloading") if self.stick_regeneration else ()
+        return stick + (("boom_regeneration",) if self.boom_regeneration else ())
+
 
 def check_layout(layout: ValveLayout) -> None:
     """Raise ValueError, naming the section and parameter, where a layout cannot be a circuit."""
@@ -275,6 +281,23 @@ _AREA_MAX = {name: _area_max(layout) for name, layout in VALVE_LAYOUTS.items()}
 _BOOM, _STICK, _SWING = FUNCTIONS.index("boom"), FUNCTIONS.index("stick"), FUNCTIONS.index("swing")
 
 
+def metering_fraction(spools_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """How far each spool's positive and negative metering notches are open, 0 -> 1 (``METERING_EXPONENT`` law)."""
+    span = p.SPOOL_STROKE - p.SPOOL_DEAD_BAND
+    up = _unit((spools_m - p.SPOOL_DEAD_BAND) / span) ** p.METERING_EXPONENT
+    return up, _unit((-spools_m - p.SPOOL_DEAD_BAND) / span) ** p.METERING_EXPONENT
+
+
+def priority_shares(layout: ValveLayout, spools_m: np.ndarray) -> tuple[list[int], float, float]:
+    """The layout's priority valves at these spools (``FUNCTIONS`` order): the stick 2 sections' indices, the share
+    of stick 1's meter-in the swing priority leaves, and of stick 2's the boom-raise priority leaves (1: none)."""
+    up, down = metering_fraction(np.asarray(spools_m, dtype=float))
+    swing = 1.0 - (1.0 - p.SWING_PRIORITY_STICK_SHARE) * max(up[_SWING], down[_SWING]) if layout.swing_priority else 1.0
+    boom = 1.0 - (1.0 - p.BOOM_PRIORITY_STICK_SHARE) * up[_BOOM] if layout.boom_priority else 1.0
+    stick2 = [i for i, s in enumerate(layout.sections) if s.function == "stick" and i >= len(FUNCTIONS)]
+    return stick2, float(swing), float(boom)
+
+
 def spool_areas(spools_m: np.ndarray, layout: ValveLayout = PAPER_VALVE) -> SpoolAreas:
     """Open-centre section areas: dead band, progressive metering, bypass closed at full stroke."""
     u = np.asarray(spools_m, dtype=float)
@@ -295,16 +318,11 @@ def spool_areas(spools_m: np.ndarray, layout: ValveLayout = PAPER_VALVE) -> Spoo
         bt=a["bt"] * up,
         bypass=(a["bypass"] - p.BYPASS_NOTCH_AREA) * land + p.BYPASS_NOTCH_AREA * notch,
     )
-    if layout.swing_priority:  # the swing's opening throttles the stick 1 section's supply
-        swing_open = max(up[_SWING], down[_SWING])
-        cut = 1.0 - (1.0 - p.SWING_PRIORITY_STICK_SHARE) * swing_open
-        areas.pa[_STICK] *= cut
-        areas.pb[_STICK] *= cut
-    if layout.boom_priority:  # raising the boom throttles the stick 2 section's supply
-        cut = 1.0 - (1.0 - p.BOOM_PRIORITY_STICK_SHARE) * up[_BOOM]
-        stick2 = [i for i, s in enumerate(layout.sections) if s.function == "stick" and i >= len(FUNCTIONS)]
-        areas.pa[stick2] *= cut
-        areas.pb[stick2] *= cut
+    stick2, swing_share, boom_share = priority_shares(layout, u[: len(FUNCTIONS)])
+    areas.pa[_STICK] *= swing_share
+    areas.pb[_STICK] *= swing_share
+    areas.pa[stick2] *= boom_share
+    areas.pb[stick2] *= boom_share
     extra = {}
     if layout.stick_regeneration:  # stick in: the return restricted, the rod's oil offered to the head
         stick_in = up[_STICK]

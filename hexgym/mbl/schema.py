@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from hexgym.machine.kinematics import JOINTS
+from hexgym.hydraulics.circuit import CAT_VALVE, PAPER_VALVE, ValveLayout
 
 # Every quantity a table may read, in a fixed order (the plugin's query vector uses this order).
 QUANTITIES = (
@@ -75,13 +75,33 @@ TABLE_SETS: dict[str, dict[str, TableSchema]] = {
 # The control valve's passages: each section's centre bypass, then pump -> port a, pump -> port b,
 # port a -> tank, port b -> tank (port a: a cylinder's head end, the swing motor's turning-positive port).
 VALVE_PASSAGES = ("bypass", "pa", "pb", "at", "bt")
-TABLE_SETS["circuit"] = _tables(
-    *[
-        TableSchema(f"{f}_{passage}", "operator", (f"{f}_spool_m",), f"{f}_{passage}_area_m2", "trajectory")
-        for passage in VALVE_PASSAGES  # the bypass first: identifiable in most rows, it is the one counted
-        for f in JOINTS  # the spool order
+# the regeneration passages (in the spools) a layout may have, and the function whose spool opens each; the stick's
+# unloading valve, piloted by its head pressure, is the machine's data like the priority valves
+REGENERATION_SPOOLS = {"stick_regeneration": "stick", "boom_regeneration": "boom"}
+
+
+def valve_tables(layout: ValveLayout) -> dict[str, TableSchema]:
+    """The tables of a valve layout's passages: per passage (bypass first: identifiable in most rows, it is the one
+    counted), each section that has it in the layout's order, against its function's spool; then the layout's
+    regeneration passages."""
+    specs = [
+        TableSchema(f"{s.name}_{k}", "operator", (f"{s.function}_spool_m",), f"{s.name}_{k}_area_m2", "trajectory")
+        for k in VALVE_PASSAGES
+        for s in layout.sections
+        if k == "bypass" or k in s.passages
     ]
-)
+    for passage, function in REGENERATION_SPOOLS.items():
+        if passage in layout.regeneration_passages:
+            specs.append(TableSchema(passage, "operator", (f"{function}_spool_m",), f"{passage}_area_m2", "trajectory"))
+    return _tables(*specs)
+
+
+# ``circuit``: the paper's valve (the reference's default); ``circuit_cat``: a Cat two-pump valve, collected on the
+# reference with that valve (VALVE_OF_TABLE_SET)
+TABLE_SETS["circuit"] = valve_tables(PAPER_VALVE)
+TABLE_SETS["circuit_cat"] = valve_tables(CAT_VALVE)
+VALVE_OF_TABLE_SET = {"paper": "paper", "circuit": "paper", "circuit_cat": "cat"}
+CIRCUIT_TABLE_SETS = ("circuit", "circuit_cat")  # the sets the circuit model runs
 NATIVE_TABLE_SETS = ("circuit", "paper")  # the sets the native plugin runs
 DEFAULT_TABLE_SET = "circuit"
 

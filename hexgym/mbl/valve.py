@@ -23,13 +23,26 @@ circuit model (:mod:`hexgym.model.circuit_model`) reads.
 
 from __future__ import annotations
 
+import functools
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
-from hexgym.hydraulics.circuit import FUNCTIONS, PUMP_OF, SWING_DISPLACEMENT_RAD, SpoolAreas, compliance, orifice_law
+from hexgym.hydraulics.circuit import (
+    FUNCTIONS,
+    PAPER_VALVE,
+    SWING_DISPLACEMENT_RAD,
+    SpoolAreas,
+    ValveLayout,
+    compliance,
+    metering_fraction,
+    orifice_law,
+    priority_shares,
+    smoothstep,
+)
 from hexgym.machine import parameters as p
-from hexgym.mbl.schema import TABLE_SETS, VALVE_PASSAGES
+from hexgym.mbl.schema import REGENERATION_SPOOLS, VALVE_PASSAGES, valve_tables
 from hexgym.mbl.table import MBLTable
 
 MIN_DROP_PA = 0.5e6  # metering passages: a smaller drop says little about the area (flows near zero)
@@ -43,6 +56,7 @@ _CUSHION_CLEAR = p.CUSHION_LENGTH + 0.01  # m from a stroke end: the cushion is 
 _CHECK_OPEN = p.LOAD_CHECK_CRACKING + p.LOAD_CHECK_SPAN
 _SWEPT = SWING_DISPLACEMENT_RAD * p.SWING_REDUCTION  # m^3 per radian of the upper structure
 _SHARE = p.SWING_MOTOR_EXTERNAL_LEAK_SHARE
+_STICK = FUNCTIONS.index("stick")
 
 
 def _area(q: float, dp: float, min_drop: float = MIN_DROP_PA) -> float:
@@ -50,6 +64,83 @@ def _area(q: float, dp: float, min_drop: float = MIN_DROP_PA) -> float:
     if q <= 0.0 or dp < min_drop:
         return math.nan
     return q / (p.DISCHARGE_COEFFICIENT * float(orifice_law(np.array(dp))[0]))
+
+
+@dataclass
+class _Function:
+    """What one function's continuity gives at an instant: which way its spool meters, the oil that must enter its
+    inlet port and leave its outlet port (m^3/s; ``q_in`` NaN where make-up oil or a relief may take part), the
+    ports' pressures, and whether its motion and outlet make clear samples."""
+
+    name: str
+    spool: float
+    positive: bool
+    q_in: float
+    q_out: float
+    p_in: float
+    p_out: float
+    moving: bool
+    outlet_clear: bool
+    outlet_port_area: float  # the cushion's open port in series with the outlet (inf: none)
+
+    @property
+    def inlet(self) -> str:
+        return "pa" if self.positive else "pb"
+
+    @property
+    def outlet(self) -> str:
+        return "bt" if self.positive else "at"
+
+
+def _cylinder(f: str, u: float, v: float, ext: float, p_head: float, p_rod: float, c_head: float, c_rod: float):
+    """The :class:`_Function` of a cylinder (``c_*``: its chambers' compression flows)."""
+    cyl = p.CYLINDERS[f]
+    extending = u > 0.0
+    speed = v if extending else -v
+    a_in, a_out = (cyl.head_area, cyl.rod_area) if extending else (cyl.rod_area, cyl.head_area)
+    p_in, p_out = (p_head, p_rod) if extending else (p_rod, p_head)
+    c_in, c_out = (c_head, c_rod) if extending else (c_rod, c_head)
+    # The inlet's continuity gives the meter-in flow at any speed (a held cylinder's closed load check
+    # passes none) unless make-up oil from tank or the port relief takes part.
+    fed = MIN_PORT_PA < p_in < p.LINE_RELIEF[f] - RELIEF_MARGIN_PA
+    to_end = cyl.stroke - ext if extending else ext
+    clear = to_end > _CUSHION_CLEAR and p_out < p.LINE_RELIEF[f] - RELIEF_MARGIN_PA
+    q_in = a_in * speed + c_in if fed else math.nan
+    moving = speed >= MIN_SPEED_MPS  # below: stalled, held or overrun backwards: no clear metering
+    port = cyl.count * p.CUSHION_PORT_AREA
+    return _Function(f, u, extending, q_in, a_out * speed - c_out, p_in, p_out, moving, clear, port)
+
+
+def _swing(u: float, rate: float, pa: float, pb: float, compression: np.ndarray) -> _Function | None:
+    """The :class:`_Function` of the swing motor (``compression``: its ports'), or None while its crossover reliefs
+    may pass oil."""
+    if abs(pa - pb) > p.SWING_RELIEF - RELIEF_MARGIN_PA:
+        return None
+    positive = u > 0.0
+    cross = (1.0 - _SHARE) * p.SWING_MOTOR_LEAKAGE * (pa - pb)
+    drain = 0.5 * _SHARE * p.SWING_MOTOR_LEAKAGE
+    into_a = _SWEPT * rate + cross + drain * pa + compression[0]  # what must enter port a
+    into_b = -_SWEPT * rate - cross + drain * pb + compression[1]
+    q_in, q_out = (into_a, -into_b) if positive else (into_b, -into_a)
+    p_in, p_out = (pa, pb) if positive else (pb, pa)
+    q_in = q_in if p_in > MIN_PORT_PA else math.nan  # the inlet's continuity, unless make-up oil enters
+    moving = (rate if positive else -rate) >= MIN_SWING_RATE  # starting, braking or reversing: the ports' oil rules
+    return _Function("swing", u, positive, q_in, q_out, p_in, p_out, moving, True, math.inf)
+
+
+def _functions(pressures, compression, spools_m, ext_m, vel_mps, swing_rate) -> dict[str, _Function | None]:
+    """Each function whose spool meters (outside its dead band): its continuity, or None where it gives none."""
+    out: dict[str, _Function | None] = {}
+    for j, f in enumerate(("boom", "stick", "bucket")):
+        u = spools_m[j + 1]
+        if abs(u) >= p.SPOOL_DEAD_BAND:
+            head, rod = 4 + 2 * j, 5 + 2 * j
+            out[f] = _cylinder(
+                f, u, vel_mps[j], ext_m[j], pressures[head], pressures[rod], compression[head], compression[rod]
+            )
+    if abs(spools_m[0]) >= p.SPOOL_DEAD_BAND:
+        out["swing"] = _swing(spools_m[0], swing_rate, pressures[10], pressures[11], compression[10:12])
+    return out
 
 
 def identify_areas(
@@ -61,148 +152,217 @@ def identify_areas(
     ext_m: np.ndarray,
     vel_mps: np.ndarray,
     swing_rate: float,
+    layout: ValveLayout = PAPER_VALVE,
 ) -> dict[str, float]:
-    """One sample (m^2, or NaN) of every ``circuit`` table's output from one instant's measurements.
+    """One sample (m^2, or NaN) of every table of ``layout``'s valve (:func:`~hexgym.mbl.schema.valve_tables`) from one
+    instant's measurements.
 
     ``pressures``, ``pressure_rates`` (Pa, Pa/s) and oil ``volumes`` (m^3) of the circuit's nodes
     (:data:`hexgym.hydraulics.circuit.NODES`: pumps, NFC signals, boom/stick/bucket head and rod,
     swing ports a and b): the oil a node's compression takes, ``V / beta dp/dt``, is part of the
     flows; ``pump_flows`` m^3/s; ``spools_m`` (swing, boom, stick, bucket); cylinder extensions and
     velocities (boom, stick, bucket); ``swing_rate`` rad/s.
+
+    Where two sections on different pumps feed one function (a two-pump valve's boom raise, stick), each pump's
+    balance splits the function's flow: what the pump delivers less its centre bypass's flow (the NFC orifice's at
+    the signal pressure, the machine's data) is its one open section's. A regeneration passage's flow is what the
+    inlet takes beyond the sections'.
     """
     compression = volumes * compliance(pressures)[0] * pressure_rates  # m^3/s into each node's oil
-    out = {spec.output: math.nan for spec in TABLE_SETS["circuit"].values()}
-    meter_in = [0.0, 0.0]  # per pump, known only where every open section's flow is
-    known = [True, True]
-    for j, f in enumerate(("boom", "stick", "bucket")):
-        u, v, pump = spools_m[j + 1], vel_mps[j], PUMP_OF[f]
-        head, rod = 4 + 2 * j, 5 + 2 * j
-        flow, areas = _cylinder(
-            f, u, v, ext_m[j], pressures[pump], pressures[head], pressures[rod], compression[head], compression[rod]
-        )
-        out.update(areas)
-        meter_in[pump] += flow
-        known[pump] &= not math.isnan(flow)
-    flow, areas = _swing(spools_m[0], swing_rate, pressures[1], pressures[10], pressures[11], compression[10:12])
-    out.update(areas)
-    meter_in[1] += flow
-    known[1] &= not math.isnan(flow)
-    for f in FUNCTIONS:
-        pump = PUMP_OF[f]
-        partner = next(g for g in FUNCTIONS if g != f and PUMP_OF[g] == pump)
-        if abs(spools_m[FUNCTIONS.index(partner)]) >= p.SPOOL_DEAD_BAND or not known[pump]:
+    out = {spec.output: math.nan for spec in valve_tables(layout).values()}
+    functions = _functions(pressures, compression, spools_m, ext_m, vel_mps, swing_rate)
+    flows, regen = _section_flows(layout, functions, pressures, compression, pump_flows)
+    stick2, swing_share, boom_share = priority_shares(layout, spools_m)
+    shares = {_STICK: swing_share} | dict.fromkeys(stick2, boom_share)
+    for i, section in enumerate(layout.sections):
+        fn = functions.get(section.function)
+        if fn is None or not fn.moving or fn.inlet not in section.areas:
             continue
-        if pressures[pump] > p.MAIN_RELIEF - RELIEF_MARGIN_PA:
-            continue
-        q = pump_flows[pump] - meter_in[pump] - compression[pump]
-        out[f"{f}_bypass_area_m2"] = _area(q, pressures[pump] - pressures[2 + pump], MIN_BYPASS_DROP_PA)
+        pump, share = pressures[section.pump], shares.get(i, 1.0)
+        if fn.p_in > MIN_PORT_PA and pump - fn.p_in > _CHECK_OPEN and pump < p.MAIN_RELIEF - RELIEF_MARGIN_PA:
+            if share >= MIN_PRIORITY_SHARE:
+                out[f"{section.name}_{fn.inlet}_area_m2"] = _area(flows.get(i, math.nan), pump - fn.p_in) / share
+    for f, fn in functions.items():
+        if fn is not None and fn.moving:
+            out |= _outlet_and_regeneration(layout, fn, regen.get(f), pressures)
+    out |= _bypass_samples(layout, functions, flows, spools_m, pressures, compression, pump_flows)
     return out
 
 
-def _cylinder(
-    f: str, u: float, v: float, ext: float, p_pump: float, p_head: float, p_rod: float, c_head: float, c_rod: float
-) -> tuple[float, dict[str, float]]:
-    """(meter-in flow from the pump or NaN if unknown, {output: area sample}) of one cylinder; ``c_*``:
-    the chambers' compression flows."""
-    cyl = p.CYLINDERS[f]
-    if abs(u) < p.SPOOL_DEAD_BAND:
-        return 0.0, {}  # the section passes nothing to the cylinder
-    extending = u > 0.0
-    speed = v if extending else -v
-    a_in, a_out = (cyl.head_area, cyl.rod_area) if extending else (cyl.rod_area, cyl.head_area)
-    p_in, p_out = (p_head, p_rod) if extending else (p_rod, p_head)
-    c_in, c_out = (c_head, c_rod) if extending else (c_rod, c_head)
-    q_in, q_out = a_in * speed + c_in, a_out * speed - c_out
-    # The inlet's continuity gives the meter-in flow at any speed (a held cylinder's closed load check
-    # passes none) unless make-up oil from tank or the port relief takes part.
-    fed = MIN_PORT_PA < p_in < p.LINE_RELIEF[f] - RELIEF_MARGIN_PA
-    flow = q_in if fed else math.nan
-    if speed < MIN_SPEED_MPS:
-        return flow, {}  # stalled, held or overrun backwards: no clear metering
-    inlet, outlet = ("pa", "bt") if extending else ("pb", "at")
-    out = {}
-    if p_in > MIN_PORT_PA and p_pump - p_in > _CHECK_OPEN and p_pump < p.MAIN_RELIEF - RELIEF_MARGIN_PA:
-        out[f"{f}_{inlet}_area_m2"] = _area(q_in, p_pump - p_in)
-    to_end = cyl.stroke - ext if extending else ext
-    if to_end > _CUSHION_CLEAR and p_out < p.LINE_RELIEF[f] - RELIEF_MARGIN_PA:
-        seen = _area(q_out, p_out)  # the valve's passage in series with the cushion's open port
-        port = cyl.count * p.CUSHION_PORT_AREA
-        out[f"{f}_{outlet}_area_m2"] = 1.0 / math.sqrt(max(1.0 / seen**2 - 1.0 / port**2, 1.0 / port**2))
-    return flow, out
+MIN_PRIORITY_SHARE = 0.5  # a meter-in passage throttled below this share by a priority valve gives no sample
 
 
-def _swing(
-    u: float, rate: float, p_pump: float, pa: float, pb: float, compression: np.ndarray
-) -> tuple[float, dict[str, float]]:
-    """(meter-in flow from pump 2 or NaN if unknown, {output: area sample}) of the swing motor;
-    ``compression``: the ports' compression flows."""
-    if abs(u) < p.SPOOL_DEAD_BAND:
-        return 0.0, {}
-    positive = u > 0.0
-    cross = (1.0 - _SHARE) * p.SWING_MOTOR_LEAKAGE * (pa - pb)
-    drain = 0.5 * _SHARE * p.SWING_MOTOR_LEAKAGE
-    into_a = _SWEPT * rate + cross + drain * pa + compression[0]  # what must enter port a
-    into_b = -_SWEPT * rate - cross + drain * pb + compression[1]
-    q_in, q_out = (into_a, -into_b) if positive else (into_b, -into_a)
-    p_in, p_out = (pa, pb) if positive else (pb, pa)
-    if abs(pa - pb) > p.SWING_RELIEF - RELIEF_MARGIN_PA:
-        return math.nan, {}  # the crossover reliefs may pass oil
-    flow = q_in if p_in > MIN_PORT_PA else math.nan  # the inlet's continuity, unless make-up oil enters
-    if (rate if positive else -rate) < MIN_SWING_RATE:
-        return flow, {}  # starting, braking or reversing: the ports' oil, not the valve, rules
-    inlet, outlet = ("pa", "bt") if positive else ("pb", "at")
-    out = {}
-    if p_in > MIN_PORT_PA and p_pump - p_in > _CHECK_OPEN:
-        out[f"swing_{inlet}_area_m2"] = _area(q_in, p_pump - p_in)
-    out[f"swing_{outlet}_area_m2"] = _area(q_out, p_out)
-    return flow, out
+def _section_flows(layout: ValveLayout, functions: dict, pressures, compression, pump_flows) -> tuple[dict, dict]:
+    """({section index: meter-in flow}, {function: regeneration flow into its inlet}) as far as the functions'
+    continuity and the pumps' balances give them (NaN or absent where not)."""
+    feeders = {f: [i for i, s in enumerate(layout.sections) if s.function == f and fn and fn.inlet in s.areas]
+               for f, fn in functions.items()}  # fmt: skip
+    regenerating = {f: _regeneration_passage(layout, fn) for f, fn in functions.items() if fn is not None}
+    flows: dict[int, float] = {}
+    for f, fn in functions.items():
+        if fn is not None and len(feeders[f]) == 1 and not regenerating[f]:
+            flows[feeders[f][0]] = fn.q_in
+        elif fn is None:
+            flows |= dict.fromkeys(feeders[f], math.nan)
+    for k in (0, 1):  # a pump with one section of unknown flow: the pump's balance gives it
+        active = [i for f in functions for i in feeders[f] if layout.sections[i].pump == k]
+        unknown = [i for i in active if i not in flows]
+        if len(unknown) == 1:
+            known = sum(flows[i] for i in active if i in flows)
+            flows[unknown[0]] = _pump_meter_in(k, pressures, compression, pump_flows) - known
+    regen = {}
+    for f, fn in functions.items():
+        if fn is None or not feeders[f]:
+            continue
+        missing = [i for i in feeders[f] if i not in flows]
+        remainder = fn.q_in - sum(flows[i] for i in feeders[f] if i in flows)
+        if regenerating[f] and not missing:
+            regen[f] = remainder
+        elif len(missing) == 1 and not regenerating[f]:
+            flows[missing[0]] = remainder
+    return flows, regen
 
 
-def pump_bypass_area(first: np.ndarray, second: np.ndarray, neutral: float) -> np.ndarray:
-    """A pump's bypass area with both sections anywhere, from each section's table (the pump's bypass
-    area with that section at ``u`` and its partner at neutral) and the area with both at neutral:
-    the resistances ``1/A^2`` of sections in series add, so ``1/A^2 = 1/A1^2 + 1/A2^2 - 1/A0^2``."""
-    first, second = np.maximum(first, CLOSED_AREA), np.maximum(second, CLOSED_AREA)
-    resistance = 1.0 / np.square(first) + 1.0 / np.square(second) - 1.0 / neutral**2
-    return 1.0 / np.sqrt(np.maximum(resistance, 1.0 / np.square(np.minimum(first, second))))
+def _regeneration_passage(layout: ValveLayout, fn: _Function) -> str | None:
+    """The regeneration passage that feeds ``fn``'s inlet as its spool is now, if the layout has one."""
+    if fn.name == "stick" and fn.positive and "stick_regeneration" in layout.regeneration_passages:
+        return "stick_regeneration"
+    if fn.name == "boom" and not fn.positive and "boom_regeneration" in layout.regeneration_passages:
+        return "boom_regeneration"
+    return None
+
+
+def _pump_meter_in(k: int, pressures: np.ndarray, compression: np.ndarray, pump_flows: np.ndarray) -> float:
+    """Pump ``k``'s flow into its sections: its delivery less its line's compression and its centre bypass's flow,
+    the NFC orifice's at the signal pressure (NaN near the main relief or with the NFC relief open)."""
+    signal = pressures[2 + k]
+    if pressures[k] > p.MAIN_RELIEF - RELIEF_MARGIN_PA or signal > p.NFC_RELIEF:
+        return math.nan
+    bypass = p.DISCHARGE_COEFFICIENT * p.NFC_ORIFICE_AREA * float(orifice_law(np.array(signal))[0])
+    return pump_flows[k] - compression[k] - bypass - compression[2 + k]
+
+
+def _outlet_and_regeneration(layout: ValveLayout, fn: _Function, regen: float | None, pressures) -> dict[str, float]:
+    """Samples of ``fn``'s outlet passage (its first section's) and of the regeneration passage feeding its inlet."""
+    out: dict[str, float] = {}
+    passage = _regeneration_passage(layout, fn)
+    q_out = fn.q_out
+    if passage is not None:
+        if regen is None or math.isnan(regen):
+            return out
+        if fn.p_out - fn.p_in > _CHECK_OPEN:
+            out[f"{passage}_area_m2"] = _area(regen, fn.p_out - fn.p_in)
+        q_out -= regen
+    if passage == "stick_regeneration":  # the unloading valve (the machine's data) returns rod oil to tank too
+        q_out -= _unloading_flow(fn.spool, fn.p_in, fn.p_out)
+    if fn.outlet_clear:
+        seen = _area(q_out, fn.p_out)  # the valve's passage in series with the cushion's open port
+        port = fn.outlet_port_area
+        if math.isinf(port):
+            out[f"{fn.name}_{fn.outlet}_area_m2"] = seen
+        else:
+            out[f"{fn.name}_{fn.outlet}_area_m2"] = 1.0 / math.sqrt(max(1.0 / seen**2 - 1.0 / port**2, 1.0 / port**2))
+    return out
+
+
+def _unloading_flow(spool: float, p_head: float, p_rod: float) -> float:
+    """The stick's rod oil through its unloading valve (m^3/s): its data-sheet area, opened by the head pressure."""
+    opening, _ = smoothstep(np.array((p_head - p.STICK_UNLOADING_PRESSURE) / p.STICK_UNLOADING_SPAN))
+    area = p.STICK_UNLOADING_AREA * float(metering_fraction(np.array(spool))[0]) * float(opening)
+    return p.DISCHARGE_COEFFICIENT * area * float(orifice_law(np.array(p_rod))[0])
+
+
+def _section_meter_in(i: int, section, functions: dict, flows: dict) -> float:
+    """Section ``i``'s meter-in flow: 0 at neutral or on the side it has no passage, NaN where unknown."""
+    if section.function not in functions:
+        return 0.0
+    fn = functions[section.function]
+    if fn is None:
+        return math.nan
+    return flows.get(i, math.nan) if fn.inlet in section.areas else 0.0
+
+
+def _bypass_samples(layout, functions, flows, spools_m, pressures, compression, pump_flows) -> dict[str, float]:
+    """Each section's bypass table: its pump's bypass area while the pump's other sections are at neutral."""
+    out: dict[str, float] = {}
+    for i, section in enumerate(layout.sections):
+        k = section.pump
+        others = [s for j, s in enumerate(layout.sections) if s.pump == k and j != i]
+        if any(abs(spools_m[FUNCTIONS.index(s.function)]) >= p.SPOOL_DEAD_BAND for s in others):
+            continue
+        if pressures[k] > p.MAIN_RELIEF - RELIEF_MARGIN_PA:
+            continue
+        q = pump_flows[k] - _section_meter_in(i, section, functions, flows) - compression[k]
+        out[f"{section.name}_bypass_area_m2"] = _area(q, pressures[k] - pressures[2 + k], MIN_BYPASS_DROP_PA)
+    return out
+
+
+def pump_bypass_area(first: np.ndarray, second: np.ndarray, neutral: float, *more: np.ndarray) -> np.ndarray:
+    """A pump's bypass area with its sections anywhere, from each section's table (the pump's bypass area with that
+    section at ``u`` and the others at neutral) and the area with all at neutral: the resistances ``1/A^2`` of
+    sections in series add, so ``1/A^2 = sum 1/A_i^2 - (n - 1)/A0^2``."""
+    areas = [np.maximum(a, CLOSED_AREA) for a in (first, second, *more)]
+    resistance = sum(1.0 / np.square(a) for a in areas) - (len(areas) - 1) / neutral**2
+    return 1.0 / np.sqrt(np.maximum(resistance, 1.0 / np.square(functools.reduce(np.minimum, areas))))
 
 
 class LearnedValve:
-    """The valve's passage areas from the ``circuit`` tables: ``valve(spools_m) -> SpoolAreas``.
+    """The valve's passage areas from its tables (:func:`hexgym.mbl.schema.valve_tables` of ``layout``):
+    ``valve(spools_m) -> SpoolAreas``.
 
-    A passage is closed in the spool's dead band and on the other side of neutral (pump -> a and
-    b -> tank open only with a positive spool); elsewhere the table's area, at least zero.
+    A passage is closed in the spool's dead band and on the other side of neutral (pump -> a and b -> tank open
+    only with a positive spool); elsewhere the table's area, at least zero. The layout's priority valves are its
+    structure (:func:`hexgym.hydraulics.circuit.priority_shares`, the data sheet's), applied to the learned areas.
     """
 
-    def __init__(self, tables: dict[str, MBLTable]) -> None:
-        missing = sorted(set(TABLE_SETS["circuit"]) - set(tables))
+    def __init__(self, tables: dict[str, MBLTable], layout: ValveLayout = PAPER_VALVE) -> None:
+        missing = sorted(set(valve_tables(layout)) - set(tables))
         if missing:
             raise ValueError(f"the circuit model needs the valve tables {missing}")
-        self.tables = tables
-        # each pump's two sections (indices in FUNCTIONS) and its bypass area with both at neutral
-        self._sections = [[i for i, f in enumerate(FUNCTIONS) if PUMP_OF[f] == k] for k in (0, 1)]
+        self.tables, self.layout = tables, layout
+        self._spool = [FUNCTIONS.index(s.function) for s in layout.sections]
+        # each pump's sections (indices in the layout) and its bypass area with all at neutral
+        self._sections = [[i for i, s in enumerate(layout.sections) if s.pump == k] for k in (0, 1)]
         self._neutral = [
-            float(np.mean([tables[f"{FUNCTIONS[i]}_bypass"]((0.0,)) for i in sections])) for sections in self._sections
+            float(np.mean([tables[f"{layout.sections[i].name}_bypass"]((0.0,)) for i in sections]))
+            for sections in self._sections
         ]
         if min(self._neutral) <= 0.0:
             raise ValueError(f"the bypass tables give a closed centre at neutral ({self._neutral} m^2)")
 
     def __call__(self, spools_m: np.ndarray) -> SpoolAreas:
-        """The passage areas (m^2, ``FUNCTIONS`` order) at these spools (m)."""
+        """The passage areas (m^2, the layout's section order) at these spools (m)."""
         u = np.asarray(spools_m, dtype=float)
-        area = {k: np.zeros(len(FUNCTIONS)) for k in VALVE_PASSAGES}
-        for i, f in enumerate(FUNCTIONS):
-            area["bypass"][i] = self._area(f, "bypass", u[i])
-            if abs(u[i]) >= p.SPOOL_DEAD_BAND:
-                for key in ("pa", "bt") if u[i] > 0 else ("pb", "at"):
-                    area[key][i] = self._area(f, key, u[i])
+        n = len(self.layout.sections)
+        area = {k: np.zeros(n) for k in VALVE_PASSAGES}
+        for i, section in enumerate(self.layout.sections):
+            x = u[self._spool[i]]
+            area["bypass"][i] = self._area(section.name, "bypass", x)
+            if abs(x) >= p.SPOOL_DEAD_BAND:
+                for key in ("pa", "bt") if x > 0 else ("pb", "at"):
+                    if key in section.areas:
+                        area[key][i] = self._area(section.name, key, x)
+        stick2, swing_share, boom_share = priority_shares(self.layout, u)
+        area["pa"][_STICK] *= swing_share
+        area["pb"][_STICK] *= swing_share
+        area["pa"][stick2] *= boom_share
+        area["pb"][stick2] *= boom_share
         pump_bypass = np.array(
             [
-                pump_bypass_area(area["bypass"][a], area["bypass"][b], neutral)
-                for (a, b), neutral in zip(self._sections, self._neutral, strict=True)
+                pump_bypass_area(*area["bypass"][sections[:2]], neutral, *area["bypass"][sections[2:]])
+                for sections, neutral in zip(self._sections, self._neutral, strict=True)
             ]
         )
-        return SpoolAreas(**area, pump_bypass=pump_bypass)
+        extra = {}
+        for passage, function in REGENERATION_SPOOLS.items():
+            if passage in self.layout.regeneration_passages:
+                x = u[FUNCTIONS.index(function)]
+                opens = x <= -p.SPOOL_DEAD_BAND if passage == "boom_regeneration" else x >= p.SPOOL_DEAD_BAND
+                extra[passage] = self._area(passage, None, x) if opens else 0.0
+        if "stick_unloading" in self.layout.regeneration_passages:
+            extra["stick_unloading"] = p.STICK_UNLOADING_AREA * float(metering_fraction(u[_STICK])[0])
+        return SpoolAreas(**area, pump_bypass=pump_bypass, **extra)
 
-    def _area(self, f: str, passage: str, u: float) -> float:
-        return max(float(self.tables[f"{f}_{passage}"]((u,))), 0.0)
+    def _area(self, section: str, passage: str | None, u: float) -> float:
+        name = section if passage is None else f"{section}_{passage}"
+        return max(float(self.tables[name]((u,))), 0.0)

@@ -77,16 +77,17 @@ def python_learned_model(
     control_period: float | None = None,
 ) -> LearnedModel:
     """The Python learned model of ``table_set`` on ``model`` (default: the lean machine): the circuit model
-    (:class:`hexgym.model.circuit_model.CircuitModel`) for "circuit", the table model
+    (:class:`hexgym.model.circuit_model.CircuitModel`) for "circuit" and "circuit_cat", the table model
     (:class:`hexgym.model.python_backend.LearnedModel`) for "paper"."""
+    from hexgym.mbl.schema import CIRCUIT_TABLE_SETS
     from hexgym.mbl.table import load_tables
     from hexgym.model.python_backend import LearnedModel
 
     tables = load_tables(tables_dir, table_set)
-    if table_set == "circuit":
+    if table_set in CIRCUIT_TABLE_SETS:
         from hexgym.model.circuit_model import CircuitModel
 
-        return CircuitModel(tables, model=model, control_period=control_period)
+        return CircuitModel(tables, model=model, control_period=control_period, table_set=table_set)
     return LearnedModel(tables, model=model, control_period=control_period)
 
 

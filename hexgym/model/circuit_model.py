@@ -39,8 +39,9 @@ import warnings
 import mujoco
 import numpy as np
 
-from hexgym.hydraulics.circuit import STATE_NAMES, STATE_SIZE, HydraulicCircuit, fuel_rate
+from hexgym.hydraulics.circuit import PAPER_VALVE, STATE_NAMES, STATE_SIZE, HydraulicCircuit, fuel_rate, valve_layout
 from hexgym.machine import parameters as p
+from hexgym.mbl.schema import CIRCUIT_TABLE_SETS, VALVE_OF_TABLE_SET
 from hexgym.mbl.table import MBLTable
 from hexgym.mbl.valve import LearnedValve
 from hexgym.model import circuit_kernel
@@ -60,9 +61,12 @@ class CircuitModel(LearnedModel):
     """The lean MuJoCo machine driven by the open-centre circuit with the learned valve (its steps compiled).
 
     Args:
-        tables: the ``circuit`` tables (default: the packaged ones).
+        tables: the valve's tables (default: the packaged ``circuit`` ones).
         model, control_period: as :class:`~hexgym.model.python_backend.LearnedModel`.
         substeps: circuit steps per control period.
+        table_set: which valve the tables are of (:data:`hexgym.mbl.schema.CIRCUIT_TABLE_SETS`): ``circuit``, the
+            paper's valve, or ``circuit_cat``, a Cat two-pump valve (run by the numpy definition: the native kernel
+            runs the paper's valve).
     """
 
     def __init__(
@@ -71,20 +75,23 @@ class CircuitModel(LearnedModel):
         model: mujoco.MjModel | None = None,
         control_period: float | None = None,
         substeps: int = SUBSTEPS,
+        table_set: str = "circuit",
     ) -> None:
+        if table_set not in CIRCUIT_TABLE_SETS:
+            raise ValueError(f"the circuit model runs the table sets {CIRCUIT_TABLE_SETS}, not {table_set!r}")
         if tables is None:
             from hexgym.mbl.table import load_tables
 
-            tables = load_tables(table_set="circuit")
+            tables = load_tables(table_set=table_set)
         if not isinstance(substeps, int) or substeps < 1:
             raise ValueError(f"substeps must be a whole number >= 1, got {substeps!r}")
         self._init_machine(model, control_period)
         # the servos follow the circuit's rates; their ranges (the table models' limits) would clip a
         # swing that the pump drives faster with the front pulled in
         self.physics.model.actuator_ctrlrange[:] = (-MAX_RATE, MAX_RATE)
-        self.tables, self.table_set = tables, "circuit"
-        valve = LearnedValve(tables)
-        self.circuit = HydraulicCircuit(valve=valve)
+        self.tables, self.table_set = tables, table_set
+        layout = valve_layout(VALVE_OF_TABLE_SET[table_set])
+        self.circuit = HydraulicCircuit(valve=LearnedValve(tables, layout), layout=layout)
         self._kernel = _native_kernel(self.circuit, tables)
         self._fault_pressure = circuit_kernel.fault_pressure(self.circuit)
         if self._kernel is None:
@@ -221,6 +228,8 @@ def _native_kernel(circuit: HydraulicCircuit, tables: dict[str, MBLTable]) -> ci
     """The native kernel for this circuit and valve, or None where the library cannot be used (said once per
     process: the model then runs the definition's numpy steps, several times slower)."""
     global _fallback_said
+    if circuit.layout != PAPER_VALVE:
+        return None  # the kernel runs the paper's valve (circuit_kernel.circuit_fields)
     reason = circuit_kernel.native_reason()
     if not reason:
         return circuit_kernel.NativeCircuit(circuit, tables, STOP_CLEARANCE)

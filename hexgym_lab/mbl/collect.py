@@ -84,7 +84,7 @@ from hexgym.files import atomic_path, check_output_dir, staged_dir
 from hexgym.hydraulics.circuit import HydraulicCircuit
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
-from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS
+from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS, VALVE_OF_TABLE_SET
 from hexgym.mbl.valve import identify_areas
 from hexgym.parallel import Executor, executor
 from hexgym_lab.mbl.datafile import refuse_other_npz
@@ -488,7 +488,7 @@ def _valve_samples(sim: Any, spools_m: np.ndarray, pressure_rates: np.ndarray) -
     ext, vel = ph.cylinder_extensions(), ph.cylinder_velocities()
     volumes = sim.circuit.volumes(ext)
     rate = float(ph.joint_velocities()[0])
-    return identify_areas(state[:12], pressure_rates, volumes, flows, spools_m, ext, vel, rate)
+    return identify_areas(state[:12], pressure_rates, volumes, flows, spools_m, ext, vel, rate, sim.circuit.layout)
 
 
 def _episode(sim: Any, group: str, episode: int, seed: int, config: CollectConfig) -> EpisodeResult:
@@ -531,7 +531,7 @@ _EPISODE_COUNTERS = (
     "ended_at_limit",
     "sim_seconds",
 )
-_SIM: Any = None  # one reference model per process, made on first use
+_SIMS: dict[str, Any] = {}  # one reference model per valve layout and process, made on first use
 # Samples per episode as a fraction of segments x windows, measured on the default data set
 # (episodes end at a stroke end; the bucket's runs there most often), a little low so the first
 # round of chunks rather overshoots than needs a second one.
@@ -547,25 +547,24 @@ def _expected_samples_per_episode(group: str, config: CollectConfig) -> float:
     return config.segments_per_episode * config.windows_per_segment * _YIELD[group]
 
 
-def _simulator() -> Any:
-    global _SIM
-    if _SIM is None:
+def _simulator(valve: str = "paper") -> Any:
+    """This process's reference model with valve layout ``valve`` (one each, made on first use)."""
+    if valve not in _SIMS:
         from hexgym.hydraulics.reference import ReferenceModel  # here: the CLI parser must not load MuJoCo
 
-        _SIM = ReferenceModel()
-    return _SIM
+        _SIMS[valve] = ReferenceModel(valve=valve)
+    return _SIMS[valve]
 
 
-def model_fingerprint() -> str:
+def model_fingerprint(valve: str = "paper") -> str:
     """A digest of a short fixed run of this process's reference model (16 hex digits).
 
     Stored with every chunk and data set: chunks from another reference model (any change to
     the circuit, the linkage, the parameters or the step, down to round-off) are never mixed
     in when a collection resumes, and a data set names the model it came from.
     """
-    global _FINGERPRINT
-    if _FINGERPRINT is None:
-        sim = _simulator()
+    if valve not in _FINGERPRINTS:
+        sim = _simulator(valve)
         sim.reset("home", 1000.0)
         sim.reset(np.array([0.3, 0.2, 0.4, 0.5]), 1000.0)
         force = np.array([-20e3, 0.0, 30e3])
@@ -576,11 +575,11 @@ def model_fingerprint() -> str:
         digest = hashlib.sha256(np.float64(sim.timestep).tobytes())
         for array in (sim.physics.data.qpos, sim.physics.data.qvel, sim.state):
             digest.update(np.ascontiguousarray(array, dtype=np.float64).tobytes())
-        _FINGERPRINT = digest.hexdigest()[:16]
-    return _FINGERPRINT
+        _FINGERPRINTS[valve] = digest.hexdigest()[:16]
+    return _FINGERPRINTS[valve]
 
 
-_FINGERPRINT: str | None = None
+_FINGERPRINTS: dict[str, str] = {}
 
 
 def chunk_path(out_dir: str | os.PathLike[str], group: str, index: int) -> Path:
@@ -614,12 +613,13 @@ def _compute_chunk(task: tuple[str, str, int, int, str, str]) -> tuple[str, int,
     it (:func:`_store_chunk`), so workers on other machines need no shared file system."""
     out_dir, group, index, seed, config_json, fingerprint = task
     config = _config_from_json(config_json)
-    if model_fingerprint() != fingerprint:  # e.g. a source file edited while a collection runs
+    valve = VALVE_OF_TABLE_SET[config.table_set]
+    if model_fingerprint(valve) != fingerprint:  # e.g. a source file edited while a collection runs
         raise RuntimeError(
-            f"the reference model in this worker ({model_fingerprint()}) is not the one the "
+            f"the reference model in this worker ({model_fingerprint(valve)}) is not the one the "
             f"collection started with ({fingerprint}); restart the collection"
         )
-    sim = _simulator()
+    sim = _simulator(valve)
     t0 = time.perf_counter()
     first = index * config.episodes_per_chunk
     episodes = [(e, _episode(sim, group, e, seed, config)) for e in range(first, first + config.episodes_per_chunk)]
@@ -786,7 +786,7 @@ def collect(
     check_output_dir(out / "chunks", "chunk directory")
     (out / "chunks").mkdir(parents=True, exist_ok=True)
     with executor(workers, ray=ray) as pool:  # first: a cluster that cannot run the chunks is refused at once
-        fingerprint = model_fingerprint()
+        fingerprint = model_fingerprint(VALVE_OF_TABLE_SET[config.table_set])
         bar = _ProgressBar({g: config.target(g, samples_per_group) for g in config.groups()}, enabled=progress)
         new_chunks = 0
         try:
@@ -871,7 +871,8 @@ def _write_datasets(
                 "group": group,
                 "config": json.loads(config.to_json()),
                 "model_fingerprint": fingerprint,
-                "timestep": _simulator().timestep,
+                "timestep": _simulator(VALVE_OF_TABLE_SET[config.table_set]).timestep,
+                "valve": VALVE_OF_TABLE_SET[config.table_set],
                 "stats": stats,
             }
             arrays = {
