@@ -454,9 +454,9 @@ def plot_plan(result: dict[str, Any], out: str | Path) -> Path:
 def plan_video(result: dict[str, Any], out: str | Path, width: int = 640, height: int = 384) -> Path:
     """One seed's planned move (its whole horizon) and then the scripted loader's same move, each from the start
     state at rest, in the environment (the learned model) from the chase camera: an MP4 at 10 frames/s, each frame
-    with the films' caption (:func:`hexgym_lab.film.film_frame`), the task and the mover first."""
+    with the films' caption (:func:`hexgym_lab.agents.film.film_frame`), the task and the mover first."""
     from hexgym.machine.render import check_frame_memory, write_mp4
-    from hexgym_lab.film import film_frame
+    from hexgym_lab.agents.film import film_frame
 
     state, _ = start_states(result["seed"])[result["task"]]
     planned = np.asarray(result["planned_spools_mm"]) / 1e3 / p.SPOOL_STROKE  # one row per control period

@@ -20,7 +20,7 @@ from hexgym.envs.world import (
 )
 from hexgym.machine import parameters as p
 from hexgym.machine.bucket import BUCKET, fill_mesh
-from hexgym_lab.film import caption, overlay_text
+from hexgym_lab.agents.film import caption, overlay_text
 
 WIDTH, HEIGHT = 320, 192
 

@@ -190,7 +190,8 @@ def _bucket_load_meshes() -> tuple[tuple[list[float], list[int]], ...]:
 
 def _add_bucket_load(spec: mujoco.MjSpec) -> None:
     """The soil in the bucket: a mesh per fill level (:data:`LOAD_LEVELS`, up to the heaped capacity) in the
-    bucket's frame, all hidden (transparent) until :meth:`World.show_loads` shows one."""
+    bucket's frame, all hidden (transparent) until :meth:`World.show_loads` shows one. Group 2, the machine's
+    visual detail: a ray cast at the site's surfaces (group 1) does not meet a bucket's hidden load."""
     bucket = spec.body("bucket")
     if bucket is None:
         raise AssetError("the machine model has no body 'bucket'")
@@ -198,7 +199,7 @@ def _add_bucket_load(spec: mujoco.MjSpec) -> None:
         name = f"bucket_load_{level}"
         spec.add_mesh(name=name, uservert=vertices, userface=faces, inertia=mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL)
         bucket.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_MESH, meshname=name, material="pile",
-                        rgba=[*_SAND[:3], 0.0], **_DRAWN)  # fmt: skip
+                        rgba=[*_SAND[:3], 0.0], **{**_DRAWN, "group": 2})  # fmt: skip
 
 
 def build_world_model(

@@ -3,7 +3,7 @@
 The machine is the learned model (MuJoCo linkage + MBL tables) driven by
 :class:`hexgym.agents.scripted.ScriptedLoader`: it digs from the pile, swings, dumps into the truck
 and returns. Frames are taken at the environment's 10 Hz control rate, each with the films' caption
-(:func:`hexgym_lab.film.film_frame`: time, phase, tonnes in the bucket and delivered, fuel).
+(:func:`hexgym_lab.agents.film.film_frame`: time, phase, tonnes in the bucket and delivered, fuel).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from hexgym.agents.scripted import run_scripted
 from hexgym.checks import check_positive, check_seed
 from hexgym.envs.loading import STEP_PERIOD, HexLoadingEnv
 from hexgym.files import check_output_dir, check_output_file
-from hexgym_lab.film import film_frame
+from hexgym_lab.agents.film import film_frame
 
 DEMO_DURATION = 60.0  # s of simulated time: two loading cycles
 DEMO_SEED = 0

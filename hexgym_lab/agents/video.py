@@ -1,7 +1,7 @@
 """``hexgym video``: offscreen rollouts of a policy on HexLoading-v0 as an MP4, with the films' caption.
 
 Frames come from the environment's own ``rgb_array`` rendering (chase or cab camera), one per
-10 Hz step; each carries the caption every film of hexgym carries (:func:`hexgym_lab.film.film_frame`:
+10 Hz step; each carries the caption every film of hexgym carries (:func:`hexgym_lab.agents.film.film_frame`:
 the episode, time, loading phase, tonnes in the bucket and delivered, fuel).
 """
 
@@ -21,7 +21,7 @@ from hexgym.envs.loading import STEP_PERIOD
 from hexgym.files import check_output_file
 from hexgym.machine.render import CAMERAS, check_frame_memory, write_mp4
 from hexgym_lab.agents.evaluate import run_episode, run_success_episode
-from hexgym_lab.film import film_frame
+from hexgym_lab.agents.film import film_frame
 
 
 def _frame_recorder(frames: list[np.ndarray], episode: int) -> Any:

@@ -37,12 +37,14 @@ def phase_of(env: Any) -> str:
 
 def caption(info: dict[str, Any], phase: str, label: str = "", note: str = "") -> list[tuple[str, str]]:
     """The caption of a step's ``info``: [``label``,] time, phase, bucket, delivered, fuel[, ``note``], each column
-    as (its text, the widest text it takes: the column's width)."""
+    as (its text, the widest text it takes: the column's width); a task without a truck (``HexDig-v0``) or fuel in
+    its ``info`` leaves that column out."""
     fields = [
         f"t {info['time_s']:.1f} s", f"phase {phase}", f"bucket {info['bucket_kg'] / 1000:.2f} t",
-        f"delivered {info['truck_kg'] / 1000:.2f} t", f"fuel {info['fuel_l']:.2f} L",
+        f"delivered {info['truck_kg'] / 1000:.2f} t" if "truck_kg" in info else None,
+        f"fuel {info['fuel_l']:.2f} L" if "fuel_l" in info else None,
     ]  # fmt: skip
-    columns = list(zip(fields, _COLUMNS, strict=True))
+    columns = [(shown, widest) for shown, widest in zip(fields, _COLUMNS, strict=True) if shown is not None]
     return [(label, label)] * bool(label) + columns + [(note, note)] * bool(note)
 
 
