@@ -58,7 +58,7 @@ class CollisionShield(gym.Wrapper):
             raise ValueError(f"horizon_s must be at most 60 s (a step's prediction), got {horizon_s!r}")
         if not (isinstance(allowed_depth_m, int | float) and math.isfinite(allowed_depth_m) and allowed_depth_m >= 0):
             raise ValueError(f"allowed_depth_m must be finite and >= 0, got {allowed_depth_m!r}")
-        if not hasattr(env.unwrapped, "physics") or not hasattr(env.unwrapped, "layout"):
+        if not all(hasattr(env.unwrapped, name) for name in ("physics", "layout", "config")):
             raise TypeError(f"CollisionShield wraps a HexLoading-v0 environment, got {env.unwrapped!r}")
         self.horizon_s, self.allowed_depth_m = float(horizon_s), float(allowed_depth_m)
         self._model: RolloutModel | None = None
@@ -70,7 +70,8 @@ class CollisionShield(gym.Wrapper):
     def model(self) -> RolloutModel:
         """The rollout model (built on first use, and again after unpickling)."""
         if self._model is None:
-            self._model = RolloutModel(table_set=getattr(self.env.unwrapped, "tables", "paper"))
+            # predicted on the environment's own learned model
+            self._model = RolloutModel(table_set=self.env.unwrapped.config.tables)
         return self._model
 
     def _sequences(self, actions: np.ndarray) -> np.ndarray:

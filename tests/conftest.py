@@ -15,6 +15,11 @@ import pytest
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+from hexgym.envs.compiled import drop_stale_caches  # noqa: E402  (after MUJOCO_GL: importing hexgym imports mujoco)
+
+# A checkout's sources change between runs; numba's caches check only their own file (hexgym.envs.compiled)
+drop_stale_caches()
+
 _EXIT_STATUS = pytest.StashKey[int]()
 
 

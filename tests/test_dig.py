@@ -61,7 +61,7 @@ def test_the_scripted_dig_succeeds_and_the_shaping_sums_to_what_the_bucket_holds
         if terminated or truncated:
             break
     assert terminated and not truncated and info["is_success"] and info["time_s"] < 10.0
-    assert info["bucket_kg"] >= env.unwrapped.fill_kg and obs[ABOVE_PILE] >= env.unwrapped.lift_m
+    assert info["bucket_kg"] >= env.unwrapped.config.fill_kg and obs[ABOVE_PILE] >= env.unwrapped.config.lift_m
     assert sums["load"] == pytest.approx(obs[OBSERVATION_NAMES.index("payload")], abs=1e-6)
     assert sums["lift"] == pytest.approx(obs[OBSERVATION_NAMES.index("payload")], abs=1e-6)  # lifted lift_m or more
     assert sums["success"] == 5.0 and "truck_kg" not in info

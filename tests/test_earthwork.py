@@ -208,7 +208,7 @@ def test_cached_compiled_functions_are_dropped_when_a_source_changes(tmp_path):
     """numba checks a cached function against its own file only; any change to the package's sources drops them."""
     import os
 
-    from hexgym.envs.earthwork import drop_stale_compiled_functions
+    from hexgym.envs.compiled import drop_stale_caches
 
     (tmp_path / "envs" / "__pycache__").mkdir(parents=True)
     (tmp_path / "envs" / "task.py").write_text("x = 1\n")
@@ -217,10 +217,10 @@ def test_cached_compiled_functions_are_dropped_when_a_source_changes(tmp_path):
     cached = [tmp_path / "envs" / "__pycache__" / name for name in ("task.f-1.py311.nbi", "task.f-1.py311.1.nbc")]
     for path in cached:
         path.write_bytes(b"old")
-    assert drop_stale_compiled_functions(tmp_path) and not any(p.exists() for p in cached)  # never stamped
+    assert drop_stale_caches(tmp_path) and not any(p.exists() for p in cached)  # never stamped
     for path in cached:
         path.write_bytes(b"new")
-    assert not drop_stale_compiled_functions(tmp_path) and all(p.exists() for p in cached)  # nothing changed
+    assert not drop_stale_caches(tmp_path) and all(p.exists() for p in cached)  # nothing changed
     parameters.write_text("DENSITY = 1800.0\n")  # a constant the compiled code froze
     os.utime(parameters, ns=(1, 1))
-    assert drop_stale_compiled_functions(tmp_path) and not any(p.exists() for p in cached)
+    assert drop_stale_caches(tmp_path) and not any(p.exists() for p in cached)

@@ -421,3 +421,26 @@ def test_observation_points_to_the_fullest_cut_and_follows_the_pile(env):
     for r in np.arange(centre - 2.0, centre + 1.0, 0.2):
         u.earth.pile.take((r * c, r * s), (-s, c), p.BUCKET_WIDTH, 0.0, 10.0)  # take the line it points to
     assert u.fullest_cut_direction() != pytest.approx(direction)  # the cached value followed the pile's change
+
+
+def test_a_config_with_overrides_makes_the_same_environment():
+    """Keyword arguments, a frozen config and a config with overrides are one way to say the same thing; a bad or
+    unknown one is refused in one line naming it."""
+    import dataclasses
+
+    from hexgym.envs.loading import LoadingConfig
+
+    by_name = HexLoadingEnv(time_limit=30.0, fuel_weight=1.0)
+    by_config = HexLoadingEnv(LoadingConfig(time_limit=30.0), fuel_weight=1.0)
+    assert by_name.config == by_config.config and by_config.config.time_limit == 30.0
+    np.testing.assert_array_equal(by_name.reset(seed=4)[0], by_config.reset(seed=4)[0])
+    action = np.array([0.3, -0.2, 0.5, 0.1], np.float32)
+    (obs_a, *rest_a), (obs_b, *rest_b) = by_name.step(action), by_config.step(action)
+    np.testing.assert_array_equal(obs_a, obs_b)
+    assert rest_a == rest_b
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        by_name.config.time_limit = 5.0
+    with pytest.raises(TypeError, match="HexLoading-v0 got an unexpected keyword argument 'tim_limit'"):
+        HexLoadingEnv(tim_limit=30.0)
+    with pytest.raises(ValueError, match="^time_limit must be a finite number > 0 s, got -1.0$"):
+        LoadingConfig(time_limit=-1.0)

@@ -1,9 +1,11 @@
 """hexgym's tasks as Gymnasium environments: ``HexReach-v0`` (:class:`hexgym.envs.reach.HexReachEnv`: the teeth
 to a target through the hydraulics), ``HexDig-v0`` (:class:`hexgym.envs.dig.HexDigEnv`: fill the bucket from the
 pile and lift it) and the loading task ``HexLoading-v0`` (:class:`hexgym.envs.loading.HexLoadingEnv`;
-batched, :class:`hexgym.envs.vector.HexLoadingVectorEnv`), the latter two running the task written once over N sites
-(:mod:`.task`, compiled) on their machines (:mod:`.sites`), the site's world (:mod:`.world`: pile, truck,
-layout) and its earthwork (:mod:`.earthwork`: the pile, digging, resistance, spill).
+batched, :class:`hexgym.envs.vector.HexLoadingVectorEnv`). The latter two are siblings over one site base
+(:mod:`.base`: site, machine, rendering; a frozen config each), running the task written once over N sites
+(:mod:`.task`, compiled by :mod:`.compiled`'s settings) on their machines (:mod:`.sites`: the physics protocol's
+kinds), the site's world (:mod:`.world`: pile, truck, layout) and its earthwork (:mod:`.earthwork`: the pile,
+digging, resistance, spill).
 
 ``import hexgym`` registers them; this package imports MuJoCo and the machine model only when an
 environment is made.

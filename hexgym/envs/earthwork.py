@@ -25,19 +25,18 @@ bucket, the truck and the ground (spilled), and only moves between them, so thei
 The arithmetic is written once, as numba-compiled functions of one site of a stack of piles
 (``heights[i]`` of an ``(N, n, n)`` array, its grid origin ``origin[i]``): the loading task
 (:mod:`hexgym.envs.task`) calls them for each of its N sites, and :class:`Pile` and
-:class:`Earthwork` are one-site handles on the same functions (tests, tools, agents).
+:class:`Earthwork` are one-site handles on the same functions (an environment's ``earth``: a view of the task's
+pile and stores; tests, tools, agents).
 """
 
 from __future__ import annotations
 
-import hashlib
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
-import numba
 import numpy as np
 
+from hexgym.envs.compiled import jit
 from hexgym.machine import parameters as p
 from hexgym.machine.bucket import BUCKET
 
@@ -62,42 +61,7 @@ _PHI, _DELTA = float(p.MATERIAL_FRICTION_ANGLE), float(p.MATERIAL_TOOL_FRICTION_
 _PASSIVE = math.cos(_PHI) ** 2 / (
     math.cos(_DELTA) * (1.0 - math.sqrt(math.sin(_PHI + _DELTA) * math.sin(_PHI) / math.cos(_DELTA))) ** 2
 )
-
-
-_PACKAGE = Path(__file__).resolve().parents[1]  # hexgym/
-
-
-def drop_stale_compiled_functions(package: Path = _PACKAGE) -> bool:
-    """Delete numba's cached functions under ``package`` when any of its sources changed since they were cached;
-    returns whether it did.
-
-    numba checks a cached function against its own file only (time stamp and bytecode), not against the
-    functions it calls or the module constants it froze at compile time: after an edit of this file, or of
-    :mod:`hexgym.machine.parameters`, the loading task's cached functions would run the old arithmetic. The
-    package's sources (names, sizes, modification times) are stamped beside the caches; recompiling all takes
-    ~6 s. A package whose caches cannot be written here (a read-only install) is left alone: numba caches its
-    functions elsewhere then, and a new install changes every file's time stamp.
-    """
-    sources = sorted(path for path in package.rglob("*.py") if "__pycache__" not in path.parts)
-    text = "\n".join(f"{path.relative_to(package)} {path.stat().st_size} {path.stat().st_mtime_ns}" for path in sources)
-    stamp = package / "envs" / "__pycache__" / "numba-sources.sha256"
-    digest = hashlib.sha256(text.encode()).hexdigest()
-    try:
-        if stamp.is_file() and stamp.read_text() == digest:
-            return False
-        for cached in (*package.rglob("*.nbi"), *package.rglob("*.nbc")):
-            cached.unlink(missing_ok=True)
-        stamp.parent.mkdir(exist_ok=True)
-        partial = stamp.with_name(f"{stamp.name}.{digest[:8]}.tmp")
-        partial.write_text(digest)
-        partial.replace(stamp)
-    except OSError:
-        return False
-    return True
-
-
-drop_stale_compiled_functions()
-jit = numba.njit(cache=True, nogil=True)  # every compiled function of the task: cached on disk, no fastmath
+BUCKET_STORE, TRUCK_STORE, SPILLED_STORE = range(3)  # columns of a site's stores (kg): in the bucket, truck, spilled
 
 
 def earthmoving_factors(
@@ -534,15 +498,45 @@ class SpillResult:
 class Earthwork:
     """The four material stores of one site and the moves between them, on :func:`dig` and :func:`spill_out`.
 
+    The pile is a :class:`Pile`; the bucket's, truck's and ground's kilograms are a row ``stores`` (3,) in the
+    order ``BUCKET_STORE``, ``TRUCK_STORE``, ``SPILLED_STORE``: its own, or a view of the loading task's (the
+    environments' ``earth``: :meth:`hexgym.envs.task.LoadingTask.earthwork`), which its setters then change.
+
     Args:
         pile: the material heap.
+        stores: the bucket, truck and spilled kilograms (default: a row of its own, empty).
     """
 
-    def __init__(self, pile: Pile) -> None:
+    def __init__(self, pile: Pile, stores: np.ndarray | None = None) -> None:
         self.pile = pile
-        self.bucket_kg = 0.0
-        self.truck_kg = 0.0
-        self.spilled_kg = 0.0
+        self.stores = np.zeros(3) if stores is None else stores
+
+    @property
+    def bucket_kg(self) -> float:
+        """Material in the bucket, kg."""
+        return float(self.stores[BUCKET_STORE])
+
+    @bucket_kg.setter
+    def bucket_kg(self, value: float) -> None:
+        self.stores[BUCKET_STORE] = value
+
+    @property
+    def truck_kg(self) -> float:
+        """Material in the truck, kg."""
+        return float(self.stores[TRUCK_STORE])
+
+    @truck_kg.setter
+    def truck_kg(self, value: float) -> None:
+        self.stores[TRUCK_STORE] = value
+
+    @property
+    def spilled_kg(self) -> float:
+        """Material spilled on the ground, kg."""
+        return float(self.stores[SPILLED_STORE])
+
+    @spilled_kg.setter
+    def spilled_kg(self, value: float) -> None:
+        self.stores[SPILLED_STORE] = value
 
     @property
     def pile_kg(self) -> float:

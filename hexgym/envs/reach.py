@@ -9,6 +9,7 @@ before it learns to dig and load.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
@@ -17,7 +18,7 @@ from gymnasium import spaces
 
 from hexgym.checks import check_choice
 from hexgym.envs import REACH_ENV_ID
-from hexgym.envs.loading import _is_number, check_open, spools_from_action
+from hexgym.envs.base import check_open, is_number, make_config, spools_from_action
 from hexgym.envs.task import STEP_PERIOD  # 10 Hz control, as HexLoading-v0
 from hexgym.machine import kinematics
 from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS
@@ -31,6 +32,41 @@ _START_NOISE = 0.3  # rad, on boom, stick and bucket around the machine's `home`
 _OBS_BOUND = np.array(
     [np.pi] * 3 + [1.0] * 2 + [10.0] * 4 + [10.0] * 3 + [30.0] * 3 + [30.0] * 2 + [1.0, 5.0], dtype=np.float32
 )
+
+
+@dataclass(frozen=True)
+class ReachConfig:
+    """``HexReach-v0``'s configuration (see :class:`HexReachEnv`'s Arguments). Frozen; checked once when made.
+
+    No site, so not a :class:`hexgym.envs.base.SiteConfig`: the machine alone, on the learned model's own scene.
+    """
+
+    time_limit: float = 15.0
+    tolerance_m: float = 0.3
+    progress_weight: float = 1.0
+    time_weight: float = 0.01
+    success_reward: float = 5.0
+    backend: str = "auto"
+    tables: str = DEFAULT_TABLE_SET
+    render_mode: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.render_mode is not None:
+            raise ValueError(f"HexReach-v0 does not render (render_mode {self.render_mode!r}): render HexLoading-v0")
+        for name in ("time_limit", "tolerance_m"):
+            value = getattr(self, name)
+            if not is_number(value) or not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+            object.__setattr__(self, name, float(value))  # (frozen: stored once, as checked)
+        for term, weight in self.weights.items():
+            if not is_number(weight) or not (math.isfinite(weight) and weight >= 0):
+                raise ValueError(f"{term} weight must be a finite number >= 0, got {weight!r}")
+        check_choice("tables", self.tables, TABLE_SETS)
+
+    @property
+    def weights(self) -> dict[str, float]:
+        """The weights of the terms ``progress``, ``time``, ``success``."""
+        return {"progress": self.progress_weight, "time": self.time_weight, "success": self.success_reward}
 
 
 class HexReachEnv(gym.Env):
@@ -72,6 +108,8 @@ class HexReachEnv(gym.Env):
     Terminates on arrival; truncates after ``time_limit`` s.
 
     ## Arguments
+    Keyword arguments (``gymnasium.make("HexReach-v0", **kwargs)``) or a :class:`ReachConfig` with overrides:
+
     | argument | default | meaning |
     |----------|---------|---------|
     | time_limit | 15.0 | episode length, s |
@@ -88,30 +126,10 @@ class HexReachEnv(gym.Env):
     metadata = {"render_modes": [], "render_fps": round(1.0 / STEP_PERIOD)}
     closed = False  # set by close()
 
-    def __init__(
-        self,
-        time_limit: float = 15.0,
-        tolerance_m: float = 0.3,
-        progress_weight: float = 1.0,
-        time_weight: float = 0.01,
-        success_reward: float = 5.0,
-        backend: str = "auto",
-        tables: str = DEFAULT_TABLE_SET,
-        render_mode: str | None = None,
-    ) -> None:
-        if render_mode is not None:
-            raise ValueError(f"HexReach-v0 does not render (render_mode {render_mode!r}): render HexLoading-v0")
-        for name, value in (("time_limit", time_limit), ("tolerance_m", tolerance_m)):
-            if not _is_number(value) or not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
-        self.weights = {"progress": progress_weight, "time": time_weight, "success": success_reward}
-        for name, weight in self.weights.items():
-            if not _is_number(weight) or not (math.isfinite(weight) and weight >= 0):
-                raise ValueError(f"{name} weight must be a finite number >= 0, got {weight!r}")
-        check_choice("tables", tables, TABLE_SETS)
-        self.time_limit, self.tolerance_m = float(time_limit), float(tolerance_m)
+    def __init__(self, config: ReachConfig | None = None, **overrides: Any) -> None:
+        self.config = c = make_config(ReachConfig, REACH_ENV_ID, config, overrides)
         self.render_mode = None
-        self.machine = make_learned_model(backend, table_set=tables)
+        self.machine = make_learned_model(c.backend, table_set=c.tables)
         self.physics = self.machine.physics
         self.machine.reset("home")
         self._home = self.physics.joint_positions()
@@ -121,6 +139,11 @@ class HexReachEnv(gym.Env):
         self.action_space = spaces.Box(-1.0, 1.0, (4,), np.float32)
         self.target = np.zeros(3)
         self._distance, self._elapsed = 0.0, 0.0
+
+    @property
+    def time_limit(self) -> float:
+        """Episode length, s."""
+        return self.config.time_limit
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
         """A new start pose, payload and target (see the class docstring)."""
@@ -167,12 +190,13 @@ class HexReachEnv(gym.Env):
         tip = self.physics.tip_position()
         distance = float(np.linalg.norm(tip - self.target))
         speed = float(np.linalg.norm(tip - before)) / self._step_s
-        arrived = distance <= self.tolerance_m and speed < SETTLED_SPEED_MPS
-        progress = self.weights["progress"] * (self._distance - distance)
-        success = self.weights["success"] if arrived else 0.0
-        time_term = -self.weights["time"]
+        c = self.config
+        arrived = distance <= c.tolerance_m and speed < SETTLED_SPEED_MPS
+        progress = c.progress_weight * (self._distance - distance)
+        success = c.success_reward if arrived else 0.0
+        time_term = -c.time_weight
         self._distance = distance
-        truncated = not arrived and self._elapsed >= self.time_limit - 1e-9
+        truncated = not arrived and self._elapsed >= c.time_limit - 1e-9
         return (
             self._observe(),
             progress + time_term + success,
@@ -193,7 +217,7 @@ class HexReachEnv(gym.Env):
             q[1:], [math.sin(q[0] - azimuth), math.cos(q[0] - azimuth)], qd,
             self.machine.cylinder_loads() / 1e6, ph.tip_position() - self.target,
             [math.hypot(self.target[0], self.target[1]), self.target[2]],
-            [max(0.0, 1.0 - self._elapsed / self.time_limit), ph.payload_kg / 1000.0],
+            [max(0.0, 1.0 - self._elapsed / self.config.time_limit), ph.payload_kg / 1000.0],
         ))  # fmt: skip
         return np.clip(obs, -_OBS_BOUND, _OBS_BOUND).astype(np.float32)
 

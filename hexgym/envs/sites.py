@@ -1,12 +1,13 @@
 """The machines of the loading task's sites (:class:`hexgym.envs.task.SitePhysics`): learned machine models or a
-MuJoCo batch.
+MuJoCo batch, and the machine models a site is built with (:func:`make_machine`).
 
 - :class:`MachineSites`: N learned machine models of any backend (the single environment's one, or the
   Python backend's N for the batched environment without the native plugin): each stepped by its
   model's ``step``; the task's arrays are views of the one ``MjData`` (N = 1) or copies gathered
   after each change.
 - :class:`BatchSites`: a :class:`mujoco.batch.Batch` of the native plugin's model: the sites step in
-  the batch's C threads, the arrays are the batch's bound state and outputs.
+  the batch's C threads, the arrays are the batch's bound state and outputs; a site starts on a machine
+  model of its own model (:func:`start_machine`), whose state is loaded into the site's row.
 
 Both do to each site what the machine model does to its ``MjData``, to the last bit, so that the task
 gives the same floats on either (``tests/test_vector_env.py``).
@@ -15,21 +16,92 @@ gives the same floats on either (``tests/test_vector_env.py``).
 from __future__ import annotations
 
 import time
+from collections.abc import Callable, Sequence
+from copy import copy as copied
+from pathlib import Path
 
 import mujoco
 import numpy as np
 from mujoco import batch as mjbatch
 
-from hexgym.envs.earthwork import jit
-from hexgym.envs.world import TOOL_CONTACT_SENSOR
+from hexgym.envs.compiled import jit
+from hexgym.envs.task import SiteStart
+from hexgym.envs.world import TOOL_CONTACT_SENSOR, World, build_world_model
 from hexgym.machine import kinematics
+from hexgym.machine.assets import asset_path
 from hexgym.machine.physics import payload_inertia
+from hexgym.mbl.schema import DEFAULT_TABLE_SET
+from hexgym.model.backend import backend_for, python_learned_model
 from hexgym.model.base import LearnedModelBase
+from hexgym.model.plugin import CTRL_PER_SPOOL_M
 from hexgym.model.plugin import STATE as PLUGIN_STATE
 
 VEL_STAGE = int(mujoco.mjtStage.mjSTAGE_VEL)  # after a step: positions and velocities current, as mj_step1 leaves them
 ACC_STAGE = int(mujoco.mjtStage.mjSTAGE_ACC)
 _ARRAYS = ("site_xpos", "xpos", "xmat", "qpos", "qvel", "sensordata")  # what the task reads
+_STATE = mujoco.mjtState.mjSTATE_INTEGRATION  # a batch site's state row
+# s: the Python backend's table period on a scene whose step is finer than the lean machine's 25 ms (e.g. the
+# full scene.xml at 2 ms); on the lean machine the tables are asked every step
+PYTHON_CONTROL_PERIOD = 0.01
+PYTHON_SCENE = "scene_lean.xml"  # the learned model's default machine (hexgym.model.python_backend)
+
+
+def make_machine(
+    backend: str = "auto",
+    scene_path: str | Path | None = None,
+    table_set: str = DEFAULT_TABLE_SET,
+    tool_contact_slots: int = 0,
+) -> LearnedModelBase:
+    """The machine model that drives the environment, on the loading site.
+
+    ``"python"``: :func:`hexgym.model.backend.python_learned_model` on the lean machine (``scene_lean.xml``:
+    no cylinder bodies, 25 ms step); ``"native"``: the ``hexgym.mbl`` MuJoCo plugin on
+    ``cat325_mbl.xml`` (:mod:`hexgym.model.native_backend`, needs the built plugin). ``scene_path`` overrides
+    the scene (e.g. the full ``scene.xml``). ``"auto"``: :func:`hexgym.model.backend.backend_for`.
+    ``table_set``: the learned model's tables, "paper" or "circuit" (:mod:`hexgym.mbl.schema`).
+    ``tool_contact_slots``: see :func:`hexgym.envs.world.build_world_model`.
+    """
+    if backend_for(table_set, backend) == "native":
+        from hexgym.model.native_backend import NativeLearnedModel
+
+        return NativeLearnedModel(model=native_world_model(scene_path, table_set, tool_contact_slots))
+    model = build_world_model(
+        scene_path if scene_path is not None else asset_path(PYTHON_SCENE), tool_contact_slots=tool_contact_slots
+    )
+    step = model.opt.timestep  # on a finer model than the lean machine's, the tables are asked every 10 ms
+    period = step * max(1, round(PYTHON_CONTROL_PERIOD / step))
+    return python_learned_model(table_set, model=model, control_period=period)
+
+
+def native_world_model(
+    scene_path: str | Path | None = None,
+    table_set: str = DEFAULT_TABLE_SET,
+    tool_contact_slots: int = 0,
+    customise: Callable[[mujoco.MjSpec], None] | None = None,
+) -> mujoco.MjModel:
+    """The loading site around the lean machine driven by the native plugin with ``table_set``'s tables
+    (``customise``: see :func:`hexgym.envs.world.build_world_model`)."""
+    from hexgym.model.plugin import require_plugin
+    from hexgym.model.plugin_mjcf import MBL_MODEL_FILE, mbl_model_xml
+
+    require_plugin()
+    if table_set == DEFAULT_TABLE_SET:  # the packaged machine file
+        return build_world_model(
+            scene_path, machine_file=MBL_MODEL_FILE, tool_contact_slots=tool_contact_slots, customise=customise
+        )
+    xml = mbl_model_xml(table_set=table_set)
+    return build_world_model(scene_path, machine_xml=xml, tool_contact_slots=tool_contact_slots, customise=customise)
+
+
+def start_machine(machine: LearnedModelBase, world: World, start: SiteStart) -> None:
+    """Put ``machine`` at rest at ``start`` (its joint angles and payload) on its site ``world``, laid out as the
+    start says, with no force at the teeth."""
+    model, data = machine.physics.model, machine.physics.data
+    mujoco.mj_resetData(model, data)  # warm starts too: same seed, same episode
+    machine.reset(start.q, payload_kg=start.payload_kg)
+    world.place(data, start.layout)
+    data.qfrc_applied[:] = 0.0
+    mujoco.mj_forward(model, data)
 
 
 def _servo_bands(model: mujoco.MjModel) -> tuple[np.ndarray, ...]:
@@ -66,21 +138,23 @@ def _read_only(array: np.ndarray) -> np.ndarray:
 class MachineSites:
     """N learned machine models (any backend, the same site model) as the task's sites.
 
-    The spools to hold are set in :attr:`spools_m` (N, 4) before a step. A machine with
+    Each machine holds its spools (:meth:`hold`) through its model's ``step``. A machine with
     integrated-velocity servos (the Python backend) has their targets limited after each step
     (:meth:`limit_servo_windup`). The task's arrays are views of the machine's ``MjData`` for one
-    machine, else copies refreshed after each step, re-massing and (:meth:`refresh`) start.
+    machine, else copies refreshed after each step, re-massing and start.
     """
 
     def __init__(self, machines: list[LearnedModelBase]) -> None:
         self.machines = list(machines)
+        self.worlds = [World(machine.physics.model) for machine in self.machines]  # each machine's site
+        self.control_period = self.machines[0].control_period
         model = self.machines[0].physics.model
         self.tip_site, self.bucket_body = model.site("tip").id, model.body("bucket").id
         self.qadr = np.array([model.jnt_qposadr[model.joint(n).id] for n in kinematics.JOINTS])
         self.dadr = np.array([model.jnt_dofadr[model.joint(n).id] for n in kinematics.JOINTS])
         self.contact_adr = int(model.sensor(TOOL_CONTACT_SENSOR).adr[0])
         self._servo_bands = _servo_bands(model)
-        self.spools_m = np.zeros((len(self.machines), 4))
+        self._spools_m = np.zeros((len(self.machines), 4))  # what each machine holds, m
         self._bind()
 
     def _bind(self) -> None:
@@ -94,8 +168,8 @@ class MachineSites:
                 array = self._copies[name].view()
             setattr(self, name, _read_only(array))
 
-    def refresh(self, ids: np.ndarray) -> None:
-        """Gather the sites' arrays after their machines changed outside the task (a start)."""
+    def _refresh(self, ids: np.ndarray) -> None:
+        """Gather the sites' arrays after their machines changed."""
         if not self._copies:
             return
         for i in ids.tolist():
@@ -113,12 +187,23 @@ class MachineSites:
         self.__dict__.update(state)
         self._bind()
 
+    def start(self, ids: np.ndarray, starts: Sequence[SiteStart]) -> None:
+        """Start each site's machine at rest at its start (:func:`start_machine`), spools neutral."""
+        for i, start in zip(ids.tolist(), starts, strict=True):
+            start_machine(self.machines[i], self.worlds[i], start)
+            self._spools_m[i] = 0.0
+        self._refresh(ids)
+
+    def hold(self, ids: np.ndarray, spools_m: np.ndarray) -> None:
+        """Hold the spools (k, 4), m, at sites ``ids`` from the next :meth:`step` on."""
+        self._spools_m[ids] = spools_m
+
     def step(self, ids: np.ndarray, periods: int) -> None:
-        """Hold each site's :attr:`spools_m` for ``periods`` control periods."""
+        """Advance each site's machine ``periods`` control periods with its spools held."""
         for i in ids.tolist():
-            self.machines[i].step(self.spools_m[i], n=periods)
+            self.machines[i].step(self._spools_m[i], n=periods)
             self.limit_servo_windup(i)
-        self.refresh(ids)
+        self._refresh(ids)
 
     def apply_tip_force(self, ids: np.ndarray, force: np.ndarray) -> None:
         """Push each site's teeth with its ``force`` row (N, world) from now on."""
@@ -129,7 +214,7 @@ class MachineSites:
         """Re-mass each site's bucket payload."""
         for k, i in enumerate(ids.tolist()):
             self.machines[i].physics.set_payload(float(mass_kg[k]))
-        self.refresh(ids)
+        self._refresh(ids)
 
     def loads(self, ids: np.ndarray, joint_loads: np.ndarray, swing_torques: np.ndarray) -> None:
         """The machine models' joint loads into ``joint_loads`` (k, 4), N m, and each swing's inertia times its last
@@ -166,13 +251,26 @@ class BatchSites:
     :class:`hexgym.envs.task.SitePhysics` (the spools are the batch's ``ctrl``).
 
     Each call does for its sites what the single environment's machine does to its ``MjData``, to the
-    last bit: a batch site steps as ``mj_step``, the joint loads are ``NativeLearnedModel.joint_loads``,
-    the digging force ``mj_applyFT``'s sum, the payload ``ExcavatorPhysics.set_payload``'s masses.
+    last bit: a site starts as :func:`start_machine` starts a machine (on :attr:`starter`, a machine model of
+    its own copy of the model, whose state and payload masses it then takes), steps as ``mj_step``, the joint
+    loads are ``NativeLearnedModel.joint_loads``, the digging force ``mj_applyFT``'s sum, the payload
+    ``ExcavatorPhysics.set_payload``'s masses.
+
+    Args:
+        model: the site's model with the native plugin (:func:`native_world_model`).
+        count: number of sites.
+        nthread: the batch's threads.
     """
 
     def __init__(self, model: mujoco.MjModel, count: int, nthread: int) -> None:
+        from hexgym.model.native_backend import NativeLearnedModel
+
         self.model = model
         self.count = count
+        # starts are made on a copy: starting re-masses its payload and recomputes its constants
+        self.starter = NativeLearnedModel(model=copied(model))
+        self._starter_world = World(self.starter.physics.model)
+        self.control_period = self.starter.control_period
         self.batch = b = mjbatch.Batch(model, count, nthread=nthread, persistent=True)
         self.state = b.state
         # joints: contiguous read-only copies of the state rows' (as the single environment's arrays are typed)
@@ -197,9 +295,28 @@ class BatchSites:
         self._load_slots = state + PLUGIN_STATE["load"] + np.arange(4)  # the plugin's last constraint load
         self._acceleration_slot = int(state + PLUGIN_STATE["acceleration"])  # its last swing acceleration
         self.contact_adr = int(m.sensor(TOOL_CONTACT_SENSOR).adr[0])
-        self.refresh(np.arange(count))
+        self._refresh(np.arange(count))
         self.seconds = 0.0  # wall time spent in the batch's steps (the rest is the task logic)
         self.steps = 0  # MuJoCo steps (of one site) they made
+
+    def start(self, ids: np.ndarray, starts: Sequence[SiteStart]) -> None:
+        """Start each site as :func:`start_machine` starts a machine: on :attr:`starter`, whose state (spools
+        neutral, no applied force) and payload masses the site's row takes; then its constants and derived
+        quantities (``mj_setConst``, ``mj_forward``)."""
+        physics = self.starter.physics
+        payload = self.payload_body
+        for i, start in zip(ids.tolist(), starts, strict=True):
+            start_machine(self.starter, self._starter_world, start)
+            mujoco.mj_getState(physics.model, physics.data, self.state[i], _STATE)
+            self.body_mass[i, payload] = physics.model.body_mass[payload]
+            self.body_inertia[i, payload] = physics.model.body_inertia[payload]
+        self.batch.set_const(ids)
+        self.batch.forward(ids, stage=ACC_STAGE)
+        self._refresh(ids)
+
+    def hold(self, ids: np.ndarray, spools_m: np.ndarray) -> None:
+        """Hold the spools (k, 4), m, at sites ``ids``: the plugin's ctrl columns, in its units."""
+        _hold(ids, spools_m, self.ctrl, self.ctrl_ids, CTRL_PER_SPOOL_M)
 
     def step(self, ids: np.ndarray, periods: int) -> None:
         """Advance the sites ``ids`` by ``periods`` control periods (the model's steps) in the batch's threads;
@@ -213,9 +330,9 @@ class BatchSites:
         self.batch.step(None if every else ids, nstep=periods, stage=VEL_STAGE)
         self.seconds += time.perf_counter() - start
         self.steps += len(ids) * periods
-        self.refresh(ids)
+        self._refresh(ids)
 
-    def refresh(self, ids: np.ndarray) -> None:
+    def _refresh(self, ids: np.ndarray) -> None:
         """Copy the joint positions and velocities of the sites ``ids`` from their state rows (after a step or a
         start)."""
         _copy_rows(ids, self._qpos, self._qvel, *self._joints)
@@ -274,6 +391,15 @@ def _loads(
             d = dadr[j]
             joint_loads[k, j] = (bias[i, d] - passive[i, d] - applied[i, d]) - plugin_state[i, load_slots[j]]
         swing_torques[k] = mass_matrix[i, swing_diag] * plugin_state[i, acceleration_slot]
+
+
+@jit
+def _hold(ids: np.ndarray, spools_m: np.ndarray, ctrl: np.ndarray, columns: np.ndarray, scale: float) -> None:
+    """Row ``k`` of ``spools_m`` times ``scale`` into columns ``columns`` of ``ctrl``'s row ``ids[k]``."""
+    for k in range(len(ids)):
+        i = ids[k]
+        for j in range(4):
+            ctrl[i, columns[j]] = spools_m[k, j] * scale
 
 
 @jit

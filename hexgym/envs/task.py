@@ -3,11 +3,12 @@
 :class:`LoadingTask` holds what the task knows of each site beyond the machine (its pile, the
 material in the bucket, truck and on the ground, the teeth's sampled motion, fuel and time) as
 one record per site (:data:`SITE`: fields by name), and advances a step of any subset of them. The machines are behind a
-:class:`SitePhysics`: one learned machine model (:mod:`hexgym.envs.loading`) or a MuJoCo batch
-(:mod:`hexgym.envs.sites`); it exposes the simulation's arrays with a leading site axis and
-steps, pushes and re-masses sites. The arithmetic of each stage is one numba-compiled function
-over the sites (``cache=True``: compiled on the first call of a fresh install, then loaded from
-``__pycache__``), so N single environments and one batch of N give the same floats.
+:class:`SitePhysics` (learned machine models or a MuJoCo batch, :mod:`hexgym.envs.sites`): the task starts sites
+through it (:meth:`LoadingTask.start`: a :class:`SiteStart` each), hands it each step's spools
+(:meth:`LoadingTask.step`), and has it step, push and re-mass sites; it exposes the simulation's arrays with a
+leading site axis. The arithmetic of each stage is one numba-compiled function
+over the sites (:data:`hexgym.envs.compiled.jit`: compiled on the first call of a fresh install, then loaded
+from ``__pycache__``), so N single environments and one batch of N give the same floats.
 
 A step advances four 25 ms control periods per site on the single environment's schedule:
 
@@ -31,20 +32,21 @@ A step advances four 25 ms control periods per site on the single environment's 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import NamedTuple, Protocol
 
 import numpy as np
 
 from hexgym.envs import earthwork as ew
 from hexgym.envs import world
-from hexgym.envs.earthwork import jit
+from hexgym.envs.compiled import jit
 from hexgym.envs.world import (
     BED_RIM_HEIGHT,
     PILE_GRID_POINTS,
     PILE_GRID_SPACING,
     Layout,
     fullest_cut_direction,
+    heap_for,
 )
 from hexgym.hydraulics import fuel
 from hexgym.machine import kinematics
@@ -91,14 +93,27 @@ OBS_LOW = np.array([-np.pi] * 5 + [-10.0] * 4 + [-10.0] * 3 + [0.0] + [-30.0] * 
 _CLIP_LOW, _CLIP_HIGH = OBS_LOW.astype(float), OBS_HIGH.astype(float)  # as float64: clip before casting
 
 
-class SitePhysics(Protocol):
-    """The machines of N sites as the task sees them.
+class SiteStart(NamedTuple):
+    """How a site's episode starts: where its pile and truck stand, the machine's joint angles (rad; swing, boom,
+    stick, bucket) at rest, and the material in its bucket (kg)."""
 
-    Read-only arrays with a leading site axis, current after each of the calls below (views of the
-    simulation or copies refreshed by them; C-contiguous, so that one compiled version of each stage
-    serves every kind of site): ``site_xpos`` (N, nsite, 3), ``xpos`` (N, nbody, 3), ``xmat`` (N, nbody, 9),
-    ``qpos`` (N, nq), ``qvel`` (N, nv), ``sensordata`` (N, nsensor); ``tip_site``, ``bucket_body`` ids;
-    ``qadr``, ``dadr`` (4,) the main joints' addresses; ``contact_adr`` the tool-contact sensor's first slot.
+    layout: Layout
+    q: np.ndarray
+    payload_kg: float = 0.0
+
+
+class SitePhysics(Protocol):
+    """The machines of N sites as the task sees them: the loading task's physics (as dm_control's ``Physics`` is a
+    task's), single or batched.
+
+    A task starts sites (:meth:`start`), holds each site's spools (:meth:`hold`, the action) and advances them
+    (:meth:`step`), and between steps pushes the teeth, re-masses the bucket and reads loads and fuel.
+    Read-only arrays with a leading site axis, current after each of these calls (views of the simulation or
+    copies refreshed by them; C-contiguous, so that one compiled version of each stage serves every kind of
+    site): ``site_xpos`` (N, nsite, 3), ``xpos`` (N, nbody, 3), ``xmat`` (N, nbody, 9), ``qpos`` (N, nq),
+    ``qvel`` (N, nv), ``sensordata`` (N, nsensor); ``tip_site``, ``bucket_body`` ids; ``qadr``, ``dadr`` (4,)
+    the main joints' addresses; ``contact_adr`` the tool-contact sensor's first slot; ``control_period`` the
+    machines' control period (s).
     """
 
     site_xpos: np.ndarray
@@ -112,9 +127,18 @@ class SitePhysics(Protocol):
     qadr: np.ndarray
     dadr: np.ndarray
     contact_adr: int
+    control_period: float
+
+    def start(self, ids: np.ndarray, starts: Sequence[SiteStart]) -> None:
+        """Put the machine of each site ``ids[k]`` at rest at ``starts[k]`` (its site laid out, its bucket massed,
+        spools neutral, no digging force), its derived quantities current."""
+
+    def hold(self, ids: np.ndarray, spools_m: np.ndarray) -> None:
+        """Hold the spools (k, 4), m (swing, boom, stick, bucket; within the stroke) of sites ``ids`` from the next
+        :meth:`step` on."""
 
     def step(self, ids: np.ndarray, periods: int) -> None:
-        """Advance the sites ``ids`` by ``periods`` control periods with their spools (positions and velocities
+        """Advance the sites ``ids`` by ``periods`` control periods with their spools held (positions and velocities
         then current)."""
 
     def apply_tip_force(self, ids: np.ndarray, force: np.ndarray) -> None:
@@ -139,7 +163,8 @@ class SitePhysics(Protocol):
 # (``t = Tool(*tool)``, free once compiled): numba types a plain tuple at each call in a fraction of the
 # time a named one takes, and its cache index, which records the argument types by the class's name, could not be
 # read at all once a class named there is renamed. A record array is one argument however many fields it has.
-BUCKET, TRUCK, SPILLED = range(3)  # columns of a site's stores (kg held) and a step's flows (kg moved into them)
+# columns of a site's stores (kg held; the earthwork's) and a step's flows (kg moved into them)
+BUCKET, TRUCK, SPILLED = ew.BUCKET_STORE, ew.TRUCK_STORE, ew.SPILLED_STORE
 BEFORE, NOW = range(2)  # rows of the shaping potentials: after the last step, after this one
 _SHAPING = REWARD_TERMS.index(SHAPING_TERMS[0])  # the first shaping term's column
 REACH, LOAD, LIFT, CARRY = range(len(SHAPING_TERMS))  # columns of the potentials
@@ -711,22 +736,21 @@ class LoadingTask:
 
     Args:
         count: number of sites.
-        physics: the sites' machines (:class:`SitePhysics`).
-        period: the machine model's control period, s (a whole number of them make a step).
-        time_limit, truck_capacity_kg, weights, earthwork_periods: as ``HexLoadingEnv``'s arguments.
+        physics: the sites' machines (:class:`SitePhysics`; a whole number of their control periods make a step).
+        time_limit, truck_capacity_kg, weights, earthwork_periods: as :class:`hexgym.envs.loading.LoadingConfig`'s.
     """
 
     def __init__(
         self,
         count: int,
         physics: SitePhysics,
-        period: float,
         time_limit: float,
         truck_capacity_kg: float,
         weights: dict[str, float],
         earthwork_periods: int = EARTHWORK_PERIODS,
     ) -> None:
-        self.count, self.physics, self.period = int(count), physics, float(period)
+        period = float(physics.control_period)
+        self.count, self.physics, self.period = int(count), physics, period
         self.periods = int(round(STEP_PERIOD / period))
         if abs(self.periods * period - STEP_PERIOD) > 1e-9:
             raise ValueError(f"the machine's control period {period} s does not divide the step {STEP_PERIOD} s")
@@ -799,10 +823,24 @@ class LoadingTask:
     revision = _site_field("revision", "Counts each pile's changes (for a renderer's copy of it).")
 
     # -- episodes ---------------------------------------------------------------------------------
-    def start(self, i: int, layout: Layout, pile: ew.Pile, payload_kg: float = 0.0) -> None:
-        """Begin an episode at site ``i`` on ``layout`` with ``pile`` (copied), the machine already placed and
-        massed with ``payload_kg``, which its bucket holds; call :meth:`finish_starts` once the machines' derived
-        quantities are current."""
+    def start(self, ids: np.ndarray, starts: Sequence[SiteStart]) -> None:
+        """Begin an episode at each site ``ids[k]`` from ``starts[k]``: its machine started by the physics, its pile
+        heaped on the layout (:func:`hexgym.envs.world.heap_for`), its bucket holding the start's payload."""
+        self.physics.start(ids, starts)
+        for i, start in zip(ids.tolist(), starts, strict=True):
+            self._begin(i, start.layout, heap_for(start.layout), float(start.payload_kg))
+        ph = self.physics
+        loads, swing_torques, measured_fuel = self._readings
+        self.sites["tip_before"][ids] = ph.site_xpos[ids, ph.tip_site]
+        ph.loads(ids, loads, swing_torques)
+        ph.measured_fuel(ids, measured_fuel)  # what a start burnt is no part of the episode
+        self.sites["joint_loads"][ids] = loads[: len(ids)]
+        if self._shaping:
+            potentials(ids, self._machines()[0], self._piles, self.sites, self._potential[BEFORE])
+
+    def _begin(self, i: int, layout: Layout, pile: ew.Pile, payload_kg: float) -> None:
+        """Site ``i``'s record at the start of an episode on ``layout`` with ``pile`` (copied), its bucket holding
+        ``payload_kg``."""
         self.layouts[i] = layout
         self.heights[i] = pile.heights
         self.origin[i] = pile.origin
@@ -821,17 +859,6 @@ class LoadingTask:
         site["dig_depth"] = site["fuel_l"] = site["elapsed"] = 0.0
         site["steps"] = 0
 
-    def finish_starts(self, ids: np.ndarray) -> None:
-        """The teeth and joint loads of freshly started sites (their machines' derived quantities current)."""
-        ph = self.physics
-        loads, swing_torques, measured_fuel = self._readings
-        self.sites["tip_before"][ids] = ph.site_xpos[ids, ph.tip_site]
-        ph.loads(ids, loads, swing_torques)
-        ph.measured_fuel(ids, measured_fuel)  # what a start burnt is no part of the episode
-        self.sites["joint_loads"][ids] = loads[: len(ids)]
-        if self._shaping:
-            potentials(ids, self._machines()[0], self._piles, self.sites, self._potential[BEFORE])
-
     def potentials_of(self, ids: np.ndarray) -> np.ndarray:
         """:func:`potentials` of sites ``ids`` now (k, 4), in ``SHAPING_TERMS`` order."""
         out = np.zeros((self.count, len(SHAPING_TERMS)))
@@ -845,14 +872,21 @@ class LoadingTask:
         pile.top = float(self.sites["pile_top"][i])
         return pile
 
+    def earthwork(self, i: int) -> ew.Earthwork:
+        """Site ``i``'s material stores: its :meth:`pile` and a view of its bucket, truck and spilled kilograms
+        (setting them sets the task's)."""
+        return ew.Earthwork(self.pile(i), self.stores[i])
+
     # -- a step -----------------------------------------------------------------------------------
-    def step(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Advance sites ``ids`` (their spools set) by a step.
+    def step(self, ids: np.ndarray, spools_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Hold the spools ``spools_m`` (k, 4), m, at sites ``ids`` for a step (the action, through the physics'
+        :meth:`SitePhysics.hold`) and advance them.
 
         Returns their reward terms (k, 10), rewards (k,) and terminated, truncated (k, 2); the step's fuel
         (L) and hard-contact impulse (N s) stay in ``step_fuel_l`` and ``step_impulse``.
         """
         k = len(ids)
+        self.physics.hold(ids, spools_m)
         machines = self._machines()
         begin_step(ids, self._schedule, self._scratch)
         self._advance(ids, machines)

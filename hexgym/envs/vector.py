@@ -6,8 +6,10 @@ plugin's model (a persistent pool of C threads, one ``MjData`` per site, each si
 Python backend as N learned models (:class:`hexgym.envs.sites.MachineSites`), under the loading task of
 N sites (:class:`hexgym.envs.task.LoadingTask`), the one the single environment runs with N = 1, so
 that its results equal N :class:`HexLoadingEnv` stepped one by one (``tests/test_vector_env.py``).
-Resets (once per episode) draw each site's episode as the single environment's reset does; on the
-batch, its machine starts on a scratch :class:`HexLoadingEnv` whose state is copied into the site's row.
+Resets (once per episode) draw each site's episode as the single environment's reset does
+(:func:`hexgym.envs.loading.draw_loading_start`) and start it through the sites' physics
+(:meth:`hexgym.envs.task.SitePhysics.start`); a step's actions become the sites' held spools
+(:meth:`hexgym.envs.task.SitePhysics.hold`) in the task's step.
 """
 
 from __future__ import annotations
@@ -19,23 +21,22 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
-import mujoco
 import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from hexgym.checks import check_choice, check_count
-from hexgym.envs.earthwork import jit
-from hexgym.envs.loading import HexLoadingEnv, check_open, heap_for, make_machine, native_world_model, start_machine
-from hexgym.envs.sites import ACC_STAGE, VEL_STAGE, BatchSites, MachineSites
+from hexgym.checks import check_count
+from hexgym.envs import ENV_ID
+from hexgym.envs.base import check_open, make_config, task_spaces
+from hexgym.envs.compiled import jit
+from hexgym.envs.loading import LoadingConfig, draw_loading_start
+from hexgym.envs.sites import VEL_STAGE, BatchSites, MachineSites, make_machine, native_world_model
 from hexgym.envs.task import CONTACT_SLOTS, INFO_KEYS, REWARD_TERMS, STEP_INFO_KEYS, STEP_PERIOD, LoadingTask
-from hexgym.envs.world import Layout, World
+from hexgym.envs.world import Layout
 from hexgym.machine import parameters as p
-from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS
 from hexgym.model.backend import backend_for
 from hexgym.model.plugin import CTRL_PER_SPOOL_M
 
-_STATE = mujoco.mjtState.mjSTATE_INTEGRATION
 # the single environment's info keys, each followed by its mask's (SyncVectorEnv's order)
 _MASKED_INFO_KEYS, _MASKED_STEP_INFO_KEYS = (
     tuple(name for key in keys for name in (key, f"_{key}")) for keys in (INFO_KEYS, STEP_INFO_KEYS)
@@ -67,8 +68,8 @@ class HexLoadingVectorEnv(VectorEnv):
         backend: ``"native"`` (needs the plugin), ``"python"`` or ``"auto"``
             (:func:`hexgym.model.backend.resolve_backend`).
         render_mode: only None.
-        env_kwargs: the other keyword arguments of ``HexLoadingEnv`` (time limit, truck capacity, reward
-            weights, earthwork periods), with its defaults: the single environment takes and checks them.
+        env_kwargs: the other fields of :class:`hexgym.envs.loading.LoadingConfig` (time limit, truck capacity,
+            reward weights, earthwork periods, start shares), checked as the single environment checks them.
     """
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": [], "render_fps": round(1 / STEP_PERIOD)}
@@ -96,7 +97,10 @@ class HexLoadingVectorEnv(VectorEnv):
                 f"the batched HexLoading-v0 runs the learned model only (model={env_kwargs['model']!r}): use "
                 "gymnasium.make_vec(..., vectorization_mode='sync') or single environments"
             )
-        backend = backend_for(check_choice("tables", env_kwargs.get("tables", DEFAULT_TABLE_SET), TABLE_SETS), backend)
+        # the single environment's config: its checks, its defaults
+        overrides = {"scene_path": scene_path, "backend": backend, **env_kwargs}
+        self.config = config = make_config(LoadingConfig, ENV_ID, None, overrides)
+        backend = backend_for(config.tables, backend)
         if backend == "native":
             from hexgym.model.plugin import NativePluginError, load_plugin
 
@@ -107,47 +111,36 @@ class HexLoadingVectorEnv(VectorEnv):
                     "backend='python' or gymnasium.make_vec('HexLoading-v0', num_envs, vectorization_mode='sync')"
                 )
         self.backend = backend
-        # the single environment checks the arguments, resets the sites and holds the spaces
-        self._scratch = HexLoadingEnv(scene_path=scene_path, backend=backend, **env_kwargs)
-        scratch = self._scratch
         self.num_envs = int(num_envs)
         self.render_mode = None
-        self.time_limit, self.truck_capacity_kg = scratch.time_limit, scratch.truck_capacity_kg
-        self.weights, self.earthwork_periods = scratch.weights, scratch.earthwork_periods
-        self.single_action_space, self.single_observation_space = scratch.action_space, scratch.observation_space
+        self.single_observation_space, self.single_action_space = task_spaces()
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         if backend == "native":
-            model = native_world_model(scene_path, scratch.tables, tool_contact_slots=CONTACT_SLOTS)
-            if mujoco.mj_stateSize(model, _STATE) != mujoco.mj_stateSize(scratch.physics.model, _STATE):
-                raise RuntimeError("the batch's model and the single environment's differ in their state")
+            model = native_world_model(scene_path, config.tables, tool_contact_slots=CONTACT_SLOTS)
             if nthread is None:
                 nthread = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
             self.nthread = max(1, min(int(nthread), self.num_envs))
             self.sites: BatchSites | MachineSites = BatchSites(model, self.num_envs, self.nthread)
-            self._worlds: list[World] = []
         else:
             self.nthread = 1
             machines = [
-                make_machine("python", scene_path, scratch.tables, tool_contact_slots=CONTACT_SLOTS)
+                make_machine("python", scene_path, config.tables, tool_contact_slots=CONTACT_SLOTS)
                 for _ in range(self.num_envs)
             ]  # fmt: skip
-            self._worlds = [World(machine.physics.model) for machine in machines]
             self.sites = MachineSites(machines)
-        self.task = LoadingTask(
-            self.num_envs, self.sites, scratch.task.period, self.time_limit, self.truck_capacity_kg, self.weights,
-            self.earthwork_periods,
-        )  # fmt: skip
+        self.task = LoadingTask(self.num_envs, self.sites, *config.site_rules(), config.earthwork_periods)
         self._rngs: list[np.random.Generator | None] = [None] * self.num_envs
         self._autoreset = np.zeros(self.num_envs, bool)
         self._obs = np.zeros((self.num_envs, *self.single_observation_space.shape), np.float32)
         self._every = np.arange(self.num_envs)
-        # where the spools go: the batch's ctrl columns in the plugin's units, or the machines' spools in m
-        if isinstance(self.sites, BatchSites):
-            self._spools = self.sites.ctrl, self.sites.ctrl_ids, CTRL_PER_SPOOL_M
-        else:
-            self._spools = self.sites.spools_m, np.arange(4), 1.0
+        self._spools_m = np.zeros((self.num_envs, 4))  # a step's actions as spools, m
         self._started = False
+
+    @property
+    def time_limit(self) -> float:
+        """Episode length, s."""
+        return self.config.time_limit
 
     @property
     def layouts(self) -> list[Layout | None]:
@@ -190,10 +183,7 @@ class HexLoadingVectorEnv(VectorEnv):
         if not self._started and not mask.all():
             raise RuntimeError("the first reset() must reset every environment (no reset_mask)")
         sites = np.flatnonzero(mask)
-        for i in sites:
-            self._start_site(int(i), seeds[i])
-        self._finish_starts(sites)
-        self._autoreset[sites] = False
+        self._start_sites(sites, [seeds[i] for i in sites])
         self._started = True
         self._obs[sites] = self.task.observe(sites)
         reported = None if mask.all() else mask
@@ -207,8 +197,8 @@ class HexLoadingVectorEnv(VectorEnv):
             raise RuntimeError("call reset() before step()")
         if self._autoreset.any():
             return self._step_restarting(actions)
-        self._hold_spools(self._every, actions)
-        terms, rewards, ended = self.task.step(self._every)  # every site steps: the task's arrays are the results
+        spools = self._spools_from(actions)
+        terms, rewards, ended = self.task.step(self._every, spools)  # every site steps: the results are the task's
         return self._results(terms, rewards, ended, None)
 
     def _check_open(self) -> None:
@@ -221,13 +211,11 @@ class HexLoadingVectorEnv(VectorEnv):
         n = self.num_envs
         stepped = ~self._autoreset
         stepping, restarting = np.flatnonzero(stepped), np.flatnonzero(self._autoreset)
-        self._hold_spools(stepping, actions)  # (checks every row before a site restarts)
-        for i in restarting:
-            self._start_site(int(i), None)
-        self._finish_starts(restarting)
+        spools = self._spools_from(actions)  # (checks every row before a site restarts)
+        self._start_sites(restarting, [None] * len(restarting))
         terms, rewards, ended = np.zeros((n, len(REWARD_TERMS))), np.zeros(n), np.zeros((n, 2), bool)
         if len(stepping):
-            terms[stepping], rewards[stepping], ended[stepping] = self.task.step(stepping)
+            terms[stepping], rewards[stepping], ended[stepping] = self.task.step(stepping, spools[stepping])
         return self._results(terms, rewards, ended, stepped)
 
     def _results(
@@ -241,8 +229,9 @@ class HexLoadingVectorEnv(VectorEnv):
         self._autoreset = terminated | truncated
         return self._obs.copy(), rewards, terminated, truncated, infos
 
-    def _hold_spools(self, ids: np.ndarray, actions: np.ndarray) -> None:
-        """Check ``actions`` ((num_envs, 4), finite) and hold the spools of sites ``ids`` from their rows."""
+    def _spools_from(self, actions: np.ndarray) -> np.ndarray:
+        """The spools (num_envs, 4), m, of ``actions`` ((num_envs, 4), finite): clipped to [-1, 1] and scaled as
+        the single environment's (the array is reused by the next step)."""
         try:
             a = np.asarray(actions)
         except ValueError as exc:  # nested sequences of different lengths
@@ -259,8 +248,7 @@ class HexLoadingVectorEnv(VectorEnv):
             )
         if a.dtype not in _ACTION_DTYPES or not a.flags.c_contiguous:
             a = np.ascontiguousarray(a, dtype=np.float64)
-        target, columns, scale = self._spools
-        bad = _set_spools(a, ids, target, columns, scale)
+        bad = _spools_of(a, self._spools_m)
         if bad >= 0:
             not_finite = ~np.isfinite(a)
             rows = np.flatnonzero(not_finite.any(axis=1))
@@ -268,6 +256,7 @@ class HexLoadingVectorEnv(VectorEnv):
                 f"actions must be finite: environment {bad} got {a[bad]} (NaN or inf in entries "
                 f"{np.flatnonzero(not_finite[bad]).tolist()}; environments {rows.tolist()} have one)"
             )
+        return self._spools_m
 
     def step_physics_only(self, spools_mm: np.ndarray) -> float:
         """Step every site's physics one environment step with ``spools_mm`` ((num_envs, 4), the plugin's ctrl)
@@ -277,7 +266,7 @@ class HexLoadingVectorEnv(VectorEnv):
         self._check_open()
         if not isinstance(self.sites, BatchSites):
             raise NotImplementedError("step_physics_only times the native batch; this environment runs in Python")
-        self.sites.ctrl[:, self.sites.ctrl_ids] = spools_mm
+        self.sites.hold(self._every, np.asarray(spools_mm, dtype=float) / CTRL_PER_SPOOL_M)
         start = time.perf_counter()
         self.sites.batch.step(None, nstep=self.task.periods, stage=VEL_STAGE)  # as BatchSites.step every site
         return time.perf_counter() - start
@@ -286,35 +275,18 @@ class HexLoadingVectorEnv(VectorEnv):
         """Stop the batch's threads."""
         if isinstance(getattr(self, "sites", None), BatchSites):  # (a failed construction closes too)
             self.sites.batch = None
-        if hasattr(self, "_scratch"):
-            self._scratch.close()
 
     # -- resets ---------------------------------------------------------------------------------
-    def _start_site(self, i: int, seed: int | None) -> None:
-        """Draw site ``i``'s episode as HexLoadingEnv.reset does (on the scratch environment) and load it."""
-        if seed is not None or self._rngs[i] is None:
-            self._rngs[i], _ = gym.utils.seeding.np_random(seed)
-        layout, q, payload_kg = self._scratch._draw_start(self._rngs[i])  # the single environment's start
-        scratch, sites = self._scratch, self.sites
-        if isinstance(sites, BatchSites):
-            scratch.start_machine(q, layout, payload_kg)
-            mujoco.mj_getState(scratch.physics.model, scratch.physics.data, sites.state[i], _STATE)
-            sites.body_mass[i, sites.payload_body] = scratch.physics.model.body_mass[sites.payload_body]
-            sites.body_inertia[i, sites.payload_body] = scratch.physics.model.body_inertia[sites.payload_body]
-            payload_kg = scratch.physics.payload_kg
-        else:
-            start_machine(sites.machines[i], self._worlds[i], q, layout, payload_kg)
-            payload_kg = sites.machines[i].physics.payload_kg
-        self.task.start(i, layout, heap_for(layout), payload_kg)
-        self._autoreset[i] = False
-
-    def _finish_starts(self, ids: np.ndarray) -> None:
-        """Derived quantities of freshly loaded sites (the start's masses, ``mj_forward``) and their teeth."""
-        if isinstance(self.sites, BatchSites):
-            self.sites.batch.set_const(ids)
-            self.sites.batch.forward(ids, stage=ACC_STAGE)
-        self.sites.refresh(ids)
-        self.task.finish_starts(ids)
+    def _start_sites(self, ids: np.ndarray, seeds: list[int | None]) -> None:
+        """Draw the episodes of sites ``ids`` as HexLoadingEnv.reset does (site ``i`` from its own generator,
+        seeded anew where a seed is given) and start them."""
+        starts = []
+        for i, seed in zip(ids.tolist(), seeds, strict=True):
+            if seed is not None or self._rngs[i] is None:
+                self._rngs[i], _ = gym.utils.seeding.np_random(seed)
+            starts.append(draw_loading_start(self._rngs[i], self.config))
+        self.task.start(ids, starts)
+        self._autoreset[ids] = False
 
     # -- info ---------------------------------------------------------------------------------------
     def _infos(self, terms: np.ndarray, reported: np.ndarray | None, stepped: np.ndarray | None) -> dict[str, Any]:
@@ -343,18 +315,16 @@ class HexLoadingVectorEnv(VectorEnv):
 
 
 @jit
-def _set_spools(actions: np.ndarray, ids: np.ndarray, target: np.ndarray, columns: np.ndarray, scale: float) -> int:
-    """Set the spools of sites ``ids``: their ``actions`` rows clipped to [-1, 1], times the stroke (m), times
-    ``scale`` (the plugin's ctrl per m, or 1), into ``target``'s ``columns`` (the single environment's arithmetic).
-    Returns the first site whose row is not finite (nothing set then), else -1."""
+def _spools_of(actions: np.ndarray, out: np.ndarray) -> int:
+    """Each site's ``actions`` row clipped to [-1, 1] times the stroke (m; the single environment's arithmetic)
+    into ``out``. Returns the first site whose row is not finite (nothing set then), else -1."""
     for i in range(actions.shape[0]):
         for j in range(4):
             if not math.isfinite(actions[i, j]):
                 return i
-    for k in range(len(ids)):
-        i = ids[k]
+    for i in range(actions.shape[0]):
         for j in range(4):
-            target[i, columns[j]] = min(max(float(actions[i, j]), -1.0), 1.0) * _STROKE * scale
+            out[i, j] = min(max(float(actions[i, j]), -1.0), 1.0) * _STROKE
     return -1
 
 

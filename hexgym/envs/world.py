@@ -32,6 +32,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from hexgym.envs.earthwork import Pile
 from hexgym.machine import parameters as p
 from hexgym.machine.assets import SCENE_FILE, AssetError, asset_path
 from hexgym.machine.bucket import BUCKET, fill_mesh
@@ -111,6 +112,13 @@ def fullest_cut_direction(height_at: Callable[[np.ndarray], np.ndarray], layout:
     points = np.stack([np.outer(np.cos(angles), radii), np.outer(np.sin(angles), radii)], axis=-1)
     material = height_at(points).sum(axis=1) * CUT_SAMPLE_SPACING  # m^2: each line's cross-section
     return float(angles[np.argmax(material - CENTRE_PREFERENCE * np.abs(offsets))])
+
+
+def heap_for(layout: Layout) -> Pile:
+    """The pile an episode on ``layout`` starts with: a flat-topped heap at the angle of repose."""
+    return Pile.heap(
+        layout.pile_centre, layout.pile_height, layout.pile_top_radius, PILE_GRID_POINTS, PILE_GRID_SPACING
+    )
 
 
 def sample_layout(rng: np.random.Generator) -> Layout:

@@ -1,7 +1,7 @@
 """Batched rollouts of the native learned model on the loading site, with the tool's clearance to truck and ground.
 
 :class:`RolloutModel` compiles the site of ``HexLoading-v0`` (pile, truck) around the lean machine driven
-by the ``hexgym.mbl`` plugin (:func:`hexgym.envs.loading.native_world_model`) with, added for prediction:
+by the ``hexgym.mbl`` plugin (:func:`hexgym.envs.sites.native_world_model`) with, added for prediction:
 
 - ``framepos`` sensors of the teeth (site ``tip``) and of the mouth's centre (a site added to the bucket);
   the bucket's x and z axes, the joints' rates and the actuators' forces (the mouth's tilt and the power);
@@ -39,7 +39,7 @@ import mujoco
 import numpy as np
 
 from hexgym.envs.earthwork import mouth_normal
-from hexgym.envs.loading import native_world_model
+from hexgym.envs.sites import native_world_model
 from hexgym.envs.world import Layout, World
 from hexgym.hydraulics import fuel
 from hexgym.machine import kinematics
