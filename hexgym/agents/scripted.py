@@ -27,6 +27,7 @@ from __future__ import annotations
 import functools
 import json
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
@@ -495,10 +496,12 @@ def run_scripted(
     seconds: float | None = None,
     frames: list | None = None,
     settings: LoaderSettings = DEFAULT_SETTINGS,
+    film: Callable[[HexLoadingEnv, dict], np.ndarray] | None = None,
 ) -> dict:
     """Run the scripted loader for an episode (or ``seconds``); return its measured figures.
 
-    ``frames``: if given, a rendered frame is appended every step (the env needs a render_mode).
+    ``frames``: if given, a rendered frame is appended every step (the env needs a render_mode): ``film(env,
+    info)``'s (e.g. a captioned frame) or, without ``film``, ``env.render()``.
     A cycle is counted at each start of a dump; the cycle time is the mean time between them.
     """
     controller = ScriptedLoader(settings)
@@ -511,7 +514,7 @@ def run_scripted(
         for k in terms:
             terms[k] += info[f"reward_{k}"]
         if frames is not None:
-            frames.append(env.render())
+            frames.append(env.render() if film is None else film(env, info))
     dumps = [t for t, phase in controller.log if phase == "dump"]
     delivered_t = info["truck_kg"] / 1000.0
     hours = env.elapsed / 3600.0

@@ -345,6 +345,7 @@ class SiteEnv(gym.Env):
         if self.earth is None:
             raise RuntimeError("call reset() before render()")
         self.world.show_loads(self.earth.truck_kg, self.earth.bucket_kg)
+        self.world.aim_camera(self.layout, self.config.width / self.config.height)
         if self._pile_shown != self.task.revision[0]:
             self.world.show_pile(self.earth.pile.heights)
             self._pile_shown = int(self.task.revision[0])

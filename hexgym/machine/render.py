@@ -25,8 +25,9 @@ class ModelMirror:
     lean simulation's main joint angles with the closed chains assembled (:func:`assembled_state`),
     and copies what the world shows: mocap bodies, heightfields, the sizes and colours of the geoms
     both models name alike (e.g. a load drawn in the bucket or the truck) and the places of those
-    fixed to the world (the pile, moved to each episode's site). Returns from
-    :meth:`sync` which heightfields changed, so a renderer can re-upload them.
+    fixed to the world (the pile, moved to each episode's site), and the poses of the cameras both name alike
+    (one aimed at each episode's site). Returns from :meth:`sync` which heightfields changed, so a renderer can
+    re-upload them.
     """
 
     def __init__(self, source: mujoco.MjModel, target: mujoco.MjModel) -> None:
@@ -45,6 +46,10 @@ class ModelMirror:
         self._hfields = [
             (source.hfield(i).name, i, target.hfield(source.hfield(i).name).id) for i in range(source.nhfield)
         ]
+        self._cameras = [
+            (i, j) for i in range(source.ncam) if (j := mujoco.mj_name2id(target, mujoco.mjtObj.mjOBJ_CAMERA,
+                                                                          source.camera(i).name)) >= 0
+        ]  # fmt: skip
         self._source = source
 
     def sync(self, source_data: mujoco.MjData, target_data: mujoco.MjData) -> list[int]:
@@ -60,6 +65,8 @@ class ModelMirror:
             tgt.geom_size[j], tgt.geom_rgba[j] = src.geom_size[i], src.geom_rgba[i]
         for i, j in self._placed:
             tgt.geom_pos[j], tgt.geom_quat[j] = src.geom_pos[i], src.geom_quat[i]
+        for i, j in self._cameras:
+            tgt.cam_mode[j], tgt.cam_pos[j], tgt.cam_quat[j] = src.cam_mode[i], src.cam_pos[i], src.cam_quat[i]
         changed = []
         for _, i, j in self._hfields:
             a, n = src.hfield_adr[i], src.hfield_nrow[i] * src.hfield_ncol[i]
