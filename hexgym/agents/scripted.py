@@ -39,6 +39,7 @@ from hexgym.envs.world import TRUCK_CAB_LENGTH, Layout, World, entry_radius, inn
 from hexgym.files import write_json
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
+from hexgym.machine.names import BUCKET_BODY
 from hexgym.mbl.table import MBLTable
 
 _MOUTH_NORMAL_3D = np.array([mouth_normal()[0], 0.0, mouth_normal()[1]])  # bucket frame
@@ -293,7 +294,7 @@ class LoaderState:
         """The state of ``env`` (unwrapped) now."""
         ph, lay = env.physics, env.layout
         q, tip = ph.joint_positions(), ph.tip_position()
-        rotation = ph.data.xmat[ph.model.body("bucket").id].reshape(3, 3)
+        rotation = ph.data.xmat[ph.model.body(BUCKET_BODY).id].reshape(3, 3)
         surface = env.earth.pile.height_at_point(float(tip[0]), float(tip[1]))
         dig = env.fullest_cut_direction()
         return LoaderState(

@@ -36,6 +36,7 @@ from hexgym.envs.earthwork import Pile
 from hexgym.machine import parameters as p
 from hexgym.machine.assets import SCENE_FILE, AssetError, asset_path
 from hexgym.machine.bucket import BUCKET, fill_mesh
+from hexgym.machine.names import BUCKET_BODY, CHASE_CAMERA, GROUND_GEOM, PILE_GEOM, TRUCK_BODY
 
 PILE_GRID_POINTS = 81  # per side
 PILE_GRID_SPACING = 0.1  # m: 8 m x 8 m, finer than the bucket's 1.5 m edge by 15x
@@ -141,7 +142,7 @@ def _add_truck(spec: mujoco.MjSpec) -> None:
     half_l, half_w = p.TRUCK_BED_LENGTH / 2, p.TRUCK_BED_WIDTH / 2
     floor, wall = p.TRUCK_BED_FLOOR_HEIGHT, p.TRUCK_BED_WALL_HEIGHT
     paint, dark = [0.75, 0.12, 0.1, 1.0], [0.15, 0.15, 0.15, 1.0]
-    truck = spec.worldbody.add_body(name="truck", mocap=True, pos=[0, 20, 0])
+    truck = spec.worldbody.add_body(name=TRUCK_BODY, mocap=True, pos=[0, 20, 0])
     bed = {"type": box, "rgba": paint, **_SOLID}
     floor_size = [half_l + _WALL, half_w + _WALL, _WALL / 2]
     truck.add_geom(name="truck_floor", size=floor_size, pos=[0, 0, floor - _WALL / 2], **bed)
@@ -200,7 +201,7 @@ def _add_bucket_load(spec: mujoco.MjSpec) -> None:
     """The soil in the bucket: a mesh per fill level (:data:`LOAD_LEVELS`, up to the heaped capacity) in the
     bucket's frame, all hidden (transparent) until :meth:`World.show_loads` shows one. Group 2, the machine's
     visual detail: a ray cast at the site's surfaces (group 1) does not meet a bucket's hidden load."""
-    bucket = spec.body("bucket")
+    bucket = spec.body(BUCKET_BODY)
     if bucket is None:
         raise AssetError("the machine model has no body 'bucket'")
     for level, (vertices, faces) in enumerate(_bucket_load_meshes(), start=1):
@@ -275,24 +276,24 @@ class World:
 
     def __init__(self, model: mujoco.MjModel) -> None:
         self.model = model
-        self.pile_geom = model.geom("pile").id
+        self.pile_geom = model.geom(PILE_GEOM).id
         self.pile_hfield = model.hfield("pile").id
         self._hfield_slice = slice(
             model.hfield_adr[self.pile_hfield], model.hfield_adr[self.pile_hfield] + PILE_GRID_POINTS**2
         )
         self._elevation = float(model.hfield_size[self.pile_hfield, 2])
-        self.truck_mocap = model.body("truck").mocapid[0]
+        self.truck_mocap = model.body(TRUCK_BODY).mocapid[0]
         self.truck_load = model.hfield("truck_load").id
         self._bed_slice = slice(model.hfield_adr[self.truck_load], model.hfield_adr[self.truck_load] + _bed_size())
         self._bed_elevation = float(model.hfield_size[self.truck_load, 2])
         self.bucket_loads = np.array([model.geom(f"bucket_load_{k}").id for k in range(1, LOAD_LEVELS + 1)])
         self._shown: tuple[float, int] = (-1.0, -1)  # the truck's kg and the bucket's level drawn
-        chase = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, "chase")
+        chase = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, CHASE_CAMERA)
         self.chase_camera = chase if chase >= 0 else None
         self.tool_geoms = np.zeros(model.ngeom, bool)  # masks over geom ids: the stick's and bucket's
         self.tool_geoms[_geoms_of_bodies(model, ("stick", "bucket"))] = True
         self.obstacle_geoms = np.zeros(model.ngeom, bool)  # the ground's and the truck's
-        self.obstacle_geoms[[model.geom("ground").id, *_geoms_of_bodies(model, ("truck",))]] = True
+        self.obstacle_geoms[[model.geom(GROUND_GEOM).id, *_geoms_of_bodies(model, (TRUCK_BODY,))]] = True
 
     def place(self, data: mujoco.MjData, layout: Layout) -> None:
         """Move the truck (mocap) and the pile's hfield to ``layout``; call :func:`mujoco.mj_forward` after."""

@@ -13,8 +13,7 @@ import mujoco
 import numpy as np
 
 from hexgym.files import atomic_path, atomic_paths
-
-CAMERAS = ("chase", "cab")
+from hexgym.machine.names import CHASE_CAMERA
 
 
 class ModelMirror:
@@ -81,7 +80,7 @@ class ModelMirror:
 class FrameRenderer:
     """Renders RGB frames of ``(model, data)`` from a named camera of the scene."""
 
-    def __init__(self, model: mujoco.MjModel, width: int = 960, height: int = 540, camera: str = "chase") -> None:
+    def __init__(self, model: mujoco.MjModel, width: int = 960, height: int = 540, camera: str = CHASE_CAMERA) -> None:
         if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera) < 0:
             raise ValueError(f"no camera named {camera!r} in the model (have: {_camera_names(model)})")
         self.camera = camera

@@ -19,7 +19,8 @@ from hexgym.checks import check_count, check_positive, check_seed
 from hexgym.envs import DIG_ENV_ID, ENV_ID
 from hexgym.envs.loading import STEP_PERIOD
 from hexgym.files import check_output_file
-from hexgym.machine.render import CAMERAS, check_frame_memory, write_mp4
+from hexgym.machine.names import CAMERAS
+from hexgym.machine.render import check_frame_memory, write_mp4
 from hexgym_lab.agents.evaluate import run_episode, run_success_episode
 from hexgym_lab.agents.film import film_frame
 from hexgym_lab.progress import CountingList, Progress
