@@ -460,9 +460,9 @@ def plot_plan(result: dict[str, Any], out: str | Path) -> Path:
 def plan_video(result: dict[str, Any], out: str | Path, width: int = 640, height: int = 384) -> Path:
     """One seed's planned move (its whole horizon) and then the scripted loader's same move, each from the start
     state at rest, in the environment (the learned model) from the chase camera: an MP4 at 10 frames/s, each frame
-    captioned with the mover, the time and the fuel so far."""
+    with the films' caption (:func:`hexgym_lab.agents.film.film_frame`), the task and the mover first."""
     from hexgym.machine.render import check_frame_memory, write_mp4
-    from hexgym_lab.agents.video import overlay_text
+    from hexgym_lab.agents.film import film_frame
 
     state, _ = start_states(result["seed"])[result["task"]]
     planned = np.asarray(result["planned_spools_mm"]) / 1e3 / p.SPOOL_STROKE  # one row per control period
@@ -475,9 +475,8 @@ def plan_video(result: dict[str, Any], out: str | Path, width: int = 640, height
         check_frame_memory(len(frames) + len(actions), width, height)
         try:
             for action in actions:
-                env.step(action.astype(np.float32))
-                caption = f"{result['task']}: {label:16s} t {env.elapsed:4.1f} s  fuel {env.fuel_l * 1000:5.1f} mL"
-                frames.append(overlay_text(env.render(), caption))
+                info = env.step(action.astype(np.float32))[-1]
+                frames.append(film_frame(env, info, label=f"{result['task']}: {label}"))
         finally:
             env.close()
     return write_mp4(frames, out, fps=1.0 / STEP_PERIOD)

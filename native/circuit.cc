@@ -81,6 +81,7 @@ ValveAreas Valve(const Circuit& k, const double* spools) {
   for (int i = 0; i < k.sections; ++i) {
     const Section& s = k.section[i];
     double u = spools[s.function];
+    if ((s.raise_only && u < 0.0) || (s.lower_only && u > 0.0)) u = 0.0;  // section_spools
     int open[3] = {kBypass, u > 0 ? kPa : kPb, u > 0 ? kBt : kAt};
     for (int key : open) {
       if (s.table[key] < 0 || (key != kBypass && std::fabs(u) < law[kLawDeadBand])) continue;
@@ -143,7 +144,13 @@ void BranchAreas(const Circuit& k, const ValveAreas& v, const double* ext, doubl
     }
   }
   for (int j = 0; j < kNumPumps; ++j) area[k.bypass_branch[j]] = v.pump_bypass[j];
-  for (int r = 0; r < k.regenerations; ++r) area[k.regeneration[r].branch] = v.regeneration[r];
+  for (int r = 0; r < k.regenerations; ++r) {  // out of the cylinder's port, through its cushion
+    const Regeneration& g = k.regeneration[r];
+    int c = g.cylinder;
+    area[g.branch] = c < 0 ? v.regeneration[r]
+                           : SeriesArea(v.regeneration[r],
+                                        Cushion(k.law, k.count[c], g.end > 0 ? k.stroke[c] - ext[c] : ext[c]));
+  }
 }
 
 // Oil volume (m^3) of every node at cylinder extensions `ext` (volumes).
@@ -600,6 +607,8 @@ Circuit::Circuit(const double* numbers, int count, std::vector<ValveTable> table
                            " has a passage's table without its branch, or its branch without its table");
       }
     }
+    s.raise_only = s.table[kPb] < 0 && s.table[kAt] < 0;
+    s.lower_only = s.table[kPa] < 0 && s.table[kBt] < 0;
     const double* priority = field[kFieldSectionPriority] + 3 * i;
     s.priority_function = Index(priority[0], kNumFunctions, "section_priority", -1);
     s.priority_side = Index(priority[1] + 1, 3, "section_priority (side + 1)") - 1;
@@ -608,13 +617,15 @@ Circuit::Circuit(const double* numbers, int count, std::vector<ValveTable> table
   }
   regeneration.resize(regenerations);
   for (int r = 0; r < regenerations; ++r) {
-    const double* row = field[kFieldRegeneration] + 5 * r;
+    const double* row = field[kFieldRegeneration] + 7 * r;
     Regeneration& g = regeneration[r];
     g.branch = Index(row[0], branches, "regeneration (branch)");
     g.function = Index(row[1], kNumFunctions, "regeneration (function)");
     g.side = Index(row[2] + 1, 3, "regeneration (side + 1)") - 1;
     g.table = table(row[3], "regeneration (table)");
     g.area = row[4];
+    g.cylinder = Index(row[5], kNumCylinders, "regeneration (cylinder)", -1);
+    g.end = Index(row[6] + 1, 3, "regeneration (end + 1)") - 1;
     if (g.side == 0) {
       throw CircuitError("circuit field 'regeneration': passage " + std::to_string(r) + " opens on no side");
     }

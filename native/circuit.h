@@ -44,20 +44,25 @@ struct ValveTable {
 // A table of n nodes at `nodes` (ascending) with `values`.
 ValveTable MakeValveTable(const double* nodes, const double* values, int n);
 
-// A valve section: the function whose spool moves it, the pump it meters from, its passages' tables (kPassage
-// order; -1: it has none) and branches (pa, pb, at, bt; -1: none), and a priority valve on its meter-in (the
-// piloting function, -1: none; the side of its spool, 1, -1 or 0 for either; the area's share left at full spool).
+// A valve section: the function whose spool moves it (to the sides it has passages on: `raise_only`, no pump->b
+// nor a->tank, stays at neutral for a negative spool, `lower_only` for a positive one), the pump it meters from,
+// its passages' tables (Passage order; -1: it has none) and branches (pa, pb, at, bt; -1: none), and a priority
+// valve on its meter-in (the piloting function, -1: none; the side of its spool, 1, -1 or 0 for either; the area's
+// share left at full spool).
 struct Section {
   int function, pump, table[kNumPassages], branch[4];
+  bool raise_only, lower_only;
   int priority_function, priority_side;
   double priority_share;
 };
 
 // A regeneration passage: its branch, the function whose spool opens it on `side` (1 or -1), its table (-1: the
-// data sheet's `area` metered by the spool).
+// data sheet's `area` metered by the spool), the cylinder whose oil leaves through it and its cushion (-1: none)
+// and that cylinder's end (1 the rod's, -1 the head's).
 struct Regeneration {
   int branch, function, side, table;
   double area;
+  int cylinder, end;
 };
 
 struct Circuit {

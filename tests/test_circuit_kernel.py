@@ -73,6 +73,26 @@ def test_branch_areas_are_the_learned_valves(circuit, kernel) -> None:
         assert opened == {"boom2_pa", "stick2_pb", *circuit.layout.regeneration_passages}
 
 
+def test_the_cat_valves_own_rules_are_the_definitions() -> None:
+    """A section with passages on one side stays at neutral on the other (boom 2 while the boom lowers: pump 2's
+    centre open as at neutral), and a regeneration passage's oil leaves through its cylinder end's cushion."""
+    circuit = _circuit("circuit_cat", load_tables(table_set="circuit_cat"))
+    kernel = ck.NativeCircuit(circuit, circuit.valve.tables, STOP_CLEARANCE)
+    index, mid = circuit.branch_index, 0.5 * circuit.stroke
+    lowering, neutral = (
+        kernel.branch_areas(np.array([0.0, -0.011, 0.0, 0.0]), mid),
+        kernel.branch_areas(np.zeros(4), mid),
+    )
+    assert lowering[index["bypass2"]] == neutral[index["bypass2"]] > 0.0
+    assert lowering[index["boom_regeneration"]] > 0.0
+    stick_in = np.array([0.0, 0.0, 0.011, 0.0])
+    for ext in (mid, np.r_[mid[0], circuit.stroke[1] - 0.002, mid[2]]):  # the stick's rod end in its cushion
+        _close(kernel.branch_areas(stick_in, ext), circuit.branch_areas(stick_in, ext))
+    cushioned = kernel.branch_areas(stick_in, np.r_[mid[0], circuit.stroke[1] - 0.002, mid[2]])
+    for passage in ("stick_regeneration", "stick_unloading"):
+        assert 0.0 < cushioned[index[passage]] < kernel.branch_areas(stick_in, mid)[index[passage]]
+
+
 def test_the_piloted_valve_has_its_jacobian_column(circuit, kernel) -> None:
     """The stick unloading valve (rod -> tank) opens with the head's pressure: d(rod pdot)/d(head pressure) holds
     its flow's change with the opening, as the definition's; the paper's layout has no such column."""

@@ -173,7 +173,8 @@ def test_digging_lowers_the_rendered_pile():
     while controller.phase != "curl":
         env.step(controller.act(env))
     assert env.earth.pile.heights.min() >= 0 and (before - env.earth.pile.heights).max() > 0.2
-    hfield = env.world.model.hfield_data.reshape(env.earth.pile.heights.shape)
+    start = env.world.model.hfield_adr[env.world.pile_hfield]  # the pile's (the bed's load has one too)
+    hfield = env.world.model.hfield_data[start : start + before.size].reshape(before.shape)
     env.world.show_pile(env.earth.pile.heights)
     # the hfield (what is drawn) is the heightmap: a ray down onto it hits the surface
     m, d = env.physics.model, env.physics.data

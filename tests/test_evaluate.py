@@ -110,7 +110,8 @@ def test_shipped_policy_loads_and_acts():
 
 
 def test_video_writes_an_mp4_with_overlay(tmp_path, monkeypatch):
-    from hexgym_lab.agents.video import overlay_text, record_video
+    from hexgym_lab.agents.film import overlay_text
+    from hexgym_lab.agents.video import record_video
 
     frame = np.full((60, 200, 3), 100, np.uint8)
     marked = overlay_text(frame, "t 1.0 s")

@@ -359,3 +359,12 @@ def test_the_native_kernel_takes_either_layout_as_numbers(cat: HydraulicCircuit)
         counts = {"nodes": 12, "branches": len(circuit.branches.names), "sections": sections}
         assert circuit_counts(circuit) == counts | {"regenerations": regenerations}
     assert circuit_numbers(cat, 0.005).size > circuit_numbers(paper, 0.005).size > 100
+
+
+def test_a_raise_only_section_leaves_its_pumps_bypass_open_on_lowering(cat: HydraulicCircuit) -> None:
+    """The boom 2 section is piloted for boom raise only: lowering the boom leaves pump 2 at standby, not at its
+    main relief behind a closed bypass."""
+    s = run(cat, [0, -11, 0, 0], 1.0, load_n=(150e3, 50e3, 30e3), ext=(0.9, 0.4, 0.3))
+    assert s["v"][-1, 0] < -0.1  # the boom lowers
+    assert s["pump2_pressure_pa"][-1] < p.NFC_PRESSURE_IDLE + 1e6
+    assert s["pump2_flow_m3s"][-1] < 0.25 * Q_MAX  # pump 2 destroked to its standby flow by its open centre

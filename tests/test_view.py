@@ -10,6 +10,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from hexgym.envs.world import bucket_level
 from hexgym.machine import kinematics
 from hexgym.model.plugin import native_available
 from hexgym_lab import view
@@ -23,7 +24,7 @@ SWING, BOOM, STICK, BUCKET = range(4)
 def test_scene_is_the_loading_site_around_the_plugin_driven_full_machine():
     site = view.ViewSite(payload_kg=1500.0, seed=3)
     m, d = site.model, site.data
-    for geom in ("ground", "pile", "truck_floor", "truck_cab", "bucket_load"):
+    for geom in ("ground", "pile", "truck_floor", "truck_cab", "truck_load", "bucket_load_1"):
         assert m.geom(geom).id >= 0
     for body in ("truck", "undercarriage", "upper", "boom", "stick", "bucket", "boom_cylinder_rod", "guide_link"):
         assert m.body(body).id >= 0
@@ -33,7 +34,7 @@ def test_scene_is_the_loading_site_around_the_plugin_driven_full_machine():
     # placed as the environment places its site: the truck where the layout says, the pile drawn, the load sized
     np.testing.assert_allclose(d.mocap_pos[m.body("truck").mocapid[0], :2], site.layout.truck_centre)
     assert m.hfield_data.max() > 0.5
-    assert m.geom_size[m.geom("bucket_load").id, 0] > 0.1
+    assert m.geom_rgba[m.geom(f"bucket_load_{bucket_level(1500.0)}").id, 3] == 1.0  # the load drawn
     q = d.qpos[[m.jnt_qposadr[m.joint(n).id] for n in kinematics.JOINTS]]
     np.testing.assert_allclose(q, [0.0, 0.35, 0.85, 0.75], atol=2e-3)  # the keyframe "home"
     # ctrl is the spool in mm: boom up at full stroke raises the boom through the plugin

@@ -27,6 +27,7 @@ from __future__ import annotations
 import functools
 import json
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
@@ -38,6 +39,7 @@ from hexgym.envs.world import TRUCK_CAB_LENGTH, Layout, World, entry_radius, inn
 from hexgym.files import write_json
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
+from hexgym.machine.names import BUCKET_BODY
 from hexgym.mbl.table import MBLTable
 
 _MOUTH_NORMAL_3D = np.array([mouth_normal()[0], 0.0, mouth_normal()[1]])  # bucket frame
@@ -292,7 +294,7 @@ class LoaderState:
         """The state of ``env`` (unwrapped) now."""
         ph, lay = env.physics, env.layout
         q, tip = ph.joint_positions(), ph.tip_position()
-        rotation = ph.data.xmat[ph.model.body("bucket").id].reshape(3, 3)
+        rotation = ph.data.xmat[ph.model.body(BUCKET_BODY).id].reshape(3, 3)
         surface = env.earth.pile.height_at_point(float(tip[0]), float(tip[1]))
         dig = env.fullest_cut_direction()
         return LoaderState(
@@ -495,10 +497,12 @@ def run_scripted(
     seconds: float | None = None,
     frames: list | None = None,
     settings: LoaderSettings = DEFAULT_SETTINGS,
+    film: Callable[[HexLoadingEnv, dict], np.ndarray] | None = None,
 ) -> dict:
     """Run the scripted loader for an episode (or ``seconds``); return its measured figures.
 
-    ``frames``: if given, a rendered frame is appended every step (the env needs a render_mode).
+    ``frames``: if given, a rendered frame is appended every step (the env needs a render_mode): ``film(env,
+    info)``'s (e.g. a captioned frame) or, without ``film``, ``env.render()``.
     A cycle is counted at each start of a dump; the cycle time is the mean time between them.
     """
     controller = ScriptedLoader(settings)
@@ -511,7 +515,7 @@ def run_scripted(
         for k in terms:
             terms[k] += info[f"reward_{k}"]
         if frames is not None:
-            frames.append(env.render())
+            frames.append(env.render() if film is None else film(env, info))
     dumps = [t for t, phase in controller.log if phase == "dump"]
     delivered_t = info["truck_kg"] / 1000.0
     hours = env.elapsed / 3600.0

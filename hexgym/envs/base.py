@@ -47,13 +47,13 @@ from hexgym.envs.world import Layout, build_world_model
 from hexgym.machine import parameters as p
 from hexgym.machine.assets import SCENE_FILE, asset_path
 from hexgym.machine.bucket import BUCKET
+from hexgym.machine.names import CAMERAS, CHASE_CAMERA
 from hexgym.machine.render import ModelMirror
 from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS
 from hexgym.model.backend import backend_for
 
 MAX_TIME_LIMIT = 86_400.0  # s: an episode of at most a day (a longer one is a mistake that fills memory)
 MODELS = ("learned", "reference")
-CAMERAS = ("chase", "cab")
 _MOUTH_CENTRE = np.array(BUCKET.mouth_centre)  # bucket frame, m
 _SITE = np.zeros(1, np.intp)  # a single environment is site 0 of a task of one
 
@@ -149,7 +149,7 @@ class SiteConfig:
     """
 
     render_mode: str | None = None
-    camera: str = "chase"
+    camera: str = CHASE_CAMERA
     width: int = 640
     height: int = 384
     time_limit: float = 180.0
@@ -345,6 +345,7 @@ class SiteEnv(gym.Env):
         if self.earth is None:
             raise RuntimeError("call reset() before render()")
         self.world.show_loads(self.earth.truck_kg, self.earth.bucket_kg)
+        self.world.aim_camera(self.layout, self.config.width / self.config.height)
         if self._pile_shown != self.task.revision[0]:
             self.world.show_pile(self.earth.pile.heights)
             self._pile_shown = int(self.task.revision[0])

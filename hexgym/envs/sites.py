@@ -29,6 +29,7 @@ from hexgym.envs.task import SiteStart
 from hexgym.envs.world import TOOL_CONTACT_SENSOR, World, build_world_model
 from hexgym.machine import kinematics
 from hexgym.machine.assets import asset_path
+from hexgym.machine.names import BUCKET_BODY, PAYLOAD_BODY, TIP_SITE
 from hexgym.machine.physics import payload_inertia
 from hexgym.mbl.schema import DEFAULT_TABLE_SET
 from hexgym.model.backend import backend_for, python_learned_model
@@ -149,7 +150,7 @@ class MachineSites:
         self.worlds = [World(machine.physics.model) for machine in self.machines]  # each machine's site
         self.control_period = self.machines[0].control_period
         model = self.machines[0].physics.model
-        self.tip_site, self.bucket_body = model.site("tip").id, model.body("bucket").id
+        self.tip_site, self.bucket_body = model.site(TIP_SITE).id, model.body(BUCKET_BODY).id
         self.qadr = np.array([model.jnt_qposadr[model.joint(n).id] for n in kinematics.JOINTS])
         self.dadr = np.array([model.jnt_dofadr[model.joint(n).id] for n in kinematics.JOINTS])
         self.contact_adr = int(model.sensor(TOOL_CONTACT_SENSOR).adr[0])
@@ -288,7 +289,11 @@ class BatchSites:
         self.qadr = np.array([m.jnt_qposadr[m.joint(n).id] for n in kinematics.JOINTS])
         self.dadr = np.array([m.jnt_dofadr[m.joint(n).id] for n in kinematics.JOINTS])
         self.ctrl_ids = np.array([m.actuator(n).id for n in kinematics.JOINTS])
-        self.tip_site, self.bucket_body, self.payload_body = m.site("tip").id, m.body("bucket").id, m.body("payload").id
+        self.tip_site, self.bucket_body, self.payload_body = (
+            m.site(TIP_SITE).id,
+            m.body(BUCKET_BODY).id,
+            m.body(PAYLOAD_BODY).id,
+        )
         swing = self.dadr[0]
         self._swing_diag = int(m.M_rowadr[swing] + m.M_rownnz[swing] - 1)
         state = int(m.plugin_stateadr[m.actuator_plugin[self.ctrl_ids[0]]])  # the hexgym.mbl instance's

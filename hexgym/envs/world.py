@@ -8,13 +8,16 @@
 - ``truck``: a mocap body (so that it moves between episodes without recompiling) with a bed
   whose floor and walls collide with the machine (contype 1 / conaffinity 2, like the ground), a
   chassis, a cab and wheels.
-- ``truck_load`` and ``bucket_load``: drawn-only boxes/ellipsoids sized to the material in the
-  truck and in the bucket.
+- ``truck_load``: a drawn-only hfield in the bed, the delivered material heaped at its angle of repose
+  (:func:`bed_heights`); ``bucket_load_1`` ... ``bucket_load_{LOAD_LEVELS}``: drawn-only meshes of the soil in
+  the bucket at as many fill levels (:func:`hexgym.machine.bucket.fill_mesh`), the nearest one shown.
 - optionally ``tool_contacts``: a contact sensor of the stick's and bucket's contacts (the batched
   environment reads contacts through it).
 
 :class:`World` holds the ids and moves things: :meth:`World.place` puts the truck and the pile
-where a :class:`Layout` says, :meth:`World.show_pile` copies the heightmap into the hfield.
+where a :class:`Layout` says, :meth:`World.show_pile` copies the heightmap into the hfield. The rest is for
+pictures, and runs only when a frame is drawn: :meth:`World.show_loads` draws the material in the bed and in the
+bucket, :meth:`World.aim_camera` frames the machine, the pile and the truck from the ``chase`` camera.
 """
 
 from __future__ import annotations
@@ -32,6 +35,8 @@ import numpy as np
 from hexgym.envs.earthwork import Pile
 from hexgym.machine import parameters as p
 from hexgym.machine.assets import SCENE_FILE, AssetError, asset_path
+from hexgym.machine.bucket import BUCKET, fill_mesh
+from hexgym.machine.names import BUCKET_BODY, CHASE_CAMERA, GROUND_GEOM, PILE_GEOM, TRUCK_BODY
 
 PILE_GRID_POINTS = 81  # per side
 PILE_GRID_SPACING = 0.1  # m: 8 m x 8 m, finer than the bucket's 1.5 m edge by 15x
@@ -42,8 +47,11 @@ _WHEEL_RADIUS = 0.5  # m
 _SOLID = {"contype": 1, "conaffinity": 2}  # as the ground: collides with the machine's geoms
 _DRAWN = {"contype": 0, "conaffinity": 0, "group": 1, "density": 0.0}
 _SAND = [0.78, 0.66, 0.45, 1.0]
-_HIDDEN_SIZE = 1e-4  # m: a load geom with nothing in it
-_LOAD_HALF_WIDTH = 0.65  # m: the drawn bucket load spans the bucket's inside width
+BED_GRID_SPACING = 0.1  # m between the drawn bed load's height samples
+_BED_SINK = 0.02  # m: the bed load's zero sits this far inside the floor (an empty bed shows the floor)
+_BED_HEAP_RATIO = 2.0  # the heap in the bed is this much longer than wide: loads are dumped along the bed
+_BED_HEAP_MAX = 0.6  # m above the rim: the most a drawn heap rises (a truck is not loaded higher)
+LOAD_LEVELS = 12  # drawn fill levels of the bucket: one mesh each, shown by the volume nearest the load's
 
 
 @dataclass(frozen=True)
@@ -134,7 +142,7 @@ def _add_truck(spec: mujoco.MjSpec) -> None:
     half_l, half_w = p.TRUCK_BED_LENGTH / 2, p.TRUCK_BED_WIDTH / 2
     floor, wall = p.TRUCK_BED_FLOOR_HEIGHT, p.TRUCK_BED_WALL_HEIGHT
     paint, dark = [0.75, 0.12, 0.1, 1.0], [0.15, 0.15, 0.15, 1.0]
-    truck = spec.worldbody.add_body(name="truck", mocap=True, pos=[0, 20, 0])
+    truck = spec.worldbody.add_body(name=TRUCK_BODY, mocap=True, pos=[0, 20, 0])
     bed = {"type": box, "rgba": paint, **_SOLID}
     floor_size = [half_l + _WALL, half_w + _WALL, _WALL / 2]
     truck.add_geom(name="truck_floor", size=floor_size, pos=[0, 0, floor - _WALL / 2], **bed)
@@ -159,8 +167,13 @@ def _add_truck(spec: mujoco.MjSpec) -> None:
                 size=[_WHEEL_RADIUS, 0.2, 0], pos=[x, side * (half_w - 0.2), _WHEEL_RADIUS],
                 quat=[np.sqrt(0.5), np.sqrt(0.5), 0, 0], **_DRAWN,
             )  # fmt: skip
-    truck.add_geom(name="truck_load", type=box, rgba=_SAND, size=[half_l - 0.05, half_w - 0.05, _HIDDEN_SIZE],
-                   pos=[0, 0, floor], **_DRAWN)  # fmt: skip
+    rows, cols = _bed_grid_shape()
+    spec.add_hfield(
+        name="truck_load", nrow=rows, ncol=cols, userdata=[0.0] * (rows * cols),
+        size=[half_l - 0.01, half_w - 0.01, wall + _BED_HEAP_MAX + _BED_SINK, 0.01],
+    )  # fmt: skip
+    truck.add_geom(name="truck_load", type=mujoco.mjtGeom.mjGEOM_HFIELD, hfieldname="truck_load", material="pile",
+                   pos=[0, 0, floor - _BED_SINK], **_DRAWN)  # fmt: skip
 
 
 def _add_pile(spec: mujoco.MjSpec) -> None:
@@ -177,13 +190,25 @@ def _add_pile(spec: mujoco.MjSpec) -> None:
     )  # fmt: skip
 
 
+@functools.cache
+def _bucket_load_meshes() -> tuple[tuple[list[float], list[int]], ...]:
+    """Vertices and faces (flat lists) of the drawn bucket load at each fill level (computed once)."""
+    meshes = (fill_mesh(level / LOAD_LEVELS * BUCKET.heaped_capacity) for level in range(1, LOAD_LEVELS + 1))
+    return tuple((vertices.ravel().tolist(), faces.ravel().tolist()) for vertices, faces in meshes)
+
+
 def _add_bucket_load(spec: mujoco.MjSpec) -> None:
-    payload = spec.body("payload")
-    if payload is None:
-        raise AssetError("the machine model has no body 'payload' (the bucket's contents)")
-    # centred a little inside the mouth (bucket frame ~(0.72, -0.25)): the full load bulges out as a heap
-    payload.add_geom(name="bucket_load", type=mujoco.mjtGeom.mjGEOM_ELLIPSOID, rgba=_SAND, pos=[-0.08, 0, 0.05],
-                     size=[_HIDDEN_SIZE] * 3, **_DRAWN)  # fmt: skip
+    """The soil in the bucket: a mesh per fill level (:data:`LOAD_LEVELS`, up to the heaped capacity) in the
+    bucket's frame, all hidden (transparent) until :meth:`World.show_loads` shows one. Group 2, the machine's
+    visual detail: a ray cast at the site's surfaces (group 1) does not meet a bucket's hidden load."""
+    bucket = spec.body(BUCKET_BODY)
+    if bucket is None:
+        raise AssetError("the machine model has no body 'bucket'")
+    for level, (vertices, faces) in enumerate(_bucket_load_meshes(), start=1):
+        name = f"bucket_load_{level}"
+        spec.add_mesh(name=name, uservert=vertices, userface=faces, inertia=mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL)
+        bucket.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_MESH, meshname=name, material="pile",
+                        rgba=[*_SAND[:3], 0.0], **{**_DRAWN, "group": 2})  # fmt: skip
 
 
 def build_world_model(
@@ -251,19 +276,24 @@ class World:
 
     def __init__(self, model: mujoco.MjModel) -> None:
         self.model = model
-        self.pile_geom = model.geom("pile").id
+        self.pile_geom = model.geom(PILE_GEOM).id
         self.pile_hfield = model.hfield("pile").id
         self._hfield_slice = slice(
             model.hfield_adr[self.pile_hfield], model.hfield_adr[self.pile_hfield] + PILE_GRID_POINTS**2
         )
         self._elevation = float(model.hfield_size[self.pile_hfield, 2])
-        self.truck_mocap = model.body("truck").mocapid[0]
-        self.truck_load = model.geom("truck_load").id
-        self.bucket_load = model.geom("bucket_load").id
+        self.truck_mocap = model.body(TRUCK_BODY).mocapid[0]
+        self.truck_load = model.hfield("truck_load").id
+        self._bed_slice = slice(model.hfield_adr[self.truck_load], model.hfield_adr[self.truck_load] + _bed_size())
+        self._bed_elevation = float(model.hfield_size[self.truck_load, 2])
+        self.bucket_loads = np.array([model.geom(f"bucket_load_{k}").id for k in range(1, LOAD_LEVELS + 1)])
+        self._shown: tuple[float, int] = (-1.0, -1)  # the truck's kg and the bucket's level drawn
+        chase = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, CHASE_CAMERA)
+        self.chase_camera = chase if chase >= 0 else None
         self.tool_geoms = np.zeros(model.ngeom, bool)  # masks over geom ids: the stick's and bucket's
         self.tool_geoms[_geoms_of_bodies(model, ("stick", "bucket"))] = True
         self.obstacle_geoms = np.zeros(model.ngeom, bool)  # the ground's and the truck's
-        self.obstacle_geoms[[model.geom("ground").id, *_geoms_of_bodies(model, ("truck",))]] = True
+        self.obstacle_geoms[[model.geom(GROUND_GEOM).id, *_geoms_of_bodies(model, (TRUCK_BODY,))]] = True
 
     def place(self, data: mujoco.MjData, layout: Layout) -> None:
         """Move the truck (mocap) and the pile's hfield to ``layout``; call :func:`mujoco.mj_forward` after."""
@@ -282,18 +312,29 @@ class World:
         self.model.hfield_data[self._hfield_slice] = (drawn / self._elevation).ravel()
 
     def show_loads(self, truck_kg: float, bucket_kg: float) -> None:
-        """Size the drawn material in the bed and in the bucket."""
-        m = self.model
-        depth = min(truck_kg / p.MATERIAL_DENSITY / (p.TRUCK_BED_LENGTH * p.TRUCK_BED_WIDTH), p.TRUCK_BED_WALL_HEIGHT)
-        m.geom_size[self.truck_load, 2] = max(depth / 2.0, _HIDDEN_SIZE)
-        m.geom_pos[self.truck_load, 2] = p.TRUCK_BED_FLOOR_HEIGHT + depth / 2.0
-        volume = bucket_kg / p.MATERIAL_DENSITY
-        # an ellipsoid across the bucket's width: the heap's length and height grow as sqrt(volume)
-        if volume <= 0:
-            m.geom_size[self.bucket_load] = _HIDDEN_SIZE
+        """Draw the material in the bed (its heap, :func:`bed_heights`) and in the bucket (the fill level
+        nearest its volume): changes the model's hfield and colours only when what is drawn changes."""
+        level = bucket_level(bucket_kg)
+        if (truck_kg, level) == self._shown:
             return
-        half = np.sqrt(3.0 * volume / (4.0 * np.pi * _LOAD_HALF_WIDTH))
-        m.geom_size[self.bucket_load] = [half, _LOAD_HALF_WIDTH, half]
+        if truck_kg != self._shown[0]:
+            heights = bed_heights(truck_kg / p.MATERIAL_DENSITY)
+            drawn = np.where(heights > 0.0, heights + _BED_SINK, 0.0)
+            self.model.hfield_data[self._bed_slice] = (drawn / self._bed_elevation).ravel()
+        self.model.geom_rgba[self.bucket_loads, 3] = 0.0
+        if level > 0:
+            self.model.geom_rgba[self.bucket_loads[level - 1], 3] = 1.0
+        self._shown = (truck_kg, level)
+
+    def aim_camera(self, layout: Layout, aspect: float) -> None:
+        """Point the ``chase`` camera (if the scene has one) so that its frames of ``aspect`` (width / height)
+        hold the machine, its working arc, the pile and the truck of ``layout`` (:func:`site_camera`)."""
+        cam = self.chase_camera
+        if cam is None:
+            return
+        pos, quat = site_camera(layout, aspect, float(self.model.cam_fovy[cam]))
+        self.model.cam_mode[cam] = mujoco.mjtCamLight.mjCAMLIGHT_FIXED
+        self.model.cam_pos[cam], self.model.cam_quat[cam] = pos, quat
 
     def in_bed(self, xy: np.ndarray, layout: Layout) -> bool:
         """Whether world point ``xy`` is over the bed's floor (inside its walls)."""
@@ -307,6 +348,124 @@ class World:
 
 
 BED_RIM_HEIGHT = p.TRUCK_BED_FLOOR_HEIGHT + p.TRUCK_BED_WALL_HEIGHT  # m above the ground
+
+
+# -- what the pictures show: the loads and the camera -------------------------------------------------------------
+def _bed_grid_shape() -> tuple[int, int]:
+    """Rows (across the bed) and columns (along it) of the drawn bed load's hfield."""
+    return (round(p.TRUCK_BED_WIDTH / BED_GRID_SPACING) + 1, round(p.TRUCK_BED_LENGTH / BED_GRID_SPACING) + 1)
+
+
+def _bed_size() -> int:
+    rows, cols = _bed_grid_shape()
+    return rows * cols
+
+
+@functools.cache
+def _bed_grid() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The bed's sample points (along, across; m from its centre) and their trapezoid-rule areas (m^2)."""
+    rows, cols = _bed_grid_shape()
+    along = np.linspace(-p.TRUCK_BED_LENGTH / 2, p.TRUCK_BED_LENGTH / 2, cols)
+    across = np.linspace(-p.TRUCK_BED_WIDTH / 2, p.TRUCK_BED_WIDTH / 2, rows)
+    weights = np.outer(np.gradient(across), np.gradient(along))
+    weights[[0, -1], :] /= 2.0  # np.gradient's end steps are whole steps: the trapezoid rule halves the rims
+    weights[:, [0, -1]] /= 2.0
+    return *np.meshgrid(along, across), weights
+
+
+def bed_heights(volume: float) -> np.ndarray:
+    """The material delivered to the truck (``volume`` m^3) as drawn: heights (m above the floor, rows across the
+    bed, columns along it) of one heap at the angle of repose, centred in the bed and stretched along it (loads
+    are dumped along the bed), cut off by the walls and topped off at :data:`_BED_HEAP_MAX` above the rim."""
+    if volume <= 0.0:
+        return np.zeros(_bed_grid_shape())
+    along, across, weights = _bed_grid()
+    slope = math.tan(p.MATERIAL_REPOSE_ANGLE)
+    cone = slope * np.hypot(along / _BED_HEAP_RATIO, across)
+    cap = p.TRUCK_BED_WALL_HEIGHT + _BED_HEAP_MAX
+
+    def heights(peak: float) -> np.ndarray:
+        return np.clip(peak - cone, 0.0, cap)
+
+    top = cap + float(cone.max())
+    if float((heights(top) * weights).sum()) <= volume:
+        return heights(top)
+    lo, hi = 0.0, top
+    for _ in range(40):  # bisection on the peak's height: the heap's volume grows with it
+        mid = (lo + hi) / 2.0
+        lo, hi = (mid, hi) if float((heights(mid) * weights).sum()) < volume else (lo, mid)
+    return heights(hi)
+
+
+def bucket_level(bucket_kg: float) -> int:
+    """The drawn fill level (0: empty, 1 ... :data:`LOAD_LEVELS`: heaped) nearest ``bucket_kg`` of material."""
+    fraction = bucket_kg / p.MATERIAL_DENSITY / BUCKET.heaped_capacity
+    return int(np.clip(round(fraction * LOAD_LEVELS), 1 if bucket_kg > 1.0 else 0, LOAD_LEVELS))
+
+
+CAMERA_ELEVATION = math.radians(35.0)  # the chase camera looks down this much
+CAMERA_TOWARDS_TRUCK = math.radians(20.0)  # and from this far round from the pile-truck corner, towards the truck
+CAMERA_MARGIN = 1.08  # the frame's half-widths over those the site's points need
+
+
+def site_points(layout: Layout) -> np.ndarray:
+    """Points (n, 3; world m) a picture of the site must hold: the machine's tail-swing circle and cab height,
+    the arm's working arc from the pile to the truck (bucket and boom), the pile's foot, the truck's corners."""
+    ring = np.linspace(0.0, 2.0 * np.pi, 12, endpoint=False)
+    r = p.TAIL_SWING_RADIUS
+    machine = [(r * math.cos(a), r * math.sin(a), z) for a in ring for z in (0.0, 3.2)]
+    arc = [
+        (radius * math.cos(a), radius * math.sin(a), z)
+        for a in np.linspace(layout.pile_direction, layout.truck_direction, 7)
+        for radius, z in ((8.0, 6.2), (4.5, 7.4))
+    ]  # fmt: skip
+    foot = layout.pile_top_radius + layout.pile_height / math.tan(p.MATERIAL_REPOSE_ANGLE)
+    pile = [(layout.pile_centre[0] + foot * math.cos(a), layout.pile_centre[1] + foot * math.sin(a), 0.0)
+            for a in ring]  # fmt: skip
+    c, s = math.cos(layout.truck_yaw), math.sin(layout.truck_yaw)
+    half_w = p.TRUCK_BED_WIDTH / 2 + _WALL
+    truck = [
+        (layout.truck_centre[0] + c * u - s * v, layout.truck_centre[1] + s * u + c * v, z)
+        for u in (-p.TRUCK_BED_LENGTH / 2 - _WALL, p.TRUCK_BED_LENGTH / 2 + TRUCK_CAB_LENGTH)
+        for v in (-half_w, half_w)
+        for z in (0.0, BED_RIM_HEIGHT + 0.4)
+    ]  # fmt: skip
+    return np.array(machine + arc + pile + truck)
+
+
+def site_camera(layout: Layout, aspect: float, fovy_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """A camera (world position, orientation quaternion) whose frames of ``aspect`` (width / height) and vertical
+    field of view ``fovy_deg`` hold :func:`site_points` with the least distance.
+
+    It looks down at :data:`CAMERA_ELEVATION` from outside the corner the pile and the truck make at the machine
+    (turned :data:`CAMERA_TOWARDS_TRUCK` towards the truck so that it looks into the bed): the bucket's way from
+    the pile to the truck runs across the frame and nothing stands between the camera and the bed.
+    """
+    pile, truck = layout.pile_direction, layout.truck_direction
+    outside = math.atan2(math.sin(pile) + math.sin(truck), math.cos(pile) + math.cos(truck))
+    azimuth = outside + math.copysign(CAMERA_TOWARDS_TRUCK, math.sin(truck - pile))
+    forward = -np.array([math.cos(azimuth) * math.cos(CAMERA_ELEVATION), math.sin(azimuth) * math.cos(CAMERA_ELEVATION),
+                         math.sin(CAMERA_ELEVATION)])  # fmt: skip
+    right = np.array([-math.sin(azimuth), math.cos(azimuth), 0.0])
+    up = np.cross(right, forward)
+    points = site_points(layout)
+    # a frustum around the points: offsets x, y (along right, up) and distance d back from them; for each axis the
+    # points' projections must lie within +-tan(half angle) * depth, which bounds d from below and fixes the offset
+    slope_y = math.tan(math.radians(fovy_deg) / 2.0) / CAMERA_MARGIN
+    depth = points @ forward
+    offsets, least = [], 0.0
+    for axis, slope in ((right, slope_y * aspect), (up, slope_y)):
+        lateral = points @ axis
+        least = max(least, (np.max(lateral - slope * depth) - np.min(lateral + slope * depth)) / (2.0 * slope))
+        offsets.append((axis, lateral))
+    position = -least * forward
+    for axis, lateral in offsets:
+        slope = slope_y * aspect if axis is right else slope_y
+        span = (np.max(lateral - slope * (depth + least)), np.min(lateral + slope * (depth + least)))
+        position = position + axis * (span[0] + span[1]) / 2.0
+    quat = np.empty(4)
+    mujoco.mju_mat2Quat(quat, np.column_stack([right, up, -forward]).ravel())
+    return position, quat
 
 
 def bed_coordinates(x: float, y: float, layout: Layout) -> tuple[float, float]:

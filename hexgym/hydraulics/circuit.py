@@ -281,6 +281,15 @@ _AREA_MAX = {name: _area_max(layout) for name, layout in VALVE_LAYOUTS.items()}
 _BOOM, _STICK, _SWING = FUNCTIONS.index("boom"), FUNCTIONS.index("stick"), FUNCTIONS.index("swing")
 
 
+def section_spools(layout: ValveLayout, spools_m: np.ndarray) -> np.ndarray:
+    """Each section's spool position (m): its function's, where the section has a passage on that side (a boom 2
+    section is piloted for boom raise only, and stays at neutral, its centre bypass open, while the boom lowers)."""
+    u = np.asarray(spools_m, dtype=float)[[FUNCTIONS.index(s.function) for s in layout.sections]]
+    raise_only = np.array([not ({"pb", "at"} & set(s.areas)) for s in layout.sections])
+    lower_only = np.array([not ({"pa", "bt"} & set(s.areas)) for s in layout.sections])
+    return np.where((raise_only & (u < 0.0)) | (lower_only & (u > 0.0)), 0.0, u)
+
+
 def metering_fraction(spools_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """How far each spool's positive and negative metering notches are open, 0 -> 1 (``METERING_EXPONENT`` law)."""
     span = p.SPOOL_STROKE - p.SPOOL_DEAD_BAND
@@ -301,9 +310,8 @@ def priority_shares(layout: ValveLayout, spools_m: np.ndarray) -> tuple[list[int
 def spool_areas(spools_m: np.ndarray, layout: ValveLayout = PAPER_VALVE) -> SpoolAreas:
     """Open-centre section areas: dead band, progressive metering, bypass closed at full stroke."""
     u = np.asarray(spools_m, dtype=float)
-    index = [FUNCTIONS.index(s.function) for s in layout.sections]
-    if len(index) != len(FUNCTIONS):
-        u = u[index]  # each section moves with its function's spool
+    if len(layout.sections) != len(FUNCTIONS):
+        u = section_spools(layout, u)
     span = p.SPOOL_STROKE - p.SPOOL_DEAD_BAND
     up = _unit((u - p.SPOOL_DEAD_BAND) / span) ** p.METERING_EXPONENT
     down = _unit((-u - p.SPOOL_DEAD_BAND) / span) ** p.METERING_EXPONENT
@@ -623,9 +631,13 @@ class HydraulicCircuit:
         for k, sections in enumerate(self._pump_sections):  # the pump's spools in series
             series = functools.reduce(series_area, sa.bypass[sections])
             area[g["bypass"][k]] = series if sa.pump_bypass is None else sa.pump_bypass[k]
-        for passage in REGENERATION_PASSAGES:
+        for passage in REGENERATION_PASSAGES:  # out of the cylinder's port, through its cushion like the valve's
             if passage in g:
-                area[g[passage]] = getattr(sa, passage)
+                j = CYLINDER_NAMES.index(passage.split("_")[0])
+                leaving_rod = passage.startswith("stick")  # stick in: the rod's oil; boom lower: the head's
+                distance = self.stroke[j] - ext[j] if leaving_rod else ext[j]
+                cushion = self._cushion(np.full(3, distance))[j]
+                area[g[passage]] = series_area(getattr(sa, passage), cushion)
         return area
 
     def branch_flows(self, pressures: np.ndarray, area: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -121,3 +121,90 @@ def bucket_geometry() -> BucketGeometry:
 
 
 BUCKET = bucket_geometry()
+
+
+# -- the load as drawn: soil filling the bucket -------------------------------------------------------------------
+FILL_STATIONS = 18  # grid points along the strike line (lip -> cutting edge) of a drawn load
+FILL_ACROSS = 9  # and across the bucket's width
+
+
+def _cavity_depths(profile: BucketProfile, s: np.ndarray) -> np.ndarray:
+    """Depth (m) of the bucket's inside below the strike line at distances ``s`` from the lip along it, measured
+    along the mouth's inward normal to the wrapper (0 at the lip and the cutting edge)."""
+    along = (profile.edge - profile.lip) / profile.opening
+    inward = np.array([-along[1], along[0]])
+    if inward @ (profile.inner.mean(axis=0) - profile.lip) < 0:
+        inward = -inward
+    a, b = profile.inner[:-1], profile.inner[1:]  # wrapper segments
+    depths = np.zeros(len(s))
+    for k, origin in enumerate(profile.lip + np.outer(s, along)):
+        # ray origin + h * inward against each segment a + u (b - a), u in [0, 1]
+        d = b - a
+        den = inward[0] * -d[:, 1] + inward[1] * d[:, 0]
+        rel = a - origin
+        with np.errstate(divide="ignore", invalid="ignore"):
+            h = (rel[:, 0] * -d[:, 1] + rel[:, 1] * d[:, 0]) / den
+            u = (inward[0] * rel[:, 1] - inward[1] * rel[:, 0]) / den
+        hits = h[(np.abs(den) > 1e-12) & (u >= 0.0) & (u <= 1.0) & (h > 0.0)]
+        depths[k] = hits.min() if hits.size else 0.0
+    return depths
+
+
+def fill_surface(volume: float, profile: BucketProfile | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The soil holding ``volume`` m^3 in the bucket, as heights over the mouth: (s, t, top, bottom).
+
+    ``s`` (FILL_STATIONS,) runs along the strike line from the lip, ``t`` (FILL_ACROSS,) across the inside width;
+    ``top`` and ``bottom`` (FILL_STATIONS, FILL_ACROSS) are heights out of the mouth (m, negative: into the bucket).
+    The bottom is the wrapper (half a plate into it, so that no sliver of soil shows where there is none); the
+    top is a level surface parallel to the strike line while the bucket holds less than its struck capacity, then
+    the 1:1 heap of ISO 7451 (a hip roof over the mouth) cut flat at the height that holds ``volume``. Heaped
+    capacity is the whole roof.
+    """
+    prof = bucket_profile() if profile is None else profile
+    s = np.linspace(0.0, prof.opening, FILL_STATIONS)
+    half = prof.width / 2.0
+    t = np.linspace(-half, half, FILL_ACROSS)
+    bottom = np.repeat((-_cavity_depths(prof, s) - p.BUCKET_PLATE / 2.0)[:, None], FILL_ACROSS, axis=1)
+    roof = np.minimum(np.minimum(s, prof.opening - s)[:, None], np.minimum(t + half, half - t)[None, :])
+
+    def top_at(level: float) -> np.ndarray:
+        return np.maximum(np.minimum(level, roof), bottom)
+
+    def held(level: float) -> float:
+        return float(np.trapezoid(np.trapezoid(top_at(level) - bottom, t, axis=1), s))
+
+    level = brentq(lambda c: held(c) - volume, bottom.min(), prof.opening / 2.0, xtol=1e-6) if volume > 0 else (
+        bottom.min())  # fmt: skip
+    return s, t, top_at(level), bottom
+
+
+def fill_mesh(volume: float) -> tuple[np.ndarray, np.ndarray]:
+    """A closed triangle mesh of the soil holding ``volume`` m^3 (:func:`fill_surface`) in the bucket frame, m:
+    (vertices (n, 3), faces (m, 3), outward winding). Where there is no soil its top and bottom meet inside the
+    wrapper plate."""
+    prof = bucket_profile()
+    s, t, top, bottom = fill_surface(volume, prof)
+    along = (prof.edge - prof.lip) / prof.opening
+    outward = np.array([along[1], -along[0]])
+    if outward @ (prof.inner.mean(axis=0) - prof.lip) > 0:
+        outward = -outward
+    ns, nt = top.shape
+
+    def points(height: np.ndarray) -> np.ndarray:
+        planar = prof.lip + s[:, None, None] * along + height[..., None] * outward  # (ns, nt, 2): x, z
+        y = np.broadcast_to(t[None, :], height.shape)
+        return np.stack([planar[..., 0], y, planar[..., 1]], axis=-1).reshape(-1, 3)
+
+    grid = np.arange(ns * nt).reshape(ns, nt)
+    a, b, c, d = grid[:-1, :-1].ravel(), grid[1:, :-1].ravel(), grid[1:, 1:].ravel(), grid[:-1, 1:].ravel()
+    quads = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    n = ns * nt
+    loop = np.concatenate([grid[:, 0], grid[-1, 1:], grid[-2::-1, -1], grid[0, -2:0:-1]])  # the grid's rim, in order
+    first, second = loop, np.roll(loop, -1)
+    sides = np.concatenate([np.stack([second, first, first + n], 1), np.stack([second, first + n, second + n], 1)])
+    faces = np.concatenate([quads, quads[:, ::-1] + n, sides])
+    vertices = np.concatenate([points(top), points(bottom)])
+    tri = vertices[faces]
+    if np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() < 0:  # 6x the signed volume
+        faces = faces[:, ::-1]
+    return vertices, faces

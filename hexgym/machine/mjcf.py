@@ -20,6 +20,7 @@ import numpy as np
 from hexgym.files import atomic_path
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
+from hexgym.machine.names import BOOM_BODY, BUCKET_BODY, PAYLOAD_BODY, STICK_BODY, TIP_SITE, UPPER_BODY
 
 CYLINDER_RGBA = "0.15 0.15 0.15 1"
 ROD_RGBA = "0.85 0.85 0.88 1"
@@ -307,7 +308,7 @@ def model_xml(home_key: str | None = None, lean: bool = False) -> str:
         pos="{_fmt(0, p.TRACK_GAUGE / 2, p.TRACK_HEIGHT / 2)}"/>
       <geom class="collision" type="box" size="{_fmt(p.TRACK_LENGTH / 2, p.TRACK_SHOE_WIDTH / 2, p.TRACK_HEIGHT / 2)}"
         pos="{_fmt(0, -p.TRACK_GAUGE / 2, p.TRACK_HEIGHT / 2)}"/>
-      <body name="upper" pos="0 0 {_fmt(upper_z)}">
+      <body name="{UPPER_BODY}" pos="0 0 {_fmt(upper_z)}">
         {upper_inertial}
         <joint name="swing" type="hinge" axis="0 0 1" damping="5000"/>
         <geom class="visual" mesh="upper_deck"/>
@@ -317,7 +318,7 @@ def model_xml(home_key: str | None = None, lean: bool = False) -> str:
         <site name="boom_foot_pin" class="pin" pos="{_planar(p.BOOM_FOOT)}"/>
         <site name="boom_cylinder_base_pin" class="pin" pos="{_planar(p.BOOM_CYLINDER_BASE)}"/>
         <camera name="cab" pos="{_fmt(*CAB_EYE)}" xyaxes="0 -1 0 0.25 0 1" fovy="75"/>
-{chain("boom")}        <body name="boom" pos="{_planar(p.BOOM_FOOT)}">
+{chain("boom")}        <body name="{BOOM_BODY}" pos="{_planar(p.BOOM_FOOT)}">
           {link_inertial("boom", (2.9, 0, 0.55), p.BOOM_MASS, (6.2, 0.6, 0.75))}
           <joint name="boom" class="front_joint" axis="0 -1 0" range="{_range("boom")}"/>
           <geom class="visual" mesh="boom"/>
@@ -328,7 +329,7 @@ def model_xml(home_key: str | None = None, lean: bool = False) -> str:
           <site name="boom_cylinder_rod_pin" class="pin" pos="{_planar(p.BOOM_CYLINDER_ROD_PIN)}"/>
           <site name="stick_cylinder_base_pin" class="pin" pos="{_planar(p.STICK_CYLINDER_BASE)}"/>
           <site name="stick_pin" class="pin" pos="{_planar(boom_pin)}"/>
-{chain("stick")}          <body name="stick" pos="{_planar(boom_pin)}" quat="{_quat(-np.pi / 2)}">
+{chain("stick")}          <body name="{STICK_BODY}" pos="{_planar(boom_pin)}" quat="{_quat(-np.pi / 2)}">
             {link_inertial("stick", (1.3, 0, 0.1), p.STICK_MASS, (3.6, 0.45, 0.5))}
             <joint name="stick" class="front_joint" range="{_range("stick")}"/>
             <geom class="visual" mesh="stick"/>
@@ -338,15 +339,15 @@ def model_xml(home_key: str | None = None, lean: bool = False) -> str:
             <site name="bucket_cylinder_base_pin" class="pin" pos="{_planar(p.BUCKET_CYLINDER_BASE)}"/>
             <site name="guide_link_pivot_pin" class="pin" pos="{_planar(p.GUIDE_LINK_PIVOT)}"/>
             <site name="bucket_pin" class="pin" pos="{_planar(bucket_pin)}"/>
-{chain("bucket")}{four_bar}            <body name="bucket" pos="{_planar(bucket_pin)}">
+{chain("bucket")}{four_bar}            <body name="{BUCKET_BODY}" pos="{_planar(bucket_pin)}">
               {link_inertial("bucket", (0.75, 0, -0.3), p.BUCKET_MASS, (1.4, p.BUCKET_WIDTH, 1.0))}
               <joint name="bucket" class="front_joint" range="{_range("bucket")}"/>
               <geom class="visual" mesh="bucket"/>
               <geom name="bucket_collision" class="collision" type="mesh" mesh="bucket"/>
               <site name="bucket_link_pin" class="pin" pos="{_planar(p.BUCKET_LINK_PIN)}"/>
-              <site name="tip" class="pin" pos="{_planar(p.BUCKET_TIP)}"/>
-              <body name="payload" pos="{_planar(PAYLOAD_CENTRE)}">
-                <site name="payload" class="pin"/>
+              <site name="{TIP_SITE}" class="pin" pos="{_planar(p.BUCKET_TIP)}"/>
+              <body name="{PAYLOAD_BODY}" pos="{_planar(PAYLOAD_CENTRE)}">
+                <site name="{PAYLOAD_BODY}" class="pin"/>
               </body>
             </body>
           </body>

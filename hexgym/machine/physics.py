@@ -19,6 +19,7 @@ import numpy as np
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.machine.assets import MODEL_FILE, SCENE_FILE, AssetError, asset_path, load_model
+from hexgym.machine.names import BUCKET_BODY, PAYLOAD_BODY, TIP_SITE
 
 _FD_STEP = 1e-6  # rad, central differences for the passive joints' velocities
 MAX_PAYLOAD_KG = p.BUCKET_HEAPED_CAPACITY * p.MATERIAL_DENSITY  # kg: a heaped bucket (2145 kg)
@@ -120,9 +121,9 @@ class ExcavatorPhysics:
         self._qadr = np.array([m.jnt_qposadr[m.joint(n).id] for n in kinematics.JOINTS])
         self._dadr = np.array([m.jnt_dofadr[m.joint(n).id] for n in kinematics.JOINTS])
         self._qpos_index, self._dof_index = contiguous_index(self._qadr), contiguous_index(self._dadr)
-        self._tip = m.site("tip").id
-        self._bucket = m.body("bucket").id
-        self._payload = m.body("payload").id
+        self._tip = m.site(TIP_SITE).id
+        self._bucket = m.body(BUCKET_BODY).id
+        self._payload = m.body(PAYLOAD_BODY).id
         # data.M is the lower triangle of the mass matrix in CSR form; a row's diagonal is its last entry
         swing_dof = self._dadr[0]
         self._swing_diag = m.M_rowadr[swing_dof] + m.M_rownnz[swing_dof] - 1

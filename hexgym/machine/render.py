@@ -13,8 +13,7 @@ import mujoco
 import numpy as np
 
 from hexgym.files import atomic_path, atomic_paths
-
-CAMERAS = ("chase", "cab")
+from hexgym.machine.names import CHASE_CAMERA
 
 
 class ModelMirror:
@@ -25,8 +24,9 @@ class ModelMirror:
     lean simulation's main joint angles with the closed chains assembled (:func:`assembled_state`),
     and copies what the world shows: mocap bodies, heightfields, the sizes and colours of the geoms
     both models name alike (e.g. a load drawn in the bucket or the truck) and the places of those
-    fixed to the world (the pile, moved to each episode's site). Returns from
-    :meth:`sync` which heightfields changed, so a renderer can re-upload them.
+    fixed to the world (the pile, moved to each episode's site), and the poses of the cameras both name alike
+    (one aimed at each episode's site). Returns from :meth:`sync` which heightfields changed, so a renderer can
+    re-upload them.
     """
 
     def __init__(self, source: mujoco.MjModel, target: mujoco.MjModel) -> None:
@@ -45,6 +45,10 @@ class ModelMirror:
         self._hfields = [
             (source.hfield(i).name, i, target.hfield(source.hfield(i).name).id) for i in range(source.nhfield)
         ]
+        self._cameras = [
+            (i, j) for i in range(source.ncam) if (j := mujoco.mj_name2id(target, mujoco.mjtObj.mjOBJ_CAMERA,
+                                                                          source.camera(i).name)) >= 0
+        ]  # fmt: skip
         self._source = source
 
     def sync(self, source_data: mujoco.MjData, target_data: mujoco.MjData) -> list[int]:
@@ -60,6 +64,8 @@ class ModelMirror:
             tgt.geom_size[j], tgt.geom_rgba[j] = src.geom_size[i], src.geom_rgba[i]
         for i, j in self._placed:
             tgt.geom_pos[j], tgt.geom_quat[j] = src.geom_pos[i], src.geom_quat[i]
+        for i, j in self._cameras:
+            tgt.cam_mode[j], tgt.cam_pos[j], tgt.cam_quat[j] = src.cam_mode[i], src.cam_pos[i], src.cam_quat[i]
         changed = []
         for _, i, j in self._hfields:
             a, n = src.hfield_adr[i], src.hfield_nrow[i] * src.hfield_ncol[i]
@@ -74,7 +80,7 @@ class ModelMirror:
 class FrameRenderer:
     """Renders RGB frames of ``(model, data)`` from a named camera of the scene."""
 
-    def __init__(self, model: mujoco.MjModel, width: int = 960, height: int = 540, camera: str = "chase") -> None:
+    def __init__(self, model: mujoco.MjModel, width: int = 960, height: int = 540, camera: str = CHASE_CAMERA) -> None:
         if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera) < 0:
             raise ValueError(f"no camera named {camera!r} in the model (have: {_camera_names(model)})")
         self.camera = camera

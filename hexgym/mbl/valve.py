@@ -39,6 +39,7 @@ from hexgym.hydraulics.circuit import (
     metering_fraction,
     orifice_law,
     priority_shares,
+    section_spools,
     smoothstep,
 )
 from hexgym.machine import parameters as p
@@ -250,7 +251,7 @@ def _outlet_and_regeneration(layout: ValveLayout, fn: _Function, regen: float | 
     if passage is not None:
         if regen is None or math.isnan(regen):
             return out
-        if fn.p_out - fn.p_in > _CHECK_OPEN:
+        if fn.p_out - fn.p_in > _CHECK_OPEN and fn.outlet_clear:  # away from the port's cushion
             out[f"{passage}_area_m2"] = _area(regen, fn.p_out - fn.p_in)
         q_out -= regen
     if passage == "stick_regeneration":  # the unloading valve (the machine's data) returns rod oil to tank too
@@ -285,10 +286,11 @@ def _section_meter_in(i: int, section, functions: dict, flows: dict) -> float:
 def _bypass_samples(layout, functions, flows, spools_m, pressures, compression, pump_flows) -> dict[str, float]:
     """Each section's bypass table: its pump's bypass area while the pump's other sections are at neutral."""
     out: dict[str, float] = {}
+    moved = section_spools(layout, spools_m)
     for i, section in enumerate(layout.sections):
         k = section.pump
-        others = [s for j, s in enumerate(layout.sections) if s.pump == k and j != i]
-        if any(abs(spools_m[FUNCTIONS.index(s.function)]) >= p.SPOOL_DEAD_BAND for s in others):
+        others = [j for j, s in enumerate(layout.sections) if s.pump == k and j != i]
+        if np.any(np.abs(moved[others]) >= p.SPOOL_DEAD_BAND):
             continue
         if pressures[k] > p.MAIN_RELIEF - RELIEF_MARGIN_PA:
             continue
@@ -320,7 +322,6 @@ class LearnedValve:
         if missing:
             raise ValueError(f"the circuit model needs the valve tables {missing}")
         self.tables, self.layout = tables, layout
-        self._spool = [FUNCTIONS.index(s.function) for s in layout.sections]
         # each pump's sections (indices in the layout) and its bypass area with all at neutral
         self._sections = [[i for i, s in enumerate(layout.sections) if s.pump == k] for k in (0, 1)]
         self._neutral = [
@@ -335,8 +336,9 @@ class LearnedValve:
         u = np.asarray(spools_m, dtype=float)
         n = len(self.layout.sections)
         area = {k: np.zeros(n) for k in VALVE_PASSAGES}
+        moved = section_spools(self.layout, u)
         for i, section in enumerate(self.layout.sections):
-            x = u[self._spool[i]]
+            x = moved[i]
             area["bypass"][i] = self._area(section.name, "bypass", x)
             if abs(x) >= p.SPOOL_DEAD_BAND:
                 for key in ("pa", "bt") if x > 0 else ("pb", "at"):

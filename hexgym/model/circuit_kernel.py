@@ -132,7 +132,9 @@ def circuit_fields(circuit: HydraulicCircuit, stop_clearance: float) -> dict[str
     valve on its meter-in: :func:`hexgym.hydraulics.circuit.priority_shares`'s, the data sheet's), each pump's bypass
     the series of its sections' in layout order, and its regeneration passages (a table's, or the stick unloading
     valve's data-sheet area metered by the spool; that valve's opening piloted by the stick head's pressure,
-    ``branch_pilot``). Table indices are into :func:`valve_table_names` of the layout."""
+    ``branch_pilot``), each through its cylinder end's cushion. Table indices are into :func:`valve_table_names` of
+    the layout; a section moves only to the sides it has passages on
+    (:func:`hexgym.hydraulics.circuit.section_spools`), which the kernel reads from its tables."""
     layout = circuit.layout
     br, groups = circuit.branches, circuit.branch_groups
     crack, inv_span = np.zeros(len(br.names)), np.zeros(len(br.names))
@@ -195,14 +197,17 @@ def _priorities(layout: ValveLayout) -> np.ndarray:
 
 def _regenerations(layout: ValveLayout, groups: dict[str, np.ndarray], table: dict[str, int]) -> np.ndarray:
     """Each regeneration passage of the layout (:class:`hexgym.mbl.valve.LearnedValve`'s): its branch, the function
-    whose spool opens it and on which side, its table (-1 for the stick unloading valve, the data sheet's area)."""
+    whose spool opens it and on which side, its table (-1 for the stick unloading valve, the data sheet's area), and
+    the cylinder end whose cushion its oil leaves through (:meth:`HydraulicCircuit.branch_areas`: stick in, the
+    rod's; boom lower, the head's)."""
     rows = []
     for passage in layout.regeneration_passages:
         function = REGENERATION_SPOOLS.get(passage, "stick")  # the unloading valve opens with stick in
         side = -1 if passage == "boom_regeneration" else 1
         area = p.STICK_UNLOADING_AREA if passage == "stick_unloading" else 0.0
-        rows.append((groups[passage][0], FUNCTIONS.index(function), side, table.get(passage, -1), area))
-    return np.array(rows, dtype=float).reshape(-1, 5)
+        cylinder, end = CYLINDER_NAMES.index(passage.split("_")[0]), 1 if passage.startswith("stick") else -1
+        rows.append((groups[passage][0], FUNCTIONS.index(function), side, table.get(passage, -1), area, cylinder, end))
+    return np.array(rows, dtype=float).reshape(-1, 7)
 
 
 def valve_table_names(layout: ValveLayout) -> tuple[str, ...]:

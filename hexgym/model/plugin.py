@@ -118,7 +118,8 @@ CIRCUIT_FIELDS: dict[str, tuple[int, str]] = {
     "branch_inv_span": (1, "branches"),  # 1/Pa, > 0 for a pressure-operated valve
     "branch_laminar": (1, "branches"),  # m^3/(s Pa), leaks
     "branch_pilot": (1, "branches"),  # the node whose pressure opens a pressure-operated valve; -1: its own drop
-    "section_function": (1, "sections"),  # the function (spool) that moves each valve section
+    # the function (spool) that moves each valve section, to the sides it has passages on (else it stays at neutral)
+    "section_function": (1, "sections"),
     "section_pump": (1, "sections"),  # the pump it meters from; its bypass is in that pump's series, in this order
     "section_table": (5, "sections"),  # the valve table of its bypass, pump->a, pump->b, a->tank, b->tank; -1: none
     "section_branch": (4, "sections"),  # the branch of its pump->a, pump->b, a->tank, b->tank; -1: none
@@ -126,8 +127,9 @@ CIRCUIT_FIELDS: dict[str, tuple[int, str]] = {
     # spool that pilots it (1 positive, -1 negative, 0 either), the share of the area left at full pilot spool
     "section_priority": (3, "sections"),
     # a regeneration passage: its branch, the function whose spool opens it, the side (1 positive, -1 negative),
-    # its valve table (-1: none, the data sheet's area below metered by the spool), that area (m^2)
-    "regeneration": (5, "regenerations"),
+    # its valve table (-1: none, the data sheet's area below metered by the spool), that area (m^2), the cylinder
+    # whose oil leaves through it and its cushion (-1: none), the end it leaves (1 the rod's, -1 the head's)
+    "regeneration": (7, "regenerations"),
     "bypass_branch": (1, "pumps"),  # each pump's centre bypass branch
     "pump_node": (1, "pumps"),
     "signal_node": (1, "pumps"),  # each pump's NFC signal node

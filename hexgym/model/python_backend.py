@@ -29,6 +29,7 @@ from hexgym.hydraulics.circuit import validate_spools
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.machine.assets import load_model
+from hexgym.machine.names import UPPER_BODY
 from hexgym.machine.physics import ExcavatorPhysics
 from hexgym.mbl.schema import TABLE_SETS, table_set_of
 from hexgym.mbl.table import MBLTable, load_tables
@@ -80,7 +81,7 @@ class LearnedModel(LearnedModelBase):
         self.spools_m = np.zeros(4)
         self.physics.tracks_constraint_load = True  # the loads (step 1) read it
         m = self.physics.model
-        upper = m.body("upper").id  # the swinging structure and all it carries
+        upper = m.body(UPPER_BODY).id  # the swinging structure and all it carries
         self._machine_body = np.array([upper in _ancestors(m, b) for b in range(m.nbody)])
         self._jacp = np.zeros((3, m.nv))
 

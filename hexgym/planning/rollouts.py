@@ -46,12 +46,13 @@ from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.machine.assets import asset_path
 from hexgym.machine.bucket import BUCKET
+from hexgym.machine.names import BUCKET_BODY, GROUND_GEOM, PLANNING_MOUTH_SITE, STICK_BODY, TIP_SITE, TRUCK_BODY
 from hexgym.mbl.schema import DEFAULT_TABLE_SET
 from hexgym.model.native_backend import NativeLearnedModel
 from hexgym.model.plugin import CLEARANCE_PLUGIN_NAME, CTRL_PER_SPOOL_M
 
 _MOUTH_NORMAL = mouth_normal()  # bucket frame (x, z)
-PAIRS = (("bucket", "truck"), ("bucket", "ground"), ("stick", "truck"), ("stick", "ground"))
+PAIRS = ((BUCKET_BODY, TRUCK_BODY), (BUCKET_BODY, GROUND_GEOM), (STICK_BODY, TRUCK_BODY), (STICK_BODY, GROUND_GEOM))
 """The (tool, obstacle) pairs whose clearance is predicted, in the order of :attr:`RolloutBatch.clearance_m`."""
 DETECTION_M = 1.0  # m: contacts are reported this far apart; clearances beyond read as this
 HARD_CONTACT_DEPTH_M = p.HARD_CONTACT_FORCE / p.CONTACT_STIFFNESS  # m: the env counts hard contact beyond this depth
@@ -62,7 +63,7 @@ _TRUCK_GEOMS = (
     "truck_floor", "truck_headboard", "truck_tailgate", "truck_left_wall", "truck_right_wall", "truck_chassis",
     "truck_cab",
 )  # fmt: skip
-_OBSTACLE_GEOMS = {"truck": _TRUCK_GEOMS, "ground": ("ground",)}
+_OBSTACLE_GEOMS = {TRUCK_BODY: _TRUCK_GEOMS, GROUND_GEOM: (GROUND_GEOM,)}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -252,12 +253,12 @@ class RolloutModel:
             raise ValueError(f"the machine's stick must have one collision geom, found {len(stick)}")
         stick[0].name = _TOOL_GEOMS["stick"]
         spec.add_mesh(name=_TOOL_GEOMS["bucket"], uservert=_bucket_hull().ravel().tolist())
-        spec.body("bucket").add_geom(name=_TOOL_GEOMS["bucket"], type=mujoco.mjtGeom.mjGEOM_MESH,
+        spec.body(BUCKET_BODY).add_geom(name=_TOOL_GEOMS["bucket"], type=mujoco.mjtGeom.mjGEOM_MESH,
                                      meshname=_TOOL_GEOMS["bucket"], contype=0, conaffinity=0, group=5)  # fmt: skip
         site, sensor = mujoco.mjtObj.mjOBJ_SITE, mujoco.mjtSensor
-        spec.body("bucket").add_site(name="planning_mouth", pos=list(BUCKET.mouth_centre), group=5)
-        spec.add_sensor(name="planning_tip", type=sensor.mjSENS_FRAMEPOS, objtype=site, objname="tip")
-        spec.add_sensor(name="planning_mouth", type=sensor.mjSENS_FRAMEPOS, objtype=site, objname="planning_mouth")
+        spec.body(BUCKET_BODY).add_site(name=PLANNING_MOUTH_SITE, pos=list(BUCKET.mouth_centre), group=5)
+        spec.add_sensor(name="planning_tip", type=sensor.mjSENS_FRAMEPOS, objtype=site, objname=TIP_SITE)
+        spec.add_sensor(name="planning_mouth", type=sensor.mjSENS_FRAMEPOS, objtype=site, objname=PLANNING_MOUTH_SITE)
         for axis, kind in (("x", sensor.mjSENS_FRAMEXAXIS), ("z", sensor.mjSENS_FRAMEZAXIS)):
             spec.add_sensor(
                 name=f"planning_bucket_{axis}", type=kind, objtype=mujoco.mjtObj.mjOBJ_XBODY, objname="bucket"
@@ -298,7 +299,7 @@ class RolloutModel:
     def _place_truck(self, layout: Layout) -> None:
         """Put the truck where ``layout`` says in the model (``body_pos``, which ``mj_resetData`` copies to the mocap)
         and in every thread's data: the mocap pose is no part of the ``mjSTATE_FULLPHYSICS`` state a rollout sets."""
-        m, body = self.model, self.model.body("truck").id
+        m, body = self.model, self.model.body(TRUCK_BODY).id
         for d in (self.physics.data, *self._datas):
             self.world.place(d, layout)
         m.body_pos[body] = self.physics.data.mocap_pos[self.world.truck_mocap]
@@ -375,7 +376,7 @@ class RolloutModel:
         self.world.place(d, layout)
         tips, mouths, clearance = np.empty((len(q), 3)), np.empty((len(q), 3)), np.empty((len(q), len(PAIRS)))
         up = np.empty((len(q), 2))  # the bucket's x and z axes' world z components
-        tip_site, mouth_site, bucket = m.site("tip").id, m.site("planning_mouth").id, m.body("bucket").id
+        tip_site, mouth_site, bucket = m.site(TIP_SITE).id, m.site(PLANNING_MOUTH_SITE).id, m.body(BUCKET_BODY).id
         fromto = np.empty(6)
         for k, angles in enumerate(q):
             d.qpos[self._qadr] = angles

@@ -2,7 +2,8 @@
 
 The machine is the learned model (MuJoCo linkage + MBL tables) driven by
 :class:`hexgym.agents.scripted.ScriptedLoader`: it digs from the pile, swings, dumps into the truck
-and returns. Frames are taken at the environment's 10 Hz control rate.
+and returns. Frames are taken at the environment's 10 Hz control rate, each with the films' caption
+(:func:`hexgym_lab.agents.film.film_frame`: time, phase, tonnes in the bucket and delivered, fuel).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from hexgym.agents.scripted import run_scripted
 from hexgym.checks import check_positive, check_seed
 from hexgym.envs.loading import STEP_PERIOD, HexLoadingEnv
 from hexgym.files import check_output_dir, check_output_file
+from hexgym_lab.agents.film import film_frame
 from hexgym_lab.progress import CountingList, Progress
 
 DEMO_DURATION = 60.0  # s of simulated time: two loading cycles
@@ -49,7 +51,7 @@ def run_demo(
     fps = float(fps) if fps is not None else float(env.metadata["render_fps"])
     with Progress(math.ceil(duration / STEP_PERIOD - 1e-9), "demo", "frame") as progress:
         frames = CountingList(progress)
-        metrics = run_scripted(env, seed=seed, seconds=duration, frames=frames)
+        metrics = run_scripted(env, seed=seed, seconds=duration, frames=frames, film=film_frame)
     env.close()
     snapshot = frames[int(len(frames) * 0.45)]  # mid-cycle: the loaded bucket on its way
     video, picture = Path(out_dir) / "demo.mp4", Path(out_dir) / "demo.png"

@@ -1,8 +1,8 @@
-"""``hexgym video``: offscreen rollouts of a policy on HexLoading-v0 as an MP4, with a small text overlay.
+"""``hexgym video``: offscreen rollouts of a policy on HexLoading-v0 as an MP4, with the films' caption.
 
 Frames come from the environment's own ``rgb_array`` rendering (chase or cab camera), one per
-10 Hz step; the overlay (time, bucket payload, tonnes delivered) is drawn with matplotlib's Agg
-canvas onto the frame, so no font files or GUI are needed.
+10 Hz step; each carries the caption every film of hexgym carries (:func:`hexgym_lab.agents.film.film_frame`:
+the episode, time, loading phase, tonnes in the bucket and delivered, fuel).
 """
 
 from __future__ import annotations
@@ -19,44 +19,18 @@ from hexgym.checks import check_count, check_positive, check_seed
 from hexgym.envs import DIG_ENV_ID, ENV_ID
 from hexgym.envs.loading import STEP_PERIOD
 from hexgym.files import check_output_file
-from hexgym.machine.render import CAMERAS, check_frame_memory, write_mp4
+from hexgym.machine.names import CAMERAS
+from hexgym.machine.render import check_frame_memory, write_mp4
 from hexgym_lab.agents.evaluate import run_episode, run_success_episode
+from hexgym_lab.agents.film import film_frame
 from hexgym_lab.progress import CountingList, Progress
-
-OVERLAY_HEIGHT = 28  # px: the text strip at the top of each frame
-
-
-def overlay_text(frame: np.ndarray, text: str) -> np.ndarray:
-    """``frame`` with ``text`` in white on a dark strip across its top (a new uint8 array)."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    height, width = frame.shape[:2]
-    strip = min(OVERLAY_HEIGHT, height)
-    fig = Figure(figsize=(width / 100, strip / 100), dpi=100)
-    fig.patch.set_facecolor((0.0, 0.0, 0.0))
-    fig.text(0.01, 0.5, text, color="white", fontsize=11, va="center", family="monospace")
-    canvas = FigureCanvasAgg(fig)
-    canvas.draw()
-    text_rgb = np.asarray(canvas.buffer_rgba())[:strip, :width, :3]
-    out = frame.copy()
-    # blend: the strip darkens the scene behind it (60 %) and the text is opaque
-    out[:strip] = (0.4 * out[:strip] + 0.6 * text_rgb).astype(np.uint8)
-    bright = text_rgb.max(axis=2) > 128
-    out[:strip][bright] = text_rgb[bright]
-    return out
-
-
-def _caption(info: dict, episode: int) -> str:
-    return (f"ep {episode}  t {info['time_s']:5.1f} s  bucket {info['bucket_kg'] / 1000:4.2f} t  "
-            f"delivered {info['truck_kg'] / 1000:5.2f} t")  # fmt: skip
 
 
 def _frame_recorder(frames: list[np.ndarray], episode: int) -> Any:
     """A :func:`run_episode` callback that appends the captioned frame of each step."""
 
     def on_step(env: Any, info: dict) -> None:
-        frames.append(overlay_text(env.render(), _caption(info, episode)))
+        frames.append(film_frame(env, info, label=f"ep {episode}"))
 
     return on_step
 
@@ -65,8 +39,7 @@ def _dig_episode(env: gym.Env, policy: Policy, seed: int, frames: list[np.ndarra
     """One ``HexDig-v0`` episode, its captioned frames appended: whether and when it succeeded, its return."""
 
     def on_step(env: Any, info: dict) -> None:
-        caption = f"ep {episode}  t {info['time_s']:4.1f} s  bucket {info['bucket_kg'] / 1000:4.2f} t"
-        frames.append(overlay_text(env.render(), caption + ("  lifted" if info["is_success"] else "")))
+        frames.append(film_frame(env, info, label=f"ep {episode}", note="lifted" if info["is_success"] else ""))
 
     success, steps, total = run_success_episode(env, policy, seed, on_step)
     return {"seed": seed, "success": success, "time_s": steps * STEP_PERIOD, "return": total}
