@@ -345,8 +345,8 @@ class MblPlugin {
       }
     }
     swing_actadr = m->actuator_actadr[actuator[0]];
-    int upper = mj_name2id(m, mjOBJ_BODY, "upper");
-    if (upper < 0) throw SetupError("the model has no body 'upper' (the swinging structure)");
+    int upper = mj_name2id(m, mjOBJ_BODY, kUpperBody);
+    if (upper < 0) throw SetupError(std::string("the model has no body '") + kUpperBody + "' (the swinging structure)");
     machine_body.assign(m->nbody, false);
     for (int b = 0; b < m->nbody; ++b) {
       for (int a = b; a > 0 && !machine_body[b]; a = m->body_parentid[a]) machine_body[b] = (a == upper);

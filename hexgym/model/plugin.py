@@ -25,6 +25,7 @@ import numpy as np
 from hexgym.files import atomic_path
 from hexgym.hydraulics.circuit import STATE_SIZE as CIRCUIT_STATE_SIZE
 from hexgym.machine import kinematics
+from hexgym.machine.names import UPPER_BODY
 from hexgym.mbl.schema import CIRCUIT_TABLE_SETS, DEFAULT_TABLE_SET, NATIVE_TABLE_SETS, QUANTITIES, TABLE_SETS
 from hexgym.mbl.table import FORMAT_VERSION
 
@@ -190,6 +191,7 @@ def interface() -> dict:
     return {
         "plugin": PLUGIN_NAME,
         "joints": list(kinematics.JOINTS),
+        "upper_body": UPPER_BODY,
         "ctrl_per_spool_m": CTRL_PER_SPOOL_M,
         "config_keys": list(CONFIG_KEYS),
         "clearance_plugin": CLEARANCE_PLUGIN_NAME,
@@ -241,6 +243,7 @@ def header_text() -> str:
         "",
         f"constexpr char kPluginName[] = {quote(PLUGIN_NAME)};",
         f"constexpr const char* kJoints[{len(kinematics.JOINTS)}] = {{{names}}};",
+        f"constexpr char kUpperBody[] = {quote(UPPER_BODY)};  // the swinging structure (hexgym/machine/names.py)",
         f"constexpr double kCtrlPerSpoolMetre = {CTRL_PER_SPOOL_M!r};  // ctrl unit: mm of spool",
         f"constexpr int kTableFormatVersion = {FORMAT_VERSION};",
         "",
