@@ -46,7 +46,7 @@ from hexgym.hydraulics.reference import ReferenceModel
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.machine.physics import MAX_PAYLOAD_KG
-from hexgym.mbl.schema import DEFAULT_TABLE_SET, NATIVE_TABLE_SETS, VALVE_OF_TABLE_SET
+from hexgym.mbl.schema import CIRCUIT_TABLE_SETS, DEFAULT_TABLE_SET, NATIVE_TABLE_SETS, VALVE_OF_TABLE_SET
 from hexgym.model.backend import make_learned_model
 from hexgym.model.circuit_model import CircuitModel
 from hexgym.model.commandlog import CommandLog
@@ -326,7 +326,7 @@ def model_record(learned: LearnedModel, tables_dir: str | Path | None = None) ->
         "tables_dir": str(tables_dir) if tables_dir is not None else "packaged",
         "tables_sha256": digest.hexdigest(),
     }
-    if learned.table_set == "circuit":
+    if learned.table_set in CIRCUIT_TABLE_SETS:
         record["circuit_kernel"] = "native" if getattr(learned, "_kernel", None) is not None else "python"
     return record
 

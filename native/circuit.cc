@@ -56,30 +56,62 @@ double Cushion(const double* law, double count, double distance) {
 
 // ---- the valve (hexgym.mbl.valve.LearnedValve) -------------------------------------------------
 struct ValveAreas {
-  double passage[kNumPassages][kNumFunctions];
+  double passage[kNumPassages][kMaxSections];
   double pump_bypass[kNumPumps];
+  double regeneration[kMaxRegenerations];
 };
 
-// A passage is closed in the dead band and on the other side of neutral; the pump's bypass combines its two
-// sections' tables in series (pump_bypass_area).
+// How far a spool's metering notch on `side` (1 positive, -1 negative, 0 the more open) is open, 0 -> 1
+// (metering_fraction).
+double Metering(const double* law, double u, int side) {
+  double span = law[kLawSpoolStroke] - law[kLawDeadBand];
+  double up = std::pow(std::fmin(std::fmax((u - law[kLawDeadBand]) / span, 0.0), 1.0), law[kLawMeteringExponent]);
+  double down = std::pow(std::fmin(std::fmax((-u - law[kLawDeadBand]) / span, 0.0), 1.0), law[kLawMeteringExponent]);
+  return side > 0 ? up : side < 0 ? down : std::fmax(up, down);
+}
+
+// A passage is closed in the dead band and on the other side of neutral; a priority valve leaves its share of a
+// section's meter-in (priority_shares); each pump's bypass combines its sections' tables in series
+// (pump_bypass_area); a regeneration passage opens on its side of the dead band, the data sheet's metered with the
+// spool.
 ValveAreas Valve(const Circuit& k, const double* spools) {
   ValveAreas a;
   std::memset(&a, 0, sizeof(a));
   const double* law = k.law;
-  for (int i = 0; i < kNumFunctions; ++i) {
-    double u = spools[i];
+  for (int i = 0; i < k.sections; ++i) {
+    const Section& s = k.section[i];
+    double u = spools[s.function];
+    if ((s.raise_only && u < 0.0) || (s.lower_only && u > 0.0)) u = 0.0;  // section_spools
     int open[3] = {kBypass, u > 0 ? kPa : kPb, u > 0 ? kBt : kAt};
     for (int key : open) {
-      if (key != kBypass && std::fabs(u) < law[kLawDeadBand]) continue;
-      a.passage[key][i] = std::fmax(k.valve[key * kNumFunctions + i](u), 0.0);
+      if (s.table[key] < 0 || (key != kBypass && std::fabs(u) < law[kLawDeadBand])) continue;
+      a.passage[key][i] = std::fmax(k.valve[s.table[key]](u), 0.0);
+    }
+    if (s.priority_function >= 0) {
+      double share =
+          1.0 - (1.0 - s.priority_share) * Metering(law, spools[s.priority_function], s.priority_side);
+      a.passage[kPa][i] *= share;
+      a.passage[kPb][i] *= share;
     }
   }
   for (int j = 0; j < kNumPumps; ++j) {
-    double first = std::fmax(a.passage[kBypass][k.sections[j][0]], law[kLawClosedArea]);
-    double second = std::fmax(a.passage[kBypass][k.sections[j][1]], law[kLawClosedArea]);
-    double resistance = 1.0 / (first * first) + 1.0 / (second * second) - k.inv_neutral_sq[j];
-    double smaller = std::fmin(first, second);
-    a.pump_bypass[j] = 1.0 / std::sqrt(std::fmax(resistance, 1.0 / (smaller * smaller)));
+    double resistance = 0.0, smallest = INFINITY;
+    for (int i : k.series[j]) {
+      double area = std::fmax(a.passage[kBypass][i], law[kLawClosedArea]);
+      resistance += 1.0 / (area * area);
+      smallest = std::fmin(smallest, area);
+    }
+    resistance -= k.neutral_term[j];
+    a.pump_bypass[j] = 1.0 / std::sqrt(std::fmax(resistance, 1.0 / (smallest * smallest)));
+  }
+  for (int r = 0; r < k.regenerations; ++r) {
+    const Regeneration& g = k.regeneration[r];
+    double u = spools[g.function];
+    if (g.table < 0) {
+      a.regeneration[r] = g.area * Metering(law, u, g.side);
+    } else if (g.side * u >= law[kLawDeadBand]) {
+      a.regeneration[r] = std::fmax(k.valve[g.table](u), 0.0);
+    }
   }
   return a;
 }
@@ -95,16 +127,30 @@ struct Workspace {
 // The geometric area (m^2) of every branch for these valve areas and cylinder extensions (branch_areas).
 void BranchAreas(const Circuit& k, const ValveAreas& v, const double* ext, double* area) {
   for (int b = 0; b < k.branches; ++b) area[b] = k.area[b];
-  for (int i = 0; i < kNumFunctions; ++i) {
-    for (int key = kPa; key <= kBt; ++key) area[k.passage_branch[i][key - kPa]] = v.passage[key][i];
+  for (int i = 0; i < k.sections; ++i) {
+    const int* branch = k.section[i].branch;
+    for (int key = kPa; key <= kBt; ++key) {
+      if (branch[key - kPa] >= 0) area[branch[key - kPa]] = v.passage[key][i];
+    }
   }
   for (int c = 0; c < kNumCylinders; ++c) {  // a->T leaves the head end (retracting), b->T the rod end
     int f = k.function[c];
-    area[k.passage_branch[f][kAt - kPa]] = SeriesArea(v.passage[kAt][f], Cushion(k.law, k.count[c], ext[c]));
-    area[k.passage_branch[f][kBt - kPa]] =
-        SeriesArea(v.passage[kBt][f], Cushion(k.law, k.count[c], k.stroke[c] - ext[c]));
+    const int* branch = k.section[f].branch;
+    if (branch[kAt - kPa] >= 0) {
+      area[branch[kAt - kPa]] = SeriesArea(v.passage[kAt][f], Cushion(k.law, k.count[c], ext[c]));
+    }
+    if (branch[kBt - kPa] >= 0) {
+      area[branch[kBt - kPa]] = SeriesArea(v.passage[kBt][f], Cushion(k.law, k.count[c], k.stroke[c] - ext[c]));
+    }
   }
   for (int j = 0; j < kNumPumps; ++j) area[k.bypass_branch[j]] = v.pump_bypass[j];
+  for (int r = 0; r < k.regenerations; ++r) {  // out of the cylinder's port, through its cushion
+    const Regeneration& g = k.regeneration[r];
+    int c = g.cylinder;
+    area[g.branch] = c < 0 ? v.regeneration[r]
+                           : SeriesArea(v.regeneration[r],
+                                        Cushion(k.law, k.count[c], g.end > 0 ? k.stroke[c] - ext[c] : ext[c]));
+  }
 }
 
 // Oil volume (m^3) of every node at cylinder extensions `ext` (volumes).
@@ -130,23 +176,32 @@ void Evaluate(const Circuit& k, const double* y, const double* ext, const double
   for (int b = 0; b < k.branches; ++b) {  // each branch's flow and its incidence; the tank (node nn) has no row
     int a = k.from[b], c = k.to[b];
     double dp = (a < nn ? y[a] : 0.0) - (c < nn ? y[c] : 0.0);
-    double opening = 1.0, dopening = 0.0;
-    if (k.inv_span[b] > 0.0) {  // a pressure-operated valve
+    int pilot = k.pilot[b];
+    double opening = 1.0, dopening = 0.0, dpilot = 0.0;
+    if (pilot >= 0) {  // a valve opened by another node's pressure: its opening moves with that node's
+      Smooth s = Smoothstep((y[pilot] - k.crack[b]) * k.inv_span[b]);
+      opening = s.value, dpilot = s.slope;
+    } else if (k.inv_span[b] > 0.0) {  // a pressure-operated valve
       Smooth s = Smoothstep((dp - k.crack[b]) * k.inv_span[b]);
       opening = s.value, dopening = s.slope * k.inv_span[b];
     }
     double cda = law[kLawDischarge] * w.area[b];
-    double q = k.laminar[b] * dp, g = k.laminar[b];
-    if (cda != 0.0 && (opening != 0.0 || dopening != 0.0)) {  // closed passages and valves pass their leak only
+    double q = k.laminar[b] * dp, g = k.laminar[b], conductance = 0.0;  // conductance: d(q)/d(pilot pressure)
+    if (cda != 0.0 && (opening != 0.0 || dopening != 0.0 || dpilot != 0.0)) {  // closed: their leak only
       Smooth r = OrificeLaw(dp, law[kLawLaminarSq], law[kLawSqrt2Rho]);
       q += cda * opening * r.value;
       g += cda * (dopening * r.value + opening * r.slope);
+      conductance = cda * r.value * dpilot * k.inv_span[b];
     }
     if (a < nn) net[a] -= q, w.jac[a][a] -= g;
     if (c < nn) net[c] += q, w.jac[c][c] -= g;
     if (a < nn && c < nn && g != 0.0) {
       w.jac[a][c] += g, w.jac[c][a] += g;
       w.pattern[a] |= uint64_t{1} << c, w.pattern[c] |= uint64_t{1} << a;
+    }
+    if (conductance != 0.0) {  // pilot_conductance's column
+      if (a < nn) w.jac[a][pilot] -= conductance, w.pattern[a] |= uint64_t{1} << pilot;
+      if (c < nn) w.jac[c][pilot] += conductance, w.pattern[c] |= uint64_t{1} << pilot;
     }
   }
   // pumps: NFC under the cross-sensing horsepower limit (pump_flows)
@@ -416,11 +471,13 @@ int Substep(const Circuit& k, const ValveAreas& valve, double h, double* state, 
 }
 
 // ---- reading the packed numbers ----------------------------------------------------------------
-int Extent(CircuitExtent per, int nodes, int branches) {
+int Extent(CircuitExtent per, const int* counts) {
   switch (per) {
     case kPerOne: return 1;
-    case kPerNodes: return nodes;
-    case kPerBranches: return branches;
+    case kPerNodes: return counts[0];
+    case kPerBranches: return counts[1];
+    case kPerSections: return counts[2];
+    case kPerRegenerations: return counts[3];
     case kPerPumps: return kNumPumps;
     case kPerFunctions: return kNumFunctions;
     case kPerCylinders: return kNumCylinders;
@@ -428,10 +485,11 @@ int Extent(CircuitExtent per, int nodes, int branches) {
   return 0;
 }
 
-int Index(double v, int limit, const char* field) {
-  if (!(v >= 0 && v < limit && v == std::floor(v))) {
+// An index in [lowest, limit) (lowest -1: an optional one, -1 for none).
+int Index(double v, int limit, const char* field, int lowest = 0) {
+  if (!(v >= lowest && v < limit && v == std::floor(v))) {
     throw CircuitError(std::string("circuit field '") + field + "' holds " + std::to_string(v) +
-                       ", not an index below " + std::to_string(limit));
+                       ", not an index below " + std::to_string(limit) + (lowest < 0 ? " (or -1)" : ""));
   }
   return static_cast<int>(v);
 }
@@ -472,44 +530,116 @@ ValveTable MakeValveTable(const double* nodes, const double* values, int n) {
 }
 
 Circuit::Circuit(const double* numbers, int count, std::vector<ValveTable> tables) {
-  if (count < 2) throw CircuitError("circuit numbers: fewer than the 2 counts (nodes, branches)");
-  nodes = static_cast<int>(numbers[0]), branches = static_cast<int>(numbers[1]);
-  if (!(numbers[0] == nodes && nodes >= 2 && nodes <= kMaxNodes && numbers[1] == branches && branches >= 1 &&
-        branches <= kMaxBranches)) {
-    throw CircuitError("circuit numbers: " + std::to_string(numbers[0]) + " nodes and " + std::to_string(numbers[1]) +
-                       " branches (at most " + std::to_string(kMaxNodes) + " and " + std::to_string(kMaxBranches) + ")");
+  if (count < kNumCircuitCounts) {
+    throw CircuitError("circuit numbers: fewer than the " + std::to_string(kNumCircuitCounts) +
+                       " counts (nodes, branches, sections, regenerations)");
   }
+  int counts[kNumCircuitCounts];
+  const int limits[kNumCircuitCounts] = {kMaxNodes, kMaxBranches, kMaxSections, kMaxRegenerations};
+  const int lowest[kNumCircuitCounts] = {2, 1, kNumFunctions, 0};
+  const char* names[kNumCircuitCounts] = {"nodes", "branches", "sections", "regenerations"};
+  for (int i = 0; i < kNumCircuitCounts; ++i) {
+    counts[i] = static_cast<int>(numbers[i]);
+    if (!(numbers[i] == counts[i] && counts[i] >= lowest[i] && counts[i] <= limits[i])) {
+      throw CircuitError("circuit numbers: " + std::to_string(numbers[i]) + " " + names[i] + " (" +
+                         std::to_string(lowest[i]) + " to " + std::to_string(limits[i]) + ")");
+    }
+  }
+  nodes = counts[0], branches = counts[1], sections = counts[2], regenerations = counts[3];
   state_size = nodes + kNumPumps;
   const double* field[kNumCircuitFields];
-  int at = 2;
+  int at = kNumCircuitCounts;
   for (int i = 0; i < kNumCircuitFields; ++i) {
     field[i] = numbers + at;
-    at += kCircuitFields[i].rows * Extent(kCircuitFields[i].per, nodes, branches);
+    at += kCircuitFields[i].rows * Extent(kCircuitFields[i].per, counts);
   }
   if (at != count) {
     throw CircuitError("circuit numbers: " + std::to_string(count) + " numbers where the layout of " +
-                       std::to_string(nodes) + " nodes and " + std::to_string(branches) + " branches needs " +
-                       std::to_string(at));
+                       std::to_string(nodes) + " nodes, " + std::to_string(branches) + " branches, " +
+                       std::to_string(sections) + " sections and " + std::to_string(regenerations) +
+                       " regeneration passages needs " + std::to_string(at));
   }
   for (int i = 0; i < count; ++i) {
     if (!std::isfinite(numbers[i])) throw CircuitError("circuit numbers: number " + std::to_string(i) + " is not finite");
   }
   std::memcpy(law, field[kFieldLaws], sizeof(law));
-  auto ints = [&](int id, int n, int limit, int* out) {
-    for (int i = 0; i < n; ++i) out[i] = Index(field[id][i], limit, kCircuitFields[id].name);
+  auto ints = [&](int id, int n, int limit, int* out, int lowest = 0) {
+    for (int i = 0; i < n; ++i) out[i] = Index(field[id][i], limit, kCircuitFields[id].name, lowest);
   };
-  from.resize(branches), to.resize(branches);
+  int num_tables = static_cast<int>(tables.size());
+  from.resize(branches), to.resize(branches), pilot.resize(branches);
   ints(kFieldBranchFrom, branches, nodes + 1, from.data());
   ints(kFieldBranchTo, branches, nodes + 1, to.data());
+  ints(kFieldBranchPilot, branches, nodes, pilot.data(), -1);
   area.assign(field[kFieldBranchArea], field[kFieldBranchArea] + branches);
   crack.assign(field[kFieldBranchCrack], field[kFieldBranchCrack] + branches);
   inv_span.assign(field[kFieldBranchInvSpan], field[kFieldBranchInvSpan] + branches);
   laminar.assign(field[kFieldBranchLaminar], field[kFieldBranchLaminar] + branches);
-  ints(kFieldPassageBranch, kNumFunctions * 4, branches, &passage_branch[0][0]);
+  for (int b = 0; b < branches; ++b) {
+    if (pilot[b] >= 0 && !(inv_span[b] > 0.0)) {
+      throw CircuitError("circuit field 'branch_pilot': branch " + std::to_string(b) +
+                         " has a pilot but is no pressure-operated valve (branch_inv_span 0)");
+    }
+  }
+  std::vector<int> used(num_tables, 0);
+  auto table = [&](double v, const char* what) {
+    int t = Index(v, num_tables, what, -1);
+    if (t >= 0) ++used[t];
+    return t;
+  };
+  section.resize(sections);
+  for (int i = 0; i < sections; ++i) {
+    Section& s = section[i];
+    s.function = Index(field[kFieldSectionFunction][i], kNumFunctions, "section_function");
+    s.pump = Index(field[kFieldSectionPump][i], kNumPumps, "section_pump");
+    for (int j = 0; j < kNumPassages; ++j) {
+      s.table[j] = table(field[kFieldSectionTable][kNumPassages * i + j], "section_table");
+    }
+    for (int j = 0; j < 4; ++j) {
+      s.branch[j] = Index(field[kFieldSectionBranch][4 * i + j], branches, "section_branch", -1);
+    }
+    if (s.table[kBypass] < 0) {
+      throw CircuitError("circuit field 'section_table': section " + std::to_string(i) + " has no bypass table");
+    }
+    for (int j = 0; j < 4; ++j) {
+      if ((s.table[j + 1] < 0) != (s.branch[j] < 0)) {
+        throw CircuitError("circuit fields 'section_table', 'section_branch': section " + std::to_string(i) +
+                           " has a passage's table without its branch, or its branch without its table");
+      }
+    }
+    s.raise_only = s.table[kPb] < 0 && s.table[kAt] < 0;
+    s.lower_only = s.table[kPa] < 0 && s.table[kBt] < 0;
+    const double* priority = field[kFieldSectionPriority] + 3 * i;
+    s.priority_function = Index(priority[0], kNumFunctions, "section_priority", -1);
+    s.priority_side = Index(priority[1] + 1, 3, "section_priority (side + 1)") - 1;
+    s.priority_share = priority[2];
+    series[s.pump].push_back(i);
+  }
+  regeneration.resize(regenerations);
+  for (int r = 0; r < regenerations; ++r) {
+    const double* row = field[kFieldRegeneration] + 7 * r;
+    Regeneration& g = regeneration[r];
+    g.branch = Index(row[0], branches, "regeneration (branch)");
+    g.function = Index(row[1], kNumFunctions, "regeneration (function)");
+    g.side = Index(row[2] + 1, 3, "regeneration (side + 1)") - 1;
+    g.table = table(row[3], "regeneration (table)");
+    g.area = row[4];
+    g.cylinder = Index(row[5], kNumCylinders, "regeneration (cylinder)", -1);
+    g.end = Index(row[6] + 1, 3, "regeneration (end + 1)") - 1;
+    if (g.side == 0) {
+      throw CircuitError("circuit field 'regeneration': passage " + std::to_string(r) + " opens on no side");
+    }
+  }
+  for (int t = 0; t < num_tables; ++t) {
+    if (used[t] != 1) {
+      throw CircuitError("the valve's table " + std::to_string(t) + " of " + std::to_string(num_tables) +
+                         " is used by " + std::to_string(used[t]) +
+                         " passages of the circuit, not one (tables of another layout?)");
+    }
+  }
   ints(kFieldBypassBranch, kNumPumps, branches, bypass_branch);
   ints(kFieldPumpNode, kNumPumps, nodes, pump_node);
   ints(kFieldSignalNode, kNumPumps, nodes, signal_node);
-  ints(kFieldPumpSections, kNumPumps * 2, kNumFunctions, &sections[0][0]);
   std::memcpy(head_area, field[kFieldHeadArea], sizeof(head_area));
   std::memcpy(rod_area, field[kFieldRodArea], sizeof(rod_area));
   std::memcpy(stroke, field[kFieldStroke], sizeof(stroke));
@@ -517,23 +647,24 @@ Circuit::Circuit(const double* numbers, int count, std::vector<ValveTable> table
   std::memcpy(port_volume, field[kFieldPortVolume], sizeof(port_volume));
   ints(kFieldHeadNode, kNumCylinders, nodes, head_node);
   ints(kFieldRodNode, kNumCylinders, nodes, rod_node);
-  ints(kFieldFunction, kNumCylinders, kNumFunctions, function);
+  ints(kFieldFunction, kNumCylinders, sections, function);
   node_volume.assign(field[kFieldNodeVolume], field[kFieldNodeVolume] + nodes);
   displacement.assign(field[kFieldDisplacement], field[kFieldDisplacement] + 4 * nodes);
   Index(law[kLawSwingA], nodes, "laws: swing_a");
   Index(law[kLawSwingB], nodes, "laws: swing_b");
   if (!(law[kLawMaxSplits] >= 0 && law[kLawMaxSplits] <= 30)) throw CircuitError("laws: max_splits must be 0 to 30");
-  if (static_cast<int>(tables.size()) != kNumPassages * kNumFunctions) {
-    throw CircuitError("the valve needs " + std::to_string(kNumPassages * kNumFunctions) + " tables, got " +
-                       std::to_string(tables.size()));
-  }
-  for (int i = 0; i < kNumPassages * kNumFunctions; ++i) valve[i] = std::move(tables[i]);
+  valve = std::move(tables);
   for (int j = 0; j < kNumPumps; ++j) {  // LearnedValve: the mean of its sections' bypass tables at neutral
-    double neutral = 0.5 * (valve[sections[j][0]](0.0) + valve[sections[j][1]](0.0));
+    if (series[j].empty()) {
+      throw CircuitError("circuit field 'section_pump': pump " + std::to_string(j + 1) + " feeds no section");
+    }
+    double neutral = 0.0;
+    for (int i : series[j]) neutral += valve[section[i].table[kBypass]](0.0);
+    neutral /= static_cast<double>(series[j].size());
     if (!(neutral > 0.0)) {
       throw CircuitError("the bypass tables give a closed centre at neutral on pump " + std::to_string(j + 1));
     }
-    inv_neutral_sq[j] = 1.0 / (neutral * neutral);
+    neutral_term[j] = static_cast<double>(series[j].size() - 1) * (1.0 / (neutral * neutral));
   }
 }
 

@@ -6,8 +6,10 @@
 //
 // The circuit is data: its nodes, branches, valve sections, pumps, cylinders, swing motor and scalar
 // laws come as numbers packed by hexgym.model.circuit_kernel.circuit_numbers in the layout that
-// hexgym/model/plugin.py defines (kCircuitFields, kCircuitLaws in the generated plugin_interface.h);
-// the valve is one 1-D table per passage and function.
+// hexgym/model/plugin.py defines (kCircuitFields, kCircuitLaws in the generated plugin_interface.h). The
+// valve is any layout of sections (hexgym.hydraulics.circuit.ValveLayout): each moved by a function's
+// spool, metering from a pump, its passages' 1-D tables and branches; each pump's bypass the series of its
+// sections'; priority valves on a section's meter-in and regeneration passages, the data sheet's.
 #ifndef HEXGYM_NATIVE_CIRCUIT_H_
 #define HEXGYM_NATIVE_CIRCUIT_H_
 
@@ -28,6 +30,8 @@ class CircuitError : public std::runtime_error {
 constexpr int kMaxNodes = 30;  // the workspace's capacity; a larger circuit is refused when packed
 constexpr int kMaxState = kMaxNodes + kNumPumps;
 constexpr int kMaxBranches = 160;
+constexpr int kMaxSections = 16;
+constexpr int kMaxRegenerations = 8;
 constexpr int kNumPassages = 5;  // bypass, pump->a, pump->b, a->tank, b->tank (hexgym.mbl.schema.VALVE_PASSAGES)
 enum Passage { kBypass, kPa, kPb, kAt, kBt };
 
@@ -40,22 +44,45 @@ struct ValveTable {
 // A table of n nodes at `nodes` (ascending) with `values`.
 ValveTable MakeValveTable(const double* nodes, const double* values, int n);
 
+// A valve section: the function whose spool moves it (to the sides it has passages on: `raise_only`, no pump->b
+// nor a->tank, stays at neutral for a negative spool, `lower_only` for a positive one), the pump it meters from,
+// its passages' tables (Passage order; -1: it has none) and branches (pa, pb, at, bt; -1: none), and a priority
+// valve on its meter-in (the piloting function, -1: none; the side of its spool, 1, -1 or 0 for either; the area's
+// share left at full spool).
+struct Section {
+  int function, pump, table[kNumPassages], branch[4];
+  bool raise_only, lower_only;
+  int priority_function, priority_side;
+  double priority_share;
+};
+
+// A regeneration passage: its branch, the function whose spool opens it on `side` (1 or -1), its table (-1: the
+// data sheet's `area` metered by the spool), the cylinder whose oil leaves through it and its cushion (-1: none)
+// and that cylinder's end (1 the rod's, -1 the head's).
+struct Regeneration {
+  int branch, function, side, table;
+  double area;
+  int cylinder, end;
+};
+
 struct Circuit {
-  int nodes = 0, branches = 0, state_size = 0;
+  int nodes = 0, branches = 0, sections = 0, regenerations = 0, state_size = 0;
   double law[kNumCircuitLaws];
-  std::vector<int> from, to;  // the tank is node `nodes`
+  std::vector<int> from, to, pilot;  // the tank is node `nodes`; pilot: the node that opens a valve, -1: its drop
   std::vector<double> area, crack, inv_span, laminar;
-  int passage_branch[kNumFunctions][4];  // pa, pb, at, bt
-  int bypass_branch[kNumPumps], pump_node[kNumPumps], signal_node[kNumPumps], sections[kNumPumps][2];
+  std::vector<Section> section;
+  std::vector<Regeneration> regeneration;
+  int bypass_branch[kNumPumps], pump_node[kNumPumps], signal_node[kNumPumps];
+  std::vector<int> series[kNumPumps];  // each pump's sections, in series on its bypass
   double head_area[kNumCylinders], rod_area[kNumCylinders], stroke[kNumCylinders], count[kNumCylinders];
   double port_volume[kNumCylinders];
   int head_node[kNumCylinders], rod_node[kNumCylinders], function[kNumCylinders];
   std::vector<double> node_volume;   // (nodes): 0 for the cylinder chambers, whose volumes follow the pistons
   std::vector<double> displacement;  // (nodes, 4): d(volume rate)/d(boom, stick, bucket velocity, swing rate)
-  ValveTable valve[kNumPassages * kNumFunctions];  // row passage * kNumFunctions + function
-  double inv_neutral_sq[kNumPumps];                // 1 / (each pump's bypass area at neutral)^2
+  std::vector<ValveTable> valve;     // the valve's tables, as the sections and regeneration passages index them
+  double neutral_term[kNumPumps];    // (sections - 1) / (each pump's bypass area at neutral)^2
 
-  // From `count` packed numbers and the valve's tables (kNumPassages * kNumFunctions, passage-major).
+  // From `count` packed numbers and the valve's tables (each used by a section's passage or a regeneration).
   Circuit(const double* numbers, int count, std::vector<ValveTable> tables);
 };
 

@@ -10,15 +10,15 @@
 
 extern "C" {
 
-// A kernel for `count` circuit numbers and the valve's tables (sizes[i] nodes each, their nodes and values
-// concatenated), or null with the reason in error (size bytes).
+// A kernel for `count` circuit numbers and the valve's `num_tables` tables (sizes[i] nodes each, their nodes and
+// values concatenated), or null with the reason in error (size bytes).
 __attribute__((visibility("default"))) void* hexgym_circuit_new(const double* numbers, int count, const int* sizes,
-                                                                const double* nodes, const double* values,
-                                                                char* error, int size) {
+                                                                int num_tables, const double* nodes,
+                                                                const double* values, char* error, int size) {
   try {
     std::vector<hexgym::ValveTable> tables;
     long at = 0;
-    for (int i = 0; i < hexgym::kNumPassages * hexgym::kNumFunctions; ++i) {
+    for (int i = 0; i < num_tables; ++i) {
       tables.push_back(hexgym::MakeValveTable(nodes + at, values + at, sizes[i]));
       at += sizes[i];
     }

@@ -21,7 +21,8 @@
 // and the targets held within it (the swing's unclipped rate) are the plugin state (mjSTATE_PLUGIN).
 // So mj_getState/mj_setState (mjSTATE_FULLPHYSICS) restore a step exactly.
 //
-// With table_set "circuit" a query runs the circuit model's control period instead of the tables
+// With a circuit model's table set ("circuit", "circuit_cat": the valve's tables of a valve layout) a query runs
+// the circuit model's control period instead of the tables
 // (hexgym.model.circuit_model.CircuitModel._control_period; circuit.cc): the joints' loads, moment arms and
 // mass matrix at the period's start, the circuit's steps at the spools, the joints' mean rates over the period
 // as the servos' targets. The circuit's structure comes from config key "circuit" (numbers packed by
@@ -188,7 +189,7 @@ Triangle ReadTriangle(const mjModel* m, int instance, const char* key) {
 class MblPlugin {
  public:
   std::shared_ptr<const LoadedTables> tables;
-  std::shared_ptr<const Circuit> circuit;  // table_set circuit: the circuit model (else null)
+  std::shared_ptr<const Circuit> circuit;  // a circuit model's table set: the circuit model (else null)
   int substeps = 1;                       // the circuit's steps per control period
   int mass_adr[4][4];                     // the main dofs' entries in d->M (CSR, lower triangle), -1: none
   double next_hydraulics[kHydraulicsSize], next_rates[4], next_fault = 0.0;
@@ -228,7 +229,7 @@ class MblPlugin {
     tables = LoadTables(dir && dir[0] ? std::string(dir) : LibraryDirectory() + "/mbl_tables/" + table_set.name,
                         table_set);
     ReadMachine(m, instance);
-    if (std::strcmp(table_set.name, "circuit") == 0) {
+    if (table_set.circuit) {
       circuit = LoadCircuit(m, instance, tables);
       double n = Number(m, instance, "substeps");
       if (!(n >= 1 && n <= 1000 && n == std::floor(n))) throw SetupError("config key 'substeps' must be a whole number >= 1");

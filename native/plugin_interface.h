@@ -37,9 +37,9 @@ constexpr const char* kAttributes[] = {
     "swing_rest_rate",  // rad/s
     "rate_range",  // lo hi per joint, rad/s (the Python path's servo ctrlrange)
     "control_period",  // s between table queries, >= one step (default: one step)
-    "table_set",  // which table set the tables directory holds: circuit or paper (default: the default set)
-    "circuit",  // the circuit's numbers (nodes, branches, then CIRCUIT_FIELDS), for table_set circuit
-    "substeps",  // the circuit's steps per control period, for table_set circuit
+    "table_set",  // the tables directory's table set: circuit, paper, circuit_cat (default circuit)
+    "circuit",  // the circuit's numbers (CIRCUIT_COUNTS, then CIRCUIT_FIELDS), for a circuit model's table set
+    "substeps",  // the circuit's steps per control period, for a circuit model's table set
 };
 constexpr int kNumAttributes = sizeof(kAttributes) / sizeof(kAttributes[0]);
 
@@ -112,20 +112,52 @@ constexpr TableSchema kPaperTables[] = {
     {"stick", 4, {kQSwingSpoolM, kQStickSpoolM, kQSwingInertiaKgm2, kQStickForceN}, "stick_velocity_mps"},
     {"swing", 5, {kQSwingSpoolM, kQStickSpoolM, kQStickForceN, kQSwingInertiaKgm2, kQSwingRateRadps}, "swing_acceleration_radps2"},
 };
+constexpr TableSchema kCircuitCatTables[] = {
+    {"swing_bypass", 1, {kQSwingSpoolM}, "swing_bypass_area_m2"},
+    {"boom_bypass", 1, {kQBoomSpoolM}, "boom_bypass_area_m2"},
+    {"stick_bypass", 1, {kQStickSpoolM}, "stick_bypass_area_m2"},
+    {"bucket_bypass", 1, {kQBucketSpoolM}, "bucket_bypass_area_m2"},
+    {"boom2_bypass", 1, {kQBoomSpoolM}, "boom2_bypass_area_m2"},
+    {"stick2_bypass", 1, {kQStickSpoolM}, "stick2_bypass_area_m2"},
+    {"swing_pa", 1, {kQSwingSpoolM}, "swing_pa_area_m2"},
+    {"boom_pa", 1, {kQBoomSpoolM}, "boom_pa_area_m2"},
+    {"stick_pa", 1, {kQStickSpoolM}, "stick_pa_area_m2"},
+    {"bucket_pa", 1, {kQBucketSpoolM}, "bucket_pa_area_m2"},
+    {"boom2_pa", 1, {kQBoomSpoolM}, "boom2_pa_area_m2"},
+    {"stick2_pa", 1, {kQStickSpoolM}, "stick2_pa_area_m2"},
+    {"swing_pb", 1, {kQSwingSpoolM}, "swing_pb_area_m2"},
+    {"boom_pb", 1, {kQBoomSpoolM}, "boom_pb_area_m2"},
+    {"stick_pb", 1, {kQStickSpoolM}, "stick_pb_area_m2"},
+    {"bucket_pb", 1, {kQBucketSpoolM}, "bucket_pb_area_m2"},
+    {"stick2_pb", 1, {kQStickSpoolM}, "stick2_pb_area_m2"},
+    {"swing_at", 1, {kQSwingSpoolM}, "swing_at_area_m2"},
+    {"boom_at", 1, {kQBoomSpoolM}, "boom_at_area_m2"},
+    {"stick_at", 1, {kQStickSpoolM}, "stick_at_area_m2"},
+    {"bucket_at", 1, {kQBucketSpoolM}, "bucket_at_area_m2"},
+    {"swing_bt", 1, {kQSwingSpoolM}, "swing_bt_area_m2"},
+    {"boom_bt", 1, {kQBoomSpoolM}, "boom_bt_area_m2"},
+    {"stick_bt", 1, {kQStickSpoolM}, "stick_bt_area_m2"},
+    {"bucket_bt", 1, {kQBucketSpoolM}, "bucket_bt_area_m2"},
+    {"stick_regeneration", 1, {kQStickSpoolM}, "stick_regeneration_area_m2"},
+    {"boom_regeneration", 1, {kQBoomSpoolM}, "boom_regeneration_area_m2"},
+};
 struct TableSet {
   const char* name;
   int num_tables;
   const TableSchema* tables;
+  bool circuit;  // the circuit model's valve tables (the numbers of config key circuit say the circuit)
 };
-constexpr int kNumTableSets = 2;
+constexpr int kNumTableSets = 3;
 constexpr TableSet kTableSets[kNumTableSets] = {
-    {"circuit", 20, kCircuitTables},
-    {"paper", 4, kPaperTables},
+    {"circuit", 20, kCircuitTables, true},
+    {"paper", 4, kPaperTables, false},
+    {"circuit_cat", 27, kCircuitCatTables, true},
 };
 constexpr char kDefaultTableSet[] = "circuit";
 
-// The circuit model's numbers (config key "circuit"): nodes, branches, then these fields in order,
-// each rows x extent numbers (C order of (extent, rows))
+// The circuit model's numbers (config key "circuit"): nodes, branches, sections, regenerations, then these fields
+// in order, each rows x extent numbers (C order of (extent, rows))
+constexpr int kNumCircuitCounts = 4;
 constexpr int kNumPumps = 2;
 constexpr int kNumCylinders = 3;
 constexpr int kNumFunctions = 4;
@@ -176,6 +208,8 @@ enum CircuitLaw {
   kLawStopSplit,
   kLawStopSplitSpeed,
   kLawDeadBand,
+  kLawSpoolStroke,
+  kLawMeteringExponent,
   kLawClosedArea,
   kLawIdlePressure,
   kLawRestPressure,
@@ -186,6 +220,8 @@ enum CircuitExtent {
   kPerOne,
   kPerNodes,
   kPerBranches,
+  kPerSections,
+  kPerRegenerations,
   kPerPumps,
   kPerFunctions,
   kPerCylinders,
@@ -198,11 +234,16 @@ enum CircuitFieldId {
   kFieldBranchCrack,
   kFieldBranchInvSpan,
   kFieldBranchLaminar,
-  kFieldPassageBranch,
+  kFieldBranchPilot,
+  kFieldSectionFunction,
+  kFieldSectionPump,
+  kFieldSectionTable,
+  kFieldSectionBranch,
+  kFieldSectionPriority,
+  kFieldRegeneration,
   kFieldBypassBranch,
   kFieldPumpNode,
   kFieldSignalNode,
-  kFieldPumpSections,
   kFieldHeadArea,
   kFieldRodArea,
   kFieldStroke,
@@ -221,18 +262,23 @@ struct CircuitField {
   CircuitExtent per;
 };
 constexpr CircuitField kCircuitFields[kNumCircuitFields] = {
-    {"laws", 40, kPerOne},
+    {"laws", 42, kPerOne},
     {"branch_from", 1, kPerBranches},
     {"branch_to", 1, kPerBranches},
     {"branch_area", 1, kPerBranches},
     {"branch_crack", 1, kPerBranches},
     {"branch_inv_span", 1, kPerBranches},
     {"branch_laminar", 1, kPerBranches},
-    {"passage_branch", 4, kPerFunctions},
+    {"branch_pilot", 1, kPerBranches},
+    {"section_function", 1, kPerSections},
+    {"section_pump", 1, kPerSections},
+    {"section_table", 5, kPerSections},
+    {"section_branch", 4, kPerSections},
+    {"section_priority", 3, kPerSections},
+    {"regeneration", 7, kPerRegenerations},
     {"bypass_branch", 1, kPerPumps},
     {"pump_node", 1, kPerPumps},
     {"signal_node", 1, kPerPumps},
-    {"pump_sections", 2, kPerPumps},
     {"head_area", 1, kPerCylinders},
     {"rod_area", 1, kPerCylinders},
     {"stroke", 1, kPerCylinders},
@@ -246,7 +292,7 @@ constexpr CircuitField kCircuitFields[kNumCircuitFields] = {
 };
 
 // All of the above as JSON, returned by hexgym_mbl_interface() for the Python side's check
-constexpr char kInterfaceJson[] = "{\"circuit_counts\":{\"cylinders\":3,\"functions\":4,\"pumps\":2},\"circuit_fields\":[[\"laws\",40,\"one\"],[\"branch_from\",1,\"branches\"],[\"branch_to\",1,\"branches\"],[\"branch_area\",1,\"branches\"],[\"branch_crack\",1,\"branches\"],[\"branch_inv_span\",1,\"branches\"],[\"branch_laminar\",1,\"branches\"],[\"passage_branch\",4,\"functions\"],[\"bypass_branch\",1,\"pumps\"],[\"pump_node\",1,\"pumps\"],[\"signal_node\",1,\"pumps\"],[\"pump_sections\",2,\"pumps\"],[\"head_area\",1,\"cylinders\"],[\"rod_area\",1,\"cylinders\"],[\"stroke\",1,\"cylinders\"],[\"cylinder_count\",1,\"cylinders\"],[\"port_volume\",1,\"cylinders\"],[\"head_node\",1,\"cylinders\"],[\"rod_node\",1,\"cylinders\"],[\"function\",1,\"cylinders\"],[\"node_volume\",1,\"nodes\"],[\"displacement\",4,\"nodes\"]],\"circuit_laws\":[\"discharge\",\"sqrt_2_rho\",\"laminar_sq\",\"atmosphere\",\"vacuum\",\"polytropic\",\"air_fraction\",\"bulk_modulus\",\"cushion_length\",\"cushion_area\",\"cushion_port_area\",\"nfc_full_flow\",\"nfc_min_flow\",\"idle_fraction\",\"power_limit\",\"max_flow\",\"regulator_time\",\"max_splits\",\"trust_floor\",\"trust_jump\",\"coulomb\",\"friction_velocity\",\"viscous\",\"swing_reduction\",\"swing_displacement\",\"swing_viscous\",\"swing_efficiency\",\"swing_friction_speed\",\"swing_a\",\"swing_b\",\"stop_clearance\",\"stop_stiffness\",\"stop_damping\",\"stop_split\",\"stop_split_speed\",\"dead_band\",\"closed_area\",\"idle_pressure\",\"rest_pressure\",\"fault_pressure\"],\"circuit_period\":{\"arms\":[11,3],\"ext\":[8,3],\"load\":[30,4],\"mass\":[14,16],\"rates\":[4,4],\"spools\":[0,4],\"state\":[38,14],\"travel\":[34,4]},\"clearance_config_keys\":[\"tool\",\"obstacles\",\"cutoff\"],\"clearance_plugin\":\"hexgym.clearance\",\"config_keys\":[\"tables\",\"boom_triangle\",\"stick_triangle\",\"bucket_four_bar\",\"retracted_length\",\"stroke\",\"end_margin\",\"push_limit\",\"pull_limit\",\"swing_torque_limit\",\"dead_band\",\"swing_rest_rate\",\"rate_range\",\"control_period\",\"table_set\",\"circuit\",\"substeps\"],\"ctrl_per_spool_m\":1000.0,\"default_table_set\":\"circuit\",\"joints\":[\"swing\",\"boom\",\"stick\",\"bucket\"],\"plugin\":\"hexgym.mbl\",\"quantities\":[\"swing_spool_m\",\"boom_spool_m\",\"stick_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"stick_force_n\",\"bucket_force_n\",\"swing_inertia_kgm2\",\"swing_rate_radps\"],\"state\":{\"acceleration\":[4,1],\"circuit_fault\":[29,1],\"circuit_ready\":[28,1],\"hydraulics\":[10,14],\"load\":[0,4],\"phase\":[5,1],\"rates\":[24,4],\"targets\":[6,4]},\"state_size\":30,\"table_format_version\":1,\"table_sets\":{\"circuit\":[{\"inputs\":[\"swing_spool_m\"],\"name\":\"swing_bypass\",\"output\":\"swing_bypass_area_m2\"},{\"inputs\":[\"boom_spool_m\"],\"name\":\"boom_bypass\",\"output\":\"boom_bypass_area_m2\"},{\"inputs\":[\"stick_spool_m\"],\"name\":\"stick_bypass\",\"output\":\"stick_bypass_area_m2\"},{\"inputs\":[\"bucket_spool_m\"],\"name\":\"bucket_bypass\",\"output\":\"bucket_bypass_area_m2\"},{\"inputs\":[\"swing_spool_m\"],\"name\":\"swing_pa\",\"output\":\"swing_pa_area_m2\"},{\"inputs\":[\"boom_spool_m\"],\"name\":\"boom_pa\",\"output\":\"boom_pa_area_m2\"},{\"inputs\":[\"stick_spool_m\"],\"name\":\"stick_pa\",\"output\":\"stick_pa_area_m2\"},{\"inputs\":[\"bucket_spool_m\"],\"name\":\"bucket_pa\",\"output\":\"bucket_pa_area_m2\"},{\"inputs\":[\"swing_spool_m\"],\"name\":\"swing_pb\",\"output\":\"swing_pb_area_m2\"},{\"inputs\":[\"boom_spool_m\"],\"name\":\"boom_pb\",\"output\":\"boom_pb_area_m2\"},{\"inputs\":[\"stick_spool_m\"],\"name\":\"stick_pb\",\"output\":\"stick_pb_area_m2\"},{\"inputs\":[\"bucket_spool_m\"],\"name\":\"bucket_pb\",\"output\":\"bucket_pb_area_m2\"},{\"inputs\":[\"swing_spool_m\"],\"name\":\"swing_at\",\"output\":\"swing_at_area_m2\"},{\"inputs\":[\"boom_spool_m\"],\"name\":\"boom_at\",\"output\":\"boom_at_area_m2\"},{\"inputs\":[\"stick_spool_m\"],\"name\":\"stick_at\",\"output\":\"stick_at_area_m2\"},{\"inputs\":[\"bucket_spool_m\"],\"name\":\"bucket_at\",\"output\":\"bucket_at_area_m2\"},{\"inputs\":[\"swing_spool_m\"],\"name\":\"swing_bt\",\"output\":\"swing_bt_area_m2\"},{\"inputs\":[\"boom_spool_m\"],\"name\":\"boom_bt\",\"output\":\"boom_bt_area_m2\"},{\"inputs\":[\"stick_spool_m\"],\"name\":\"stick_bt\",\"output\":\"stick_bt_area_m2\"},{\"inputs\":[\"bucket_spool_m\"],\"name\":\"bucket_bt\",\"output\":\"bucket_bt_area_m2\"}],\"paper\":[{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\"],\"name\":\"boom\",\"output\":\"boom_velocity_mps\"},{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\"],\"name\":\"bucket\",\"output\":\"bucket_velocity_mps\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"swing_inertia_kgm2\",\"stick_force_n\"],\"name\":\"stick\",\"output\":\"stick_velocity_mps\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"stick_force_n\",\"swing_inertia_kgm2\",\"swing_rate_radps\"],\"name\":\"swing\",\"output\":\"swing_acceleration_radps2\"}]}}";
+constexpr char kInterfaceJson[] = "{\"circuit_counts\":{\"cylinders\":3,\"functions\":4,\"pumps\":2},\"circuit_fields\":[[\"laws\",42,\"one\"],[\"branch_from\",1,\"branches\"],[\"branch_to\",1,\"branches\"],[\"branch_area\",1,\"branches\"],[\"branch_crack\",1,\"branches\"],[\"branch_inv_span\",1,\"branches\"],[\"branch_laminar\",1,\"branches\"],[\"branch_pilot\",1,\"branches\"],[\"section_function\",1,\"sections\"],[\"section_pump\",1,\"sections\"],[\"section_table\",5,\"sections\"],[\"section_branch\",4,\"sections\"],[\"section_priority\",3,\"sections\"],[\"regeneration\",7,\"regenerations\"],[\"bypass_branch\",1,\"pumps\"],[\"pump_node\",1,\"pumps\"],[\"signal_node\",1,\"pumps\"],[\"head_area\",1,\"cylinders\"],[\"rod_area\",1,\"cylinders\"],[\"stroke\",1,\"cylinders\"],[\"cylinder_count\",1,\"cylinders\"],[\"port_volume\",1,\"cylinders\"],[\"head_node\",1,\"cylinders\"],[\"rod_node\",1,\"cylinders\"],[\"function\",1,\"cylinders\"],[\"node_volume\",1,\"nodes\"],[\"displacement\",4,\"nodes\"]],\"circuit_laws\":[\"discharge\",\"sqrt_2_rho\",\"laminar_sq\",\"atmosphere\",\"vacuum\",\"polytropic\",\"air_fraction\",\"bulk_modulus\",\"cushion_length\",\"cushion_area\",\"cushion_port_area\",\"nfc_full_flow\",\"nfc_min_flow\",\"idle_fraction\",\"power_limit\",\"max_flow\",\"regulator_time\",\"max_splits\",\"trust_floor\",\"trust_jump\",\"coulomb\",\"friction_velocity\",\"viscous\",\"swing_reduction\",\"swing_displacement\",\"swing_viscous\",\"swing_efficiency\",\"swing_friction_speed\",\"swing_a\",\"swing_b\",\"stop_clearance\",\"stop_stiffness\",\"stop_damping\",\"stop_split\",\"stop_split_speed\",\"dead_band\",\"spool_stroke\",\"metering_exponent\",\"closed_area\",\"idle_pressure\",\"rest_pressure\",\"fault_pressure\"],\"circuit_numbers_start\":[\"nodes\",\"branches\",\"sections\",\"regenerations\"],\"circuit_period\":{\"arms\":[11,3],\"ext\":[8,3],\"load\":[30,4],\"mass\":[14,16],\"rates\":[4,4],\"spools\":[0,4],\"state\":[38,14],\"travel\":[34,4]},\"circuit_table_sets\":[\"circuit\",\"circuit_cat\"],\"clearance_config_keys\":[\"tool\",\"obstacles\",\"cutoff\"],\"clearance_plugin\":\"hexgym.clearance\",\"config_keys\":[\"tables\",\"boom_triangle\",\"stick_triangle\",\"bucket_four_bar\",\"retracted_length\",\"stroke\",\"end_margin\",\"push_limit\",\"pull_limit\",\"swing_torque_limit\",\"dead_band\",\"swing_rest_rate\",\"rate_range\",\"control_period\",\"table_set\",\"circuit\",\"substeps\"],\"ctrl_per_spool_m\":1000.0,\"default_table_set\":\"circuit\",\"joints\":[\"swing\",\"boom\",\"stick\",\"bucket\"],\"plugin\":\"hexgym.mbl\",\"quantities\":[\"swing_spool_m\",\"boom_spool_m\",\"stick_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"stick_force_n\",\"bucket_force_n\",\"swing_inertia_kgm2\",\"swing_rate_radps\"],\"state\":{\"acceleration\":[4,1],\"circuit_fault\":[29,1],\"circuit_ready\":[28,1],\"hydraulics\":[10,14],\"load\":[0,4],\"phase\":[5,1],\"rates\":[24,4],\"targets\":[6,4]},\"state_size\":30,\"table_format_version\":1,\"table_sets\":{\"circuit\":[{\"inputs\":[\"swing_spool_m\"],\"name\":\"swing_bypass\",\"output\":\"swing_bypass_area_m2\"},{\"inputs\":[\"boom_spool_m\"],\"name\":\"boom_bypass\",\"output\":\"boom_bypass_area_m2\"},{\"inputs\":[\"stick_spool_m\"],\"name\":\"stick_bypass\",\"output\":\"stick_bypass_area_m2\"},{\"inputs\":[\"bucket_spool_m\"],\"name\":\"bucket_bypass\",\"output\":\"bucket_bypass_area_m2\"},{\"inputs\":[\"swing_spool_m\"],\"name\":\"swing_pa\",\"output\":\"swing_pa_area_m2\"},{\"inputs\":[\"boom_spool_m\"],\"name\":\"boom_pa\",\"output\":\"boom_pa_area_m2\"},{\"inputs\":[\"stick_spool_m\"],\"name\":\"stick_pa\",\"output\":\"stick_pa_area_m2\"},{\"inputs\":[\"bucket_spool_m\"],\"name\":\"bucket_pa\",\"output\":\"bucket_pa_area_m2\"},{\"inputs\":[\"swing_spool_m\"],\"name\":\"swing_pb\",\"output\":\"swing_pb_area_m2\"},{\"inputs\":[\"boom_spool_m\"],\"name\":\"boom_pb\",\"output\":\"boom_pb_area_m2\"},{\"inputs\":[\"stick_spool_m\"],\"name\":\"stick_pb\",\"output\":\"stick_pb_area_m2\"},{\"inputs\":[\"bucket_spool_m\"],\"name\":\"bucket_pb\",\"output\":\"bucket_pb_area_m2\"},{\"inputs\":[\"swing_spool_m\"],\"name\":\"swing_at\",\"output\":\"swing_at_area_m2\"},{\"inputs\":[\"boom_spool_m\"],\"name\":\"boom_at\",\"output\":\"boom_at_area_m2\"},{\"inputs\":[\"stick_spool_m\"],\"name\":\"stick_at\",\"output\":\"stick_at_area_m2\"},{\"inputs\":[\"bucket_spool_m\"],\"name\":\"bucket_at\",\"output\":\"bucket_at_area_m2\"},{\"inputs\":[\"swing_spool_m\"],\"name\":\"swing_bt\",\"output\":\"swing_bt_area_m2\"},{\"inputs\":[\"boom_spool_m\"],\"name\":\"boom_bt\",\"output\":\"boom_bt_area_m2\"},{\"inputs\":[\"stick_spool_m\"],\"name\":\"stick_bt\",\"output\":\"stick_bt_area_m2\"},{\"inputs\":[\"bucket_spool_m\"],\"name\":\"bucket_bt\",\"output\":\"bucket_bt_area_m2\"}],\"circuit_cat\":[{\"inputs\":[\"swing_spool_m\"],\"name\":\"swing_bypass\",\"output\":\"swing_bypass_area_m2\"},{\"inputs\":[\"boom_spool_m\"],\"name\":\"boom_bypass\",\"output\":\"boom_bypass_area_m2\"},{\"inputs\":[\"stick_spool_m\"],\"name\":\"stick_bypass\",\"output\":\"stick_bypass_area_m2\"},{\"inputs\":[\"bucket_spool_m\"],\"name\":\"bucket_bypass\",\"output\":\"bucket_bypass_area_m2\"},{\"inputs\":[\"boom_spool_m\"],\"name\":\"boom2_bypass\",\"output\":\"boom2_bypass_area_m2\"},{\"inputs\":[\"stick_spool_m\"],\"name\":\"stick2_bypass\",\"output\":\"stick2_bypass_area_m2\"},{\"inputs\":[\"swing_spool_m\"],\"name\":\"swing_pa\",\"output\":\"swing_pa_area_m2\"},{\"inputs\":[\"boom_spool_m\"],\"name\":\"boom_pa\",\"output\":\"boom_pa_area_m2\"},{\"inputs\":[\"stick_spool_m\"],\"name\":\"stick_pa\",\"output\":\"stick_pa_area_m2\"},{\"inputs\":[\"bucket_spool_m\"],\"name\":\"bucket_pa\",\"output\":\"bucket_pa_area_m2\"},{\"inputs\":[\"boom_spool_m\"],\"name\":\"boom2_pa\",\"output\":\"boom2_pa_area_m2\"},{\"inputs\":[\"stick_spool_m\"],\"name\":\"stick2_pa\",\"output\":\"stick2_pa_area_m2\"},{\"inputs\":[\"swing_spool_m\"],\"name\":\"swing_pb\",\"output\":\"swing_pb_area_m2\"},{\"inputs\":[\"boom_spool_m\"],\"name\":\"boom_pb\",\"output\":\"boom_pb_area_m2\"},{\"inputs\":[\"stick_spool_m\"],\"name\":\"stick_pb\",\"output\":\"stick_pb_area_m2\"},{\"inputs\":[\"bucket_spool_m\"],\"name\":\"bucket_pb\",\"output\":\"bucket_pb_area_m2\"},{\"inputs\":[\"stick_spool_m\"],\"name\":\"stick2_pb\",\"output\":\"stick2_pb_area_m2\"},{\"inputs\":[\"swing_spool_m\"],\"name\":\"swing_at\",\"output\":\"swing_at_area_m2\"},{\"inputs\":[\"boom_spool_m\"],\"name\":\"boom_at\",\"output\":\"boom_at_area_m2\"},{\"inputs\":[\"stick_spool_m\"],\"name\":\"stick_at\",\"output\":\"stick_at_area_m2\"},{\"inputs\":[\"bucket_spool_m\"],\"name\":\"bucket_at\",\"output\":\"bucket_at_area_m2\"},{\"inputs\":[\"swing_spool_m\"],\"name\":\"swing_bt\",\"output\":\"swing_bt_area_m2\"},{\"inputs\":[\"boom_spool_m\"],\"name\":\"boom_bt\",\"output\":\"boom_bt_area_m2\"},{\"inputs\":[\"stick_spool_m\"],\"name\":\"stick_bt\",\"output\":\"stick_bt_area_m2\"},{\"inputs\":[\"bucket_spool_m\"],\"name\":\"bucket_bt\",\"output\":\"bucket_bt_area_m2\"},{\"inputs\":[\"stick_spool_m\"],\"name\":\"stick_regeneration\",\"output\":\"stick_regeneration_area_m2\"},{\"inputs\":[\"boom_spool_m\"],\"name\":\"boom_regeneration\",\"output\":\"boom_regeneration_area_m2\"}],\"paper\":[{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\"],\"name\":\"boom\",\"output\":\"boom_velocity_mps\"},{\"inputs\":[\"boom_spool_m\",\"bucket_spool_m\",\"boom_force_n\",\"bucket_force_n\"],\"name\":\"bucket\",\"output\":\"bucket_velocity_mps\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"swing_inertia_kgm2\",\"stick_force_n\"],\"name\":\"stick\",\"output\":\"stick_velocity_mps\"},{\"inputs\":[\"swing_spool_m\",\"stick_spool_m\",\"stick_force_n\",\"swing_inertia_kgm2\",\"swing_rate_radps\"],\"name\":\"swing\",\"output\":\"swing_acceleration_radps2\"}]}}";
 
 }  // namespace hexgym
 

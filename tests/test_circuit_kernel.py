@@ -1,5 +1,7 @@
 """The circuit model's native kernel (native/circuit.cc, through hexgym.model.circuit_kernel) against the numpy
-circuit it mirrors (hexgym.hydraulics.circuit, the definition)."""
+circuit it mirrors (hexgym.hydraulics.circuit, the definition), on each circuit table set's valve layout: the paper's
+one section per function, and the Cat two-pump valve (boom 2, stick 2, priority valves, regeneration, the stick
+unloading valve piloted by the head pressure)."""
 
 from __future__ import annotations
 
@@ -8,7 +10,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from hexgym.hydraulics.circuit import HydraulicCircuit
+from hexgym.hydraulics.circuit import NODES, HydraulicCircuit, valve_layout
+from hexgym.mbl.schema import CIRCUIT_TABLE_SETS, VALVE_OF_TABLE_SET
 from hexgym.mbl.table import MBLTable, load_tables
 from hexgym.mbl.valve import LearnedValve
 from hexgym.model import circuit_kernel as ck
@@ -21,9 +24,14 @@ pytestmark = pytest.mark.skipif(bool(ck.native_reason()), reason="the native lib
 RTOL = 1e-10
 
 
-@pytest.fixture(scope="module")
-def circuit() -> HydraulicCircuit:
-    return HydraulicCircuit(valve=LearnedValve(load_tables(table_set="circuit")))
+@pytest.fixture(scope="module", params=CIRCUIT_TABLE_SETS)
+def circuit(request) -> HydraulicCircuit:
+    return _circuit(request.param, load_tables(table_set=request.param))
+
+
+def _circuit(table_set: str, tables: dict[str, MBLTable]) -> HydraulicCircuit:
+    layout = valve_layout(VALVE_OF_TABLE_SET[table_set])
+    return HydraulicCircuit(valve=LearnedValve(tables, layout), layout=layout)
 
 
 @pytest.fixture(scope="module")
@@ -56,18 +64,52 @@ def _close(got: np.ndarray, want: np.ndarray) -> None:
 def test_branch_areas_are_the_learned_valves(circuit, kernel) -> None:
     for _, spools, ext, _, _ in _cases(circuit, 200):
         _close(kernel.branch_areas(spools, ext), circuit.branch_areas(spools, ext))
+    if circuit.layout.name == "cat":  # each of its own passages was open somewhere: priorities, regeneration
+        index, opened = circuit.branch_index, set()
+        for _, spools, ext, _, _ in _cases(circuit, 200):
+            area = kernel.branch_areas(spools, ext)
+            opened |= {name for name in ("boom2_pa", "stick2_pb", *circuit.layout.regeneration_passages)
+                       if area[index[name]] > 0.0}  # fmt: skip
+        assert opened == {"boom2_pa", "stick2_pb", *circuit.layout.regeneration_passages}
 
 
-def test_derivatives_jacobian_and_forces_are_the_circuits(circuit, kernel) -> None:
-    for y, spools, ext, vel, rate in _cases(circuit, 200, seed=1):
-        f, jac = kernel.derivatives(y, spools, ext, vel, rate)
-        f_ref, jac_ref = circuit.jacobian(y, spools, ext, vel, rate)
-        _close(f, f_ref)
-        _close(jac, jac_ref)
-        forces, torque = kernel.forces(y, vel, rate)
-        forces_ref, torque_ref = circuit.actuator_forces(y, ext, vel, rate, end_stops=False)
-        _close(forces, forces_ref)
-        assert torque == pytest.approx(torque_ref, rel=RTOL, abs=1e-6)
+def test_the_cat_valves_own_rules_are_the_definitions() -> None:
+    """A section with passages on one side stays at neutral on the other (boom 2 while the boom lowers: pump 2's
+    centre open as at neutral), and a regeneration passage's oil leaves through its cylinder end's cushion."""
+    circuit = _circuit("circuit_cat", load_tables(table_set="circuit_cat"))
+    kernel = ck.NativeCircuit(circuit, circuit.valve.tables, STOP_CLEARANCE)
+    index, mid = circuit.branch_index, 0.5 * circuit.stroke
+    lowering, neutral = (
+        kernel.branch_areas(np.array([0.0, -0.011, 0.0, 0.0]), mid),
+        kernel.branch_areas(np.zeros(4), mid),
+    )
+    assert lowering[index["bypass2"]] == neutral[index["bypass2"]] > 0.0
+    assert lowering[index["boom_regeneration"]] > 0.0
+    stick_in = np.array([0.0, 0.0, 0.011, 0.0])
+    for ext in (mid, np.r_[mid[0], circuit.stroke[1] - 0.002, mid[2]]):  # the stick's rod end in its cushion
+        _close(kernel.branch_areas(stick_in, ext), circuit.branch_areas(stick_in, ext))
+    cushioned = kernel.branch_areas(stick_in, np.r_[mid[0], circuit.stroke[1] - 0.002, mid[2]])
+    for passage in ("stick_regeneration", "stick_unloading"):
+        assert 0.0 < cushioned[index[passage]] < kernel.branch_areas(stick_in, mid)[index[passage]]
+
+
+def test_the_piloted_valve_has_its_jacobian_column(circuit, kernel) -> None:
+    """The stick unloading valve (rod -> tank) opens with the head's pressure: d(rod pdot)/d(head pressure) holds
+    its flow's change with the opening, as the definition's; the paper's layout has no such column."""
+    head, rod = NODES.index("stick_head"), NODES.index("stick_rod")
+    y = circuit.initial_state()
+    y[head], y[rod] = 7e6, 12e6  # the unloading valve part open, the rod's oil under pressure
+    spools, ext, vel = np.array([0.0, 0.0, 9e-3, 0.0]), 0.5 * circuit.stroke, np.array([0.0, 0.05, 0.0])
+    f, jac = kernel.derivatives(y, spools, ext, vel, 0.0)
+    f_ref, jac_ref = circuit.jacobian(y, spools, ext, vel, 0.0)
+    _close(jac, jac_ref)
+    eps = 10.0  # Pa: the column is the derivative of the rates
+    up, down = y.copy(), y.copy()
+    up[head], down[head] = y[head] + eps, y[head] - eps
+    column = kernel.derivatives(up, spools, ext, vel, 0.0)[0] - kernel.derivatives(down, spools, ext, vel, 0.0)[0]
+    assert column[rod] / (2.0 * eps) == pytest.approx(jac[rod, head], rel=1e-5)
+    piloted = circuit.pilot_conductance(y[:12], circuit.branch_areas(spools, ext))
+    assert piloted.size == (circuit.layout.name == "cat") and np.all(piloted > 0.0)  # the state opens it part way
 
 
 def test_step_splitting_and_sensitivity_are_the_circuits(circuit, kernel) -> None:
@@ -91,20 +133,20 @@ def test_any_one_input_tables_are_read(circuit) -> None:
     """Refitted tables may have other grids, uneven ones too: the lookup is the tables' own."""
     rng = np.random.default_rng(4)
     tables = {}
-    for name, table in load_tables(table_set="circuit").items():
+    for name, table in circuit.valve.tables.items():
         lo, hi = table.axes[0][0], table.axes[0][-1]
         even = name.startswith(("boom", "swing"))
         axis = np.linspace(lo, hi, 31) if even else np.sort(np.r_[lo, hi, rng.uniform(lo, hi, 40)])
         values = table(axis[:, None]) * rng.uniform(0.8, 1.2) + rng.normal(0.0, 1e-6, len(axis))
         tables[name] = dataclasses.replace(table, axes=(axis,), values=values, confidence=np.ones(len(axis)))
-    other = HydraulicCircuit(valve=LearnedValve(tables))
+    other = HydraulicCircuit(valve=LearnedValve(tables, circuit.layout), layout=circuit.layout)
     kernel = ck.NativeCircuit(other, tables, STOP_CLEARANCE)
     for _, spools, ext, _, _ in _cases(circuit, 200, seed=5):
         _close(kernel.branch_areas(spools, ext), other.branch_areas(spools, ext))
 
 
 def test_tables_of_more_inputs_are_refused(circuit) -> None:
-    tables = load_tables(table_set="circuit")
+    tables = dict(circuit.valve.tables)
     table = tables["boom_pa"]
     axes = (table.axes[0], np.array([0.0, 1.0]))
     values = np.repeat(table.values[:, None], 2, axis=1)
@@ -127,13 +169,14 @@ def test_the_circuit_is_data_to_the_kernel(circuit, kernel) -> None:
     fields = ck.circuit_fields(circuit, STOP_CLEARANCE)
     for name in ("branch_from", "branch_to", "pump_node", "signal_node", "head_node", "rod_node"):
         fields[name] = new_of[fields[name]]
+    fields["branch_pilot"] = np.where(fields["branch_pilot"] >= 0, new_of[fields["branch_pilot"]], -1)
     fields["node_volume"], fields["displacement"] = fields["node_volume"][order], fields["displacement"][order]
     laws = fields["laws"].copy()
     for law in ("swing_a", "swing_b"):
         i = ck.CIRCUIT_LAWS.index(law)
         laws[i] = new_of[int(laws[i])]
     fields["laws"] = laws
-    renumbered = _kernel_of(ck.pack_fields(fields, nodes, len(circuit.branches.names)))
+    renumbered = _kernel_of(ck.pack_fields(fields, ck.circuit_counts(circuit)), circuit)
     state_order = np.r_[order, 12, 13]
     for y, spools, ext, vel, rate in _cases(circuit, 50, seed=6):
         f, jac = kernel.derivatives(y, spools, ext, vel, rate)
@@ -142,21 +185,39 @@ def test_the_circuit_is_data_to_the_kernel(circuit, kernel) -> None:
         _close(jac2, jac[np.ix_(state_order, state_order)])
     numbers = ck.circuit_numbers(circuit, STOP_CLEARANCE)
     with pytest.raises(ValueError, match="numbers where the layout"):
-        _kernel_of(np.append(numbers, 0.0))
+        _kernel_of(np.append(numbers, 0.0), circuit)
     broken = numbers.copy()
-    broken[2 + len(ck.CIRCUIT_LAWS)] = 99.0  # the first branch's "from" node
+    broken[len(ck.CIRCUIT_COUNTS) + len(ck.CIRCUIT_LAWS)] = 99.0  # the first branch's "from" node
     with pytest.raises(ValueError, match="branch_from"):
-        _kernel_of(broken)
+        _kernel_of(broken, circuit)
+    fields = ck.circuit_fields(circuit, STOP_CLEARANCE)
+    fields["section_table"] = fields["section_table"].copy()
+    fields["section_table"][1, 1] = fields["section_table"][0, 1]  # boom's pump->a reads the swing's table
+    with pytest.raises(ValueError, match="table .* is used by 2 passages"):
+        _kernel_of(ck.pack_fields(fields, ck.circuit_counts(circuit)), circuit)
 
 
-def _kernel_of(numbers: np.ndarray) -> ck.NativeCircuit:
-    """A kernel of these circuit numbers (NativeCircuit packs them from a HydraulicCircuit)."""
+def test_tables_of_another_layout_are_refused() -> None:
+    """The Cat valve's numbers with the paper valve's tables (or the reverse) are no circuit."""
+    cat = _circuit("circuit_cat", load_tables(table_set="circuit_cat"))
+    paper = _circuit("circuit", load_tables(table_set="circuit"))
+    for numbers_of, tables_of in ((cat, paper), (paper, cat)):
+        numbers = ck.circuit_numbers(numbers_of, STOP_CLEARANCE)
+        kernel = ck.NativeCircuit.__new__(ck.NativeCircuit)
+        with pytest.raises(ValueError, match="refuses the circuit model: .*table"):
+            kernel._init(numbers, tables_of.valve.tables, int(numbers[1]), tables_of.layout)
+
+
+def _kernel_of(numbers: np.ndarray, circuit: HydraulicCircuit) -> ck.NativeCircuit:
+    """A kernel of these circuit numbers and ``circuit``'s valve tables (NativeCircuit packs the numbers from a
+    HydraulicCircuit)."""
     kernel = ck.NativeCircuit.__new__(ck.NativeCircuit)
-    kernel._init(numbers, load_tables(table_set="circuit"), branches=int(numbers[1]))
+    kernel._init(numbers, circuit.valve.tables, int(numbers[1]), circuit.layout)
     return kernel
 
 
-def test_native_period_follows_the_numpy_period() -> None:
+@pytest.mark.parametrize("table_set", CIRCUIT_TABLE_SETS)
+def test_native_period_follows_the_numpy_period(table_set: str) -> None:
     """Four functions for 4 s, the bucket into its stroke end (held) and steps split: the same tip path to 1e-6 m,
     the same circuit state and splits."""
     t = np.arange(0.0, 4.0001, 0.05)
@@ -166,7 +227,8 @@ def test_native_period_follows_the_numpy_period() -> None:
     spools[t > 1.5, 2] = -9.0
     spools[t > 0.3, 3] = 11.0
     log = CommandLog(t, spools)
-    compiled, reference = CircuitModel(), CircuitModel()
+    compiled, reference = CircuitModel(table_set=table_set), CircuitModel(table_set=table_set)
+    assert compiled._kernel is not None
     reference._control_period = reference._control_period_numpy
     runs = {}
     for name, model in (("native", compiled), ("numpy", reference)):

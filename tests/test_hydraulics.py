@@ -351,12 +351,14 @@ def test_inconsistent_circuit_parameters_are_refused(
         HydraulicCircuit()
 
 
-def test_the_native_kernel_refuses_a_layout_it_does_not_run(cat: HydraulicCircuit) -> None:
-    from hexgym.model.circuit_kernel import circuit_numbers
+def test_the_native_kernel_takes_either_layout_as_numbers(cat: HydraulicCircuit) -> None:
+    from hexgym.model.circuit_kernel import circuit_counts, circuit_numbers
 
-    with pytest.raises(ValueError, match="runs the paper's valve layout, one section per function; .* 'cat' layout"):
-        circuit_numbers(cat, 0.005)
-    assert circuit_numbers(HydraulicCircuit(), 0.005).size > 100
+    paper = HydraulicCircuit()
+    for circuit, sections, regenerations in ((paper, 4, 0), (cat, 6, 3)):
+        counts = {"nodes": 12, "branches": len(circuit.branches.names), "sections": sections}
+        assert circuit_counts(circuit) == counts | {"regenerations": regenerations}
+    assert circuit_numbers(cat, 0.005).size > circuit_numbers(paper, 0.005).size > 100
 
 
 def test_a_raise_only_section_leaves_its_pumps_bypass_open_on_lowering(cat: HydraulicCircuit) -> None:

@@ -12,6 +12,7 @@ import pytest
 import hexgym  # noqa: F401  (loads the plugin)
 from hexgym.machine import kinematics
 from hexgym.machine.assets import asset_path, assets_dir, load_model
+from hexgym.mbl.schema import CIRCUIT_TABLE_SETS
 from hexgym.mbl.table import packaged_tables_dir
 from hexgym.model import backend, native_backend, plugin
 from hexgym.model.plugin_mjcf import MBL_FULL_MODEL_FILE, MBL_MODEL_FILE, mbl_model_xml
@@ -145,7 +146,7 @@ def test_full_machine_follows_the_lean_machine():
 
 @needs_plugin
 @pytest.mark.parametrize("test", ["test1", "test2", "test3"])
-@pytest.mark.parametrize("table_set", ["circuit", "paper"])
+@pytest.mark.parametrize("table_set", ["circuit", "circuit_cat", "paper"])
 def test_native_and_python_give_the_same_trajectory(test, table_set):
     """One source of truth: the same tables, loads and logic (validate's command logs, up to 50 s); for the
     circuit model the same kernel in the plugin and behind the Python model (1 mm: the target)."""
@@ -203,12 +204,13 @@ def test_state_round_trip_reproduces_the_trajectory_exactly():
 
 
 @needs_plugin
-def test_circuit_state_round_trip_is_exact_to_the_bit():
+@pytest.mark.parametrize("table_set", CIRCUIT_TABLE_SETS)
+def test_circuit_state_round_trip_is_exact_to_the_bit(table_set):
     """The circuit model's pressures, pump displacements and joint rates are plugin state: save mid-episode, run
     on, restore, run again: identical to the bit; without the circuit's state the run differs."""
     log, pose = scenarios()["test3"]
-    model = native_backend.NativeLearnedModel()
-    assert model.table_set == "circuit"
+    model = native_backend.NativeLearnedModel(table_set=table_set)
+    assert model.table_set == table_set
     m, d = model.physics.model, model.physics.data
     model.reset(pose)
     k_save = 301
@@ -416,7 +418,7 @@ def test_make_learned_model_backends():
 
 
 @needs_plugin
-@pytest.mark.parametrize("table_set", ["circuit", "paper"])
+@pytest.mark.parametrize("table_set", ["circuit", "circuit_cat", "paper"])
 def test_both_backends_stall_at_the_ground_alike_without_kicks(table_set):
     """Driving the bucket into the ground: it stops within a step, no joint is flung, both backends agree."""
     from hexgym.envs.world import build_world_model

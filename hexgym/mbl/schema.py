@@ -12,7 +12,8 @@ the machine's response: one 1-D table per passage (each section's centre bypass,
 b, port a or b to tank) giving its orifice area against the spool, identified from the pressures,
 pump flows and velocities of operator-like motion (:mod:`hexgym.mbl.valve`). The circuit model
 (:mod:`hexgym.model.circuit_model`) runs the open-centre circuit's structure from the machine's data
-sheet with these areas. The native plugin runs both (``NATIVE_TABLE_SETS``).
+sheet with these areas; ``circuit`` learns the paper's valve, ``circuit_cat`` a Cat two-pump valve
+(:data:`VALVE_OF_TABLE_SET`). The native plugin runs every set (``NATIVE_TABLE_SETS``).
 
 Quantity names carry their SI unit as a suffix: ``_m`` m, ``_n`` N, ``_kgm2`` kg m^2,
 ``_radps`` rad/s, ``_mps`` m/s, ``_radps2`` rad/s^2, ``_m2`` m^2.
@@ -102,7 +103,7 @@ TABLE_SETS["circuit"] = valve_tables(PAPER_VALVE)
 TABLE_SETS["circuit_cat"] = valve_tables(CAT_VALVE)
 VALVE_OF_TABLE_SET = {"paper": "paper", "circuit": "paper", "circuit_cat": "cat"}
 CIRCUIT_TABLE_SETS = ("circuit", "circuit_cat")  # the sets the circuit model runs
-NATIVE_TABLE_SETS = ("circuit", "paper")  # the sets the native plugin runs
+NATIVE_TABLE_SETS = ("circuit", "paper", "circuit_cat")  # the sets the native plugin runs
 DEFAULT_TABLE_SET = "circuit"
 
 

@@ -99,8 +99,8 @@ def make_learned_model(
 ) -> LearnedModelBase:
     """The learned model on ``backend`` ("native", "python" or "auto"), on the lean machine.
 
-    ``table_set``: "paper" or "circuit" (:mod:`hexgym.mbl.schema`; the circuit model,
-    :mod:`hexgym.model.circuit_model`, for "circuit"; both run on either backend);
+    ``table_set``: "paper", "circuit" or "circuit_cat" (:mod:`hexgym.mbl.schema`; the circuit model,
+    :mod:`hexgym.model.circuit_model`, for the circuit sets; all run on either backend);
     ``tables_dir``: other tables of that set than the packaged ones (both backends read the same files).
     """
     if backend_for(table_set, backend) == "native":

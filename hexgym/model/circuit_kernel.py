@@ -1,18 +1,20 @@
 """The circuit model's control period, native: the C++ kernel the ``hexgym.mbl`` plugin runs, called from Python.
 
 ``native/circuit.cc`` runs what :class:`hexgym.model.circuit_model.CircuitModel` does in one control period: the
-valve's passage areas from the ``circuit`` tables (:class:`hexgym.mbl.valve.LearnedValve`'s rules), then
+valve's passage areas from a circuit table set's tables (:class:`hexgym.mbl.valve.LearnedValve`'s rules), then
 ``substeps`` steps of the circuit (:class:`hexgym.hydraulics.circuit.HydraulicCircuit`: branch flows and
 conductances, pumps, compliance, the linearly implicit Euler step with its splitting and velocity sensitivity)
 coupled implicitly to the joints' ``M dw/dt = tau_oil - tau_load``, with the stroke ends holding their joints.
 :mod:`hexgym.hydraulics.circuit` stays the definition (it makes the training data); the tests hold the two to
 rounding (the law's derivatives to 1e-9 relative, tip paths within 1 mm).
 
-The circuit is data to the kernel: :func:`circuit_numbers` packs the circuit's nodes, branches, valve sections,
-pumps, cylinders, swing motor and scalar laws in the layout :mod:`hexgym.model.plugin` defines
-(``CIRCUIT_FIELDS``, ``CIRCUIT_LAWS``), the numbers the plugin reads from its ``circuit`` config key and
-:class:`NativeCircuit` hands the library through ``ctypes``. A change of the circuit's structure is a change of
-:class:`HydraulicCircuit` only.
+The circuit is data to the kernel: :func:`circuit_numbers` packs the circuit's nodes, branches (a valve opened by
+another node's pressure among them), its valve layout (any :class:`~hexgym.hydraulics.circuit.ValveLayout`: the
+sections with their functions, pumps, tables and branches, each pump's bypass series, priority valves and
+regeneration passages), pumps, cylinders, swing motor and scalar laws in the layout :mod:`hexgym.model.plugin`
+defines (``CIRCUIT_COUNTS``, ``CIRCUIT_FIELDS``, ``CIRCUIT_LAWS``), the numbers the plugin reads from its
+``circuit`` config key and :class:`NativeCircuit` hands the library through ``ctypes``. A change of the circuit's
+structure is a change of :class:`HydraulicCircuit` only.
 """
 
 from __future__ import annotations
@@ -30,19 +32,22 @@ from hexgym.hydraulics.circuit import (
     N_NODES,
     NODES,
     PAPER_VALVE,
-    PUMP_OF,
+    PASSAGES,
     REST_PRESSURE,
     STATE_SIZE,
     SWING_DISPLACEMENT_RAD,
     TRUST_FLOOR_PA,
     TRUST_JUMP_PA,
     HydraulicCircuit,
+    ValveLayout,
+    priority_shares,
 )
 from hexgym.machine import parameters as p
-from hexgym.mbl.schema import TABLE_SETS
+from hexgym.mbl.schema import REGENERATION_SPOOLS, VALVE_PASSAGES, valve_tables
 from hexgym.mbl.table import MBLTable
 from hexgym.mbl.valve import CLOSED_AREA
 from hexgym.model.plugin import (
+    CIRCUIT_COUNTS,
     CIRCUIT_FIELDS,
     CIRCUIT_LAWS,
     NUM_CYLINDERS,
@@ -53,12 +58,12 @@ from hexgym.model.plugin import (
     plugin_library,
 )
 
-VALVE_TABLES = tuple(TABLE_SETS["circuit"])  # the kernel's valve rows: passage-major, functions in spool order
 # A circuit step in which a cylinder runs into its stop faster than STOP_SPLIT_SPEED (m/s) is split into STOP_SPLIT
 # steps (hexgym.model.circuit_model.CircuitModel._substep): at 5 ms steps the stop's kick on the stick left the
 # bucket's cylinder 14-41 mm from the reference's (its chambers near vacuum, their make-up valves), split into
 # 1 ms steps within 2.5 mm; holding a cylinder at its stop (slower) does not split
 STOP_SPLIT = 5
+_STICK = FUNCTIONS.index("stick")
 STOP_SPLIT_SPEED = 0.02
 
 
@@ -102,6 +107,8 @@ def circuit_laws(circuit: HydraulicCircuit, stop_clearance: float) -> dict[str, 
         "stop_split": STOP_SPLIT,
         "stop_split_speed": STOP_SPLIT_SPEED,
         "dead_band": p.SPOOL_DEAD_BAND,
+        "spool_stroke": p.SPOOL_STROKE,
+        "metering_exponent": p.METERING_EXPONENT,
         "closed_area": CLOSED_AREA,
         "idle_pressure": p.NFC_PRESSURE_IDLE,
         "rest_pressure": REST_PRESSURE,
@@ -119,18 +126,31 @@ def fault_pressure(circuit: HydraulicCircuit) -> float:
 
 
 def circuit_fields(circuit: HydraulicCircuit, stop_clearance: float) -> dict[str, np.ndarray]:
-    """Every field of :data:`~hexgym.model.plugin.CIRCUIT_FIELDS` of ``circuit``, as an array of its shape."""
-    if circuit.layout != PAPER_VALVE:
-        raise ValueError(
-            f"the native circuit kernel runs the paper's valve layout, one section per function; the circuit's "
-            f"{circuit.layout.name!r} layout has {len(circuit.layout.sections)} sections and regeneration"
-        )
+    """Every field of :data:`~hexgym.model.plugin.CIRCUIT_FIELDS` of ``circuit``, as an array of its shape.
+
+    The valve is its layout's sections (function, pump, the tables and branches of the passages it has, a priority
+    valve on its meter-in: :func:`hexgym.hydraulics.circuit.priority_shares`'s, the data sheet's), each pump's bypass
+    the series of its sections' in layout order, and its regeneration passages (a table's, or the stick unloading
+    valve's data-sheet area metered by the spool; that valve's opening piloted by the stick head's pressure,
+    ``branch_pilot``), each through its cylinder end's cushion. Table indices are into :func:`valve_table_names` of
+    the layout; a section moves only to the sides it has passages on
+    (:func:`hexgym.hydraulics.circuit.section_spools`), which the kernel reads from its tables."""
+    layout = circuit.layout
     br, groups = circuit.branches, circuit.branch_groups
     crack, inv_span = np.zeros(len(br.names)), np.zeros(len(br.names))
-    crack[br.valve], inv_span[br.valve] = br.crack, br.inv_span
+    pilot = np.full(len(br.names), -1)
+    crack[br.valve], inv_span[br.valve], pilot[br.valve] = br.crack, br.inv_span, br.pilot
     node_volume = circuit.volumes(np.zeros(NUM_CYLINDERS))
     node_volume[circuit.head_nodes] = node_volume[circuit.rod_nodes] = 0.0  # the chambers' follow the pistons
     laws = circuit_laws(circuit, stop_clearance)
+    table = {name: i for i, name in enumerate(valve_table_names(layout))}
+    n = len(layout.sections)
+    section_table, section_branch = np.full((n, len(VALVE_PASSAGES)), -1), np.full((n, len(PASSAGES)), -1)
+    for i, section in enumerate(layout.sections):
+        for j, key in enumerate(VALVE_PASSAGES):
+            section_table[i, j] = table.get(f"{section.name}_{key}", -1)
+    for j, key in enumerate(PASSAGES):
+        section_branch[groups[f"{key}_section"], j] = groups[key]
     return {
         "laws": np.array([laws[name] for name in CIRCUIT_LAWS], dtype=float),
         "branch_from": br.frm,
@@ -139,11 +159,16 @@ def circuit_fields(circuit: HydraulicCircuit, stop_clearance: float) -> dict[str
         "branch_crack": crack,
         "branch_inv_span": inv_span,
         "branch_laminar": br.laminar,
-        "passage_branch": np.stack([groups[k] for k in ("pa", "pb", "at", "bt")], axis=1),
+        "branch_pilot": pilot,
+        "section_function": np.array([FUNCTIONS.index(s.function) for s in layout.sections]),
+        "section_pump": np.array([s.pump for s in layout.sections]),
+        "section_table": section_table,
+        "section_branch": section_branch,
+        "section_priority": _priorities(layout),
+        "regeneration": _regenerations(layout, groups, table),
         "bypass_branch": groups["bypass"],
         "pump_node": np.array([NODES.index("pump1"), NODES.index("pump2")]),
         "signal_node": np.array([NODES.index("bypass1"), NODES.index("bypass2")]),
-        "pump_sections": np.array([[i for i, f in enumerate(FUNCTIONS) if PUMP_OF[f] == k] for k in range(NUM_PUMPS)]),
         "head_area": circuit.head_area,
         "rod_area": circuit.rod_area,
         "stroke": circuit.stroke,
@@ -151,23 +176,68 @@ def circuit_fields(circuit: HydraulicCircuit, stop_clearance: float) -> dict[str
         "port_volume": circuit.port_volumes,
         "head_node": circuit.head_nodes,
         "rod_node": circuit.rod_nodes,
-        "function": np.array([FUNCTIONS.index(n) for n in CYLINDER_NAMES]),
+        "function": np.array([FUNCTIONS.index(n) for n in CYLINDER_NAMES]),  # the first sections: one per function
         "node_volume": node_volume,
         "displacement": circuit.displacement,
     }
 
 
+def _priorities(layout: ValveLayout) -> np.ndarray:
+    """Each section's priority valve (piloting function or -1, its spool's side, the share left at full spool), as
+    :func:`hexgym.hydraulics.circuit.priority_shares` applies them: the swing's (either way) on stick 1's meter-in,
+    the boom raise's on each stick 2 section's."""
+    rows = np.array([[-1.0, 0.0, 1.0]] * len(layout.sections))
+    if layout.swing_priority:
+        rows[_STICK] = (FUNCTIONS.index("swing"), 0, p.SWING_PRIORITY_STICK_SHARE)
+    stick2, _, _ = priority_shares(layout, np.zeros(len(FUNCTIONS)))
+    if layout.boom_priority:
+        rows[stick2] = (FUNCTIONS.index("boom"), 1, p.BOOM_PRIORITY_STICK_SHARE)
+    return rows
+
+
+def _regenerations(layout: ValveLayout, groups: dict[str, np.ndarray], table: dict[str, int]) -> np.ndarray:
+    """Each regeneration passage of the layout (:class:`hexgym.mbl.valve.LearnedValve`'s): its branch, the function
+    whose spool opens it and on which side, its table (-1 for the stick unloading valve, the data sheet's area), and
+    the cylinder end whose cushion its oil leaves through (:meth:`HydraulicCircuit.branch_areas`: stick in, the
+    rod's; boom lower, the head's)."""
+    rows = []
+    for passage in layout.regeneration_passages:
+        function = REGENERATION_SPOOLS.get(passage, "stick")  # the unloading valve opens with stick in
+        side = -1 if passage == "boom_regeneration" else 1
+        area = p.STICK_UNLOADING_AREA if passage == "stick_unloading" else 0.0
+        cylinder, end = CYLINDER_NAMES.index(passage.split("_")[0]), 1 if passage.startswith("stick") else -1
+        rows.append((groups[passage][0], FUNCTIONS.index(function), side, table.get(passage, -1), area, cylinder, end))
+    return np.array(rows, dtype=float).reshape(-1, 7)
+
+
+def valve_table_names(layout: ValveLayout) -> tuple[str, ...]:
+    """The valve's tables in the order the kernel takes them: :func:`hexgym.mbl.schema.valve_tables`' (the plugin's
+    table set's order)."""
+    return tuple(valve_tables(layout))
+
+
+def circuit_counts(circuit: HydraulicCircuit) -> dict[str, int]:
+    """The counts (:data:`~hexgym.model.plugin.CIRCUIT_COUNTS`) the circuit's numbers start with."""
+    layout = circuit.layout
+    return {
+        "nodes": N_NODES,
+        "branches": len(circuit.branches.names),
+        "sections": len(layout.sections),
+        "regenerations": len(layout.regeneration_passages),
+    }
+
+
 def circuit_numbers(circuit: HydraulicCircuit, stop_clearance: float) -> np.ndarray:
-    """The circuit as the kernel reads it: its node and branch counts, then each field of
-    :data:`~hexgym.model.plugin.CIRCUIT_FIELDS` in order (C order), as one float64 array."""
-    return pack_fields(circuit_fields(circuit, stop_clearance), N_NODES, len(circuit.branches.names))
+    """The circuit as the kernel reads it: its counts (:data:`~hexgym.model.plugin.CIRCUIT_COUNTS`), then each field
+    of :data:`~hexgym.model.plugin.CIRCUIT_FIELDS` in order (C order), as one float64 array."""
+    return pack_fields(circuit_fields(circuit, stop_clearance), circuit_counts(circuit))
 
 
-def pack_fields(fields: dict[str, np.ndarray], nodes: int, branches: int) -> np.ndarray:
-    """``fields`` (:func:`circuit_fields`) of a circuit of ``nodes`` nodes and ``branches`` branches, packed."""
-    extents = {"one": 1, "nodes": nodes, "branches": branches, "pumps": NUM_PUMPS}
-    extents |= {"functions": len(FUNCTIONS), "cylinders": NUM_CYLINDERS}
-    parts = [np.array([nodes, branches], dtype=float)]
+def pack_fields(fields: dict[str, np.ndarray], counts: dict[str, int]) -> np.ndarray:
+    """``fields`` (:func:`circuit_fields`) of a circuit of these ``counts`` (:func:`circuit_counts`), packed."""
+    extents = {"one": 1, "pumps": NUM_PUMPS, "functions": len(FUNCTIONS), "cylinders": NUM_CYLINDERS}
+    extents |= {name: counts[name] for name in CIRCUIT_COUNTS}
+    parts = [np.array([counts[name] for name in CIRCUIT_COUNTS], dtype=float)]
     for name, (rows, per) in CIRCUIT_FIELDS.items():
         value = np.asarray(fields[name], dtype=float)
         if value.size != rows * extents[per]:
@@ -176,17 +246,20 @@ def pack_fields(fields: dict[str, np.ndarray], nodes: int, branches: int) -> np.
     return np.concatenate(parts)
 
 
-def valve_arrays(tables: dict[str, MBLTable]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The valve's tables (:data:`VALVE_TABLES` order) as the kernel takes them: nodes per table (int32), and all
-    tables' nodes and values, concatenated."""
-    for name in VALVE_TABLES:
+def valve_arrays(
+    tables: dict[str, MBLTable], layout: ValveLayout = PAPER_VALVE
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The valve's tables (:func:`valve_table_names` order) as the kernel takes them: nodes per table (int32), and
+    all tables' nodes and values, concatenated."""
+    names = valve_table_names(layout)
+    for name in names:
         if name not in tables:
             raise ValueError(f"the circuit model needs the valve table {name!r}")
         if tables[name].values.ndim != 1:
             raise ValueError(f"valve table {name!r} must have one input, got shape {tables[name].values.shape}")
-    sizes = np.array([len(tables[n].axes[0]) for n in VALVE_TABLES], dtype=np.int32)
-    nodes = np.concatenate([np.asarray(tables[n].axes[0], dtype=float) for n in VALVE_TABLES])
-    values = np.concatenate([np.asarray(tables[n].values, dtype=float) for n in VALVE_TABLES])
+    sizes = np.array([len(tables[n].axes[0]) for n in names], dtype=np.int32)
+    nodes = np.concatenate([np.asarray(tables[n].axes[0], dtype=float) for n in names])
+    values = np.concatenate([np.asarray(tables[n].values, dtype=float) for n in names])
     return sizes, nodes, values
 
 
@@ -202,7 +275,8 @@ def _library() -> ctypes.CDLL | None:
     lib = ctypes.CDLL(str(plugin_library()))
     lib.hexgym_circuit_new.restype = ctypes.c_void_p
     lib.hexgym_circuit_new.argtypes = [
-        _DOUBLES, ctypes.c_int, ctypes.POINTER(ctypes.c_int32), _DOUBLES, _DOUBLES, ctypes.c_char_p, ctypes.c_int
+        _DOUBLES, ctypes.c_int, ctypes.POINTER(ctypes.c_int32), ctypes.c_int, _DOUBLES, _DOUBLES, ctypes.c_char_p,
+        ctypes.c_int,
     ]  # fmt: skip
     lib.hexgym_circuit_free.argtypes = [ctypes.c_void_p]
     lib.hexgym_circuit_period.restype = ctypes.c_int
@@ -242,19 +316,22 @@ class NativeCircuit:
     """
 
     def __init__(self, circuit: HydraulicCircuit, tables: dict[str, MBLTable], stop_clearance: float) -> None:
-        self._init(circuit_numbers(circuit, stop_clearance), tables, len(circuit.branches.names))
+        numbers = circuit_numbers(circuit, stop_clearance)
+        self._init(numbers, tables, len(circuit.branches.names), circuit.layout)
 
-    def _init(self, numbers: np.ndarray, tables: dict[str, MBLTable], branches: int) -> None:
-        """A kernel of packed circuit ``numbers`` (:func:`circuit_numbers`) and the valve's tables."""
+    def _init(
+        self, numbers: np.ndarray, tables: dict[str, MBLTable], branches: int, layout: ValveLayout = PAPER_VALVE
+    ) -> None:
+        """A kernel of packed circuit ``numbers`` (:func:`circuit_numbers`) and the valve's tables of ``layout``."""
         lib = _library()
         if lib is None:
             raise RuntimeError(native_reason())
-        self._lib, self._recipe = lib, (numbers, tables, branches)
-        sizes, nodes, values = valve_arrays(tables)
+        self._lib, self._recipe = lib, (numbers, tables, branches, layout)
+        sizes, nodes, values = valve_arrays(tables, layout)
         error = ctypes.create_string_buffer(512)
         handle = lib.hexgym_circuit_new(
-            _in(numbers), numbers.size, sizes.ctypes.data_as(ctypes.POINTER(ctypes.c_int32)), _in(nodes),
-            _in(values), error, len(error),
+            _in(numbers), numbers.size, sizes.ctypes.data_as(ctypes.POINTER(ctypes.c_int32)), len(sizes),
+            _in(nodes), _in(values), error, len(error),
         )  # fmt: skip
         if not handle:
             raise ValueError(f"the native circuit kernel refuses the circuit model: {error.value.decode()}")
@@ -342,8 +419,8 @@ class NativeCircuit:
         return self._lib.hexgym_circuit_time(self._handle, self._pointer, h, substeps, repeat, int(steps_only))
 
 
-def _rebuilt(numbers: np.ndarray, tables: dict[str, MBLTable], branches: int) -> NativeCircuit:
+def _rebuilt(numbers: np.ndarray, tables: dict[str, MBLTable], branches: int, layout: ValveLayout) -> NativeCircuit:
     """A :class:`NativeCircuit` of packed circuit numbers and valve tables (unpickling)."""
     kernel = NativeCircuit.__new__(NativeCircuit)
-    kernel._init(numbers, tables, branches)
+    kernel._init(numbers, tables, branches, layout)
     return kernel

@@ -29,7 +29,8 @@ The period's circuit steps run natively (:class:`hexgym.model.circuit_kernel.Nat
 ``hexgym.mbl`` plugin runs, called through ``ctypes``); ``_control_period_numpy`` runs the same steps through
 :class:`HydraulicCircuit`'s numpy methods, the definition the kernel is tested against, and the fallback (several
 times slower, said once per process) where the plugin library was not built. The native plugin runs this whole
-period inside ``mj_step`` (:class:`hexgym.model.native_backend.NativeLearnedModel` with the ``circuit`` tables).
+period inside ``mj_step`` (:class:`hexgym.model.native_backend.NativeLearnedModel` with a circuit table set's
+tables); either runs any valve layout, the paper's (``circuit``) and the Cat two-pump valve (``circuit_cat``).
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ import warnings
 import mujoco
 import numpy as np
 
-from hexgym.hydraulics.circuit import PAPER_VALVE, STATE_NAMES, STATE_SIZE, HydraulicCircuit, fuel_rate, valve_layout
+from hexgym.hydraulics.circuit import STATE_NAMES, STATE_SIZE, HydraulicCircuit, fuel_rate, valve_layout
 from hexgym.machine import parameters as p
 from hexgym.mbl.schema import CIRCUIT_TABLE_SETS, VALVE_OF_TABLE_SET
 from hexgym.mbl.table import MBLTable
@@ -65,8 +66,7 @@ class CircuitModel(LearnedModel):
         model, control_period: as :class:`~hexgym.model.python_backend.LearnedModel`.
         substeps: circuit steps per control period.
         table_set: which valve the tables are of (:data:`hexgym.mbl.schema.CIRCUIT_TABLE_SETS`): ``circuit``, the
-            paper's valve, or ``circuit_cat``, a Cat two-pump valve (run by the numpy definition: the native kernel
-            runs the paper's valve).
+            paper's valve, or ``circuit_cat``, a Cat two-pump valve (the native kernel runs either).
     """
 
     def __init__(
@@ -228,8 +228,6 @@ def _native_kernel(circuit: HydraulicCircuit, tables: dict[str, MBLTable]) -> ci
     """The native kernel for this circuit and valve, or None where the library cannot be used (said once per
     process: the model then runs the definition's numpy steps, several times slower)."""
     global _fallback_said
-    if circuit.layout != PAPER_VALVE:
-        return None  # the kernel runs the paper's valve (circuit_kernel.circuit_fields)
     reason = circuit_kernel.native_reason()
     if not reason:
         return circuit_kernel.NativeCircuit(circuit, tables, STOP_CLEARANCE)

@@ -19,11 +19,11 @@ import numpy as np
 
 from hexgym.hydraulics.circuit import STATE_NAMES as CIRCUIT_STATE_NAMES
 from hexgym.hydraulics.circuit import STATE_SIZE as CIRCUIT_STATE_SIZE
-from hexgym.hydraulics.circuit import HydraulicCircuit, fuel_rate, validate_spools
+from hexgym.hydraulics.circuit import HydraulicCircuit, fuel_rate, validate_spools, valve_layout
 from hexgym.machine import kinematics
 from hexgym.machine.assets import AssetError, asset_path
 from hexgym.machine.physics import ExcavatorPhysics, contiguous_index
-from hexgym.mbl.schema import DEFAULT_TABLE_SET
+from hexgym.mbl.schema import CIRCUIT_TABLE_SETS, DEFAULT_TABLE_SET, VALVE_OF_TABLE_SET
 from hexgym.mbl.table import require_packaged
 from hexgym.model.base import LearnedModelBase
 from hexgym.model.circuit_model import CIRCUIT_DTYPE
@@ -125,7 +125,8 @@ class NativeLearnedModel(LearnedModelBase):
         self.table_set = plugin_config_values(m, instance)["table_set"] or DEFAULT_TABLE_SET
         # the circuit model's state in the plugin state: the circuit's pressures and pump displacements
         self._hydraulics = self._state.start + STATE["hydraulics"] + np.arange(CIRCUIT_STATE_SIZE)
-        self._circuit = HydraulicCircuit() if self.table_set == "circuit" else None
+        layout = valve_layout(VALVE_OF_TABLE_SET[self.table_set]) if self.table_set in CIRCUIT_TABLE_SETS else None
+        self._circuit = None if layout is None else HydraulicCircuit(layout=layout)
 
     @property
     def control_period(self) -> float:

@@ -25,7 +25,7 @@ import numpy as np
 from hexgym.files import atomic_path
 from hexgym.hydraulics.circuit import STATE_SIZE as CIRCUIT_STATE_SIZE
 from hexgym.machine import kinematics
-from hexgym.mbl.schema import DEFAULT_TABLE_SET, NATIVE_TABLE_SETS, QUANTITIES, TABLE_SETS
+from hexgym.mbl.schema import CIRCUIT_TABLE_SETS, DEFAULT_TABLE_SET, NATIVE_TABLE_SETS, QUANTITIES, TABLE_SETS
 from hexgym.mbl.table import FORMAT_VERSION
 
 PLUGIN_NAME = "hexgym.mbl"
@@ -46,9 +46,9 @@ CONFIG_KEYS: dict[str, str] = {
     "swing_rest_rate": "rad/s",
     "rate_range": "lo hi per joint, rad/s (the Python path's servo ctrlrange)",
     "control_period": "s between table queries, >= one step (default: one step)",
-    "table_set": "which table set the tables directory holds: circuit or paper (default: the default set)",
-    "circuit": "the circuit's numbers (nodes, branches, then CIRCUIT_FIELDS), for table_set circuit",
-    "substeps": "the circuit's steps per control period, for table_set circuit",
+    "table_set": f"the tables directory's table set: {', '.join(NATIVE_TABLE_SETS)} (default {DEFAULT_TABLE_SET})",
+    "circuit": "the circuit's numbers (CIRCUIT_COUNTS, then CIRCUIT_FIELDS), for a circuit model's table set",
+    "substeps": "the circuit's steps per control period, for a circuit model's table set",
 }
 # Plugin state slots (mjSTATE_PLUGIN, so mj_getState/mj_setState restore a step exactly): name -> size.
 STATE_SLOTS: dict[str, int] = {
@@ -62,9 +62,9 @@ STATE_SLOTS: dict[str, int] = {
     "circuit_fault": 1,  # 1 once the circuit's state went non-finite (the machine then holds still)
 }
 # The circuit model's constants as the native kernel reads them (native/circuit.cc; config key "circuit", and
-# hexgym.model.circuit_kernel's binding): the counts of nodes and branches, then each field in this order, its
-# numbers in C order of the shape (extent, rows), or (extent,) for one row. Extents: "one", "nodes", "branches",
-# "pumps", "functions" (the spools' order), "cylinders" (boom, stick, bucket).
+# hexgym.model.circuit_kernel's binding): the counts (CIRCUIT_COUNTS: nodes, branches, valve sections, regeneration
+# passages), then each field in this order, its numbers in C order of the shape (extent, rows), or (extent,) for one
+# row. Extents: "one", the counts, "pumps", "functions" (the spools' order), "cylinders" (boom, stick, bucket).
 CIRCUIT_LAWS = (
     "discharge",  # orifice discharge coefficient
     "sqrt_2_rho",  # sqrt(2 / oil density)
@@ -102,6 +102,8 @@ CIRCUIT_LAWS = (
     "stop_split",  # circuit steps a step is split into where a cylinder runs into its stop
     "stop_split_speed",  # m/s: the slowest such cylinder that splits the step
     "dead_band",  # m of spool: the passages to and from the ports are closed within it
+    "spool_stroke",  # m of spool: full stroke
+    "metering_exponent",  # a metering notch's area ~ (open fraction of its travel)^this
     "closed_area",  # m^2: a closed bypass section in the series law
     "idle_pressure",  # Pa: the pump and NFC signal lines at rest
     "rest_pressure",  # Pa: a chamber that holds no load
@@ -115,11 +117,22 @@ CIRCUIT_FIELDS: dict[str, tuple[int, str]] = {
     "branch_crack": (1, "branches"),  # Pa, pressure-operated valves
     "branch_inv_span": (1, "branches"),  # 1/Pa, > 0 for a pressure-operated valve
     "branch_laminar": (1, "branches"),  # m^3/(s Pa), leaks
-    "passage_branch": (4, "functions"),  # the branch of each section's pump->a, pump->b, a->tank, b->tank
+    "branch_pilot": (1, "branches"),  # the node whose pressure opens a pressure-operated valve; -1: its own drop
+    # the function (spool) that moves each valve section, to the sides it has passages on (else it stays at neutral)
+    "section_function": (1, "sections"),
+    "section_pump": (1, "sections"),  # the pump it meters from; its bypass is in that pump's series, in this order
+    "section_table": (5, "sections"),  # the valve table of its bypass, pump->a, pump->b, a->tank, b->tank; -1: none
+    "section_branch": (4, "sections"),  # the branch of its pump->a, pump->b, a->tank, b->tank; -1: none
+    # a priority valve on its meter-in (pump->a, pump->b): the piloting function (-1: none), the side of that
+    # spool that pilots it (1 positive, -1 negative, 0 either), the share of the area left at full pilot spool
+    "section_priority": (3, "sections"),
+    # a regeneration passage: its branch, the function whose spool opens it, the side (1 positive, -1 negative),
+    # its valve table (-1: none, the data sheet's area below metered by the spool), that area (m^2), the cylinder
+    # whose oil leaves through it and its cushion (-1: none), the end it leaves (1 the rod's, -1 the head's)
+    "regeneration": (7, "regenerations"),
     "bypass_branch": (1, "pumps"),  # each pump's centre bypass branch
     "pump_node": (1, "pumps"),
     "signal_node": (1, "pumps"),  # each pump's NFC signal node
-    "pump_sections": (2, "pumps"),  # each pump's two sections (function indices), in series on its bypass
     "head_area": (1, "cylinders"),  # m^2 per cylinder
     "rod_area": (1, "cylinders"),
     "stroke": (1, "cylinders"),  # m
@@ -127,11 +140,13 @@ CIRCUIT_FIELDS: dict[str, tuple[int, str]] = {
     "port_volume": (1, "cylinders"),  # m^3 of line per chamber
     "head_node": (1, "cylinders"),
     "rod_node": (1, "cylinders"),
-    "function": (1, "cylinders"),  # the cylinder's section (function index)
+    "function": (1, "cylinders"),  # the section whose a->tank and b->tank pass the cylinder's cushions
     "node_volume": (1, "nodes"),  # m^3; 0 for the chambers, whose volumes follow the pistons
     "displacement": (4, "nodes"),  # d(volume rate)/d(boom, stick, bucket velocity, swing rate)
 }
-CIRCUIT_EXTENTS = ("one", "nodes", "branches", "pumps", "functions", "cylinders")
+# the counts the numbers start with, in this order
+CIRCUIT_COUNTS = ("nodes", "branches", "sections", "regenerations")
+CIRCUIT_EXTENTS = ("one", *CIRCUIT_COUNTS, "pumps", "functions", "cylinders")
 NUM_PUMPS, NUM_CYLINDERS = 2, 3
 # The buffer of one control period through the library's hexgym_circuit_period (the Python circuit model's call):
 # slot -> size; spools to load go in, state, rates and ext go in and come out, travel comes out.
@@ -186,9 +201,11 @@ def interface() -> dict:
             set_name: [{"name": s.name, "inputs": list(s.inputs), "output": s.output} for s in tables.values()]
             for set_name, tables in _native_sets().items()
         },
+        "circuit_table_sets": [name for name in NATIVE_TABLE_SETS if name in CIRCUIT_TABLE_SETS],
         "default_table_set": DEFAULT_TABLE_SET,
         "table_format_version": FORMAT_VERSION,
         "circuit_laws": list(CIRCUIT_LAWS),
+        "circuit_numbers_start": list(CIRCUIT_COUNTS),
         "circuit_fields": [[name, rows, per] for name, (rows, per) in CIRCUIT_FIELDS.items()],
         "circuit_period": {name: [at, PERIOD_SLOTS[name]] for name, at in state_offsets(PERIOD_SLOTS).items()},
         "circuit_counts": {"pumps": NUM_PUMPS, "cylinders": NUM_CYLINDERS, "functions": len(kinematics.JOINTS)},
@@ -268,10 +285,14 @@ def header_text() -> str:
         "  const char* name;",
         "  int num_tables;",
         "  const TableSchema* tables;",
+        "  bool circuit;  // the circuit model's valve tables (the numbers of config key circuit say the circuit)",
         "};",
         f"constexpr int kNumTableSets = {len(NATIVE_TABLE_SETS)};",
         "constexpr TableSet kTableSets[kNumTableSets] = {",
-        *[f"    {{{json.dumps(n)}, {len(t)}, k{_camel(n)}Tables}}," for n, t in _native_sets().items()],
+        *[
+            f"    {{{json.dumps(n)}, {len(t)}, k{_camel(n)}Tables, {str(n in CIRCUIT_TABLE_SETS).lower()}}},"
+            for n, t in _native_sets().items()
+        ],
         "};",
         f"constexpr char kDefaultTableSet[] = {quote(DEFAULT_TABLE_SET)};",
         "",
@@ -291,8 +312,9 @@ def header_text() -> str:
 def _circuit_lines() -> list[str]:
     """The circuit numbers' layout (:data:`CIRCUIT_LAWS`, :data:`CIRCUIT_FIELDS`) as C++ enums and a table."""
     return [
-        '// The circuit model\'s numbers (config key "circuit"): nodes, branches, then these fields in order,',
-        "// each rows x extent numbers (C order of (extent, rows))",
+        f'// The circuit model\'s numbers (config key "circuit"): {", ".join(CIRCUIT_COUNTS)}, then these fields',
+        "// in order, each rows x extent numbers (C order of (extent, rows))",
+        f"constexpr int kNumCircuitCounts = {len(CIRCUIT_COUNTS)};",
         f"constexpr int kNumPumps = {NUM_PUMPS};",
         f"constexpr int kNumCylinders = {NUM_CYLINDERS};",
         f"constexpr int kNumFunctions = {len(kinematics.JOINTS)};",
