@@ -58,14 +58,16 @@ def _learned_estimate_l(commands: CommandLog, start: dict, duration: float | Non
     payload), its power at the end of each control period held over the period."""
     model = LearnedModel()
     rows = replay(model, commands, dt_out=model.control_period, duration=duration, **start)
-    return _estimate_l(rows, rows["swing_inertia_kgm2"] * rows["swing_acceleration_target"], model.control_period)
+    return _estimate_l(
+        rows, rows["swing_inertia_kgm2"] * rows["swing_acceleration_target_radps2"], model.control_period
+    )
 
 
 def _estimate_l(rows: np.ndarray, swing_torque: np.ndarray, dt: float) -> float:
     """The estimate (L) over trajectory rows every ``dt`` s: cylinder forces x velocities, swing torque x rate."""
     forces = np.stack([rows[f"{c}_force_n"] for c in FRONT_CYLINDERS], axis=1)
     speeds = np.stack([rows[f"{c}_velocity_mps"] for c in FRONT_CYLINDERS], axis=1)
-    power = actuator_powers(forces, speeds, swing_torque, rows["qd_swing"])
+    power = actuator_powers(forces, speeds, swing_torque, rows["qd_swing_radps"])
     return float(fuel_litres_many(power[1:], np.full(len(rows) - 1, dt)).sum())
 
 

@@ -103,7 +103,7 @@ def swing_start(ramp_s: float, spool_mm: float = 7.0, duration: float = 1.5) -> 
 
 def _first_at_rate(traj: np.ndarray, rate: float) -> int:
     """The row where the swing first reaches ``rate`` (rad/s)."""
-    w = traj["qd_swing"]
+    w = traj["qd_swing_radps"]
     k = int(np.argmax(w >= rate))
     if w[k] < rate:
         raise ValueError(f"the swing never reached {rate} rad/s")
@@ -117,12 +117,12 @@ def value_at_rate(traj: np.ndarray, rate: float, column: str) -> float:
 
 def acceleration_at_rate(traj: np.ndarray, rate: float) -> float:
     """The swing acceleration (rad/s^2) when the swing first reaches ``rate`` (rad/s)."""
-    return float(np.gradient(traj["qd_swing"], traj["t"])[_first_at_rate(traj, rate)])
+    return float(np.gradient(traj["qd_swing_radps"], traj["t"])[_first_at_rate(traj, rate)])
 
 
 def swing_momentum_figures(ref: np.ndarray) -> dict[str, float]:
     """rms of torque - d(I w)/dt and of torque - I dw/dt where the swing spool is open, and rms torque (N m)."""
-    t, w, inertia, torque = ref["t"], ref["qd_swing"], ref["swing_inertia_kgm2"], ref["swing_torque_nm"]
+    t, w, inertia, torque = ref["t"], ref["qd_swing_radps"], ref["swing_inertia_kgm2"], ref["swing_torque_nm"]
     open_ = np.abs(ref["swing_spool_mm"]) > 1.0
     rms = lambda x: float(np.sqrt(np.mean(x[open_] ** 2)))  # noqa: E731
     return {
@@ -140,7 +140,7 @@ def table_predictions(ref: np.ndarray) -> dict[str, np.ndarray]:
     return {
         "stick_velocity_mps": tables["stick"].lookup(np.column_stack([u_swing, u_stick, inertia, f_stick])),
         "swing_acceleration_radps2": tables["swing"].lookup(
-            np.column_stack([u_swing, u_stick, f_stick, inertia, ref["qd_swing"]])
+            np.column_stack([u_swing, u_stick, f_stick, inertia, ref["qd_swing_radps"]])
         ),
     }
 
@@ -153,7 +153,7 @@ def main() -> None:
     for key, value in figures.items():
         print(f"  {key:30s} {value / 1e3:7.2f} kN m")
     tables = table_predictions(ref)
-    t, w = ref["t"], ref["qd_swing"]
+    t, w = ref["t"], ref["qd_swing_radps"]
     accel, inertia = np.gradient(w, t), ref["swing_inertia_kgm2"]
     print("\n    t  I t m^2  w rad/s  torque kNm  I*dw/dt kNm  dw/dt ref  dw/dt table   stick m/s ref  table")
     for start, stop in ((3.0, 4.8), (36.8, 40.1)):

@@ -413,7 +413,8 @@ def _cmd_view(args: argparse.Namespace) -> int:
 
     site = ViewSite(parse_start(args.start), payload_kg=args.payload_kg, seed=args.seed)
     print(key_help())
-    result = run_viewer(site, seconds=args.seconds, frames=args.frames, screenshot=args.screenshot, camera=args.camera)
+    limits = {"seconds": args.seconds, "frames": args.frames, "screenshot": args.screenshot}
+    result = run_viewer(site, **limits, camera=args.camera, panels=args.panels)
     spools = ", ".join(f"{v:+.2f}" for v in result["spools_mm"])
     print(f"viewer closed after {result['sim_seconds']:.2f} s simulated, {result['frames']} frames; spools {spools} mm")
     if args.screenshot:
@@ -576,7 +577,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     simulate.add_argument("--commands", required=True, help="command log CSV: t,swing,boom,stick,bucket (s, mm)")
     simulate.add_argument("--out", required=True, metavar="FILE.csv", help="output file: the trajectory (CSV, "
-                          "a row per --dt-out)")  # fmt: skip
+                          "a row per --dt-out; columns: docs/machine.md, trajectory format)")  # fmt: skip
     simulate.add_argument("--start", default="home", help="keyframe to start from (default: home)")
     simulate.add_argument("--payload-kg", type=float, default=0.0, help="material in the bucket, kg (default: 0)")
     simulate.add_argument("--dt-out", type=float, default=0.05, help="output row interval, s (default: 0.05)")
@@ -695,6 +696,8 @@ def build_parser() -> argparse.ArgumentParser:
     view.add_argument("--payload-kg", type=float, default=0.0, help="material in the bucket, kg (default: 0)")
     view.add_argument("--seed", type=int, default=0, help="the site's layout, as HexLoading-v0 seeds it (default: 0)")
     view.add_argument("--camera", choices=("free", "chase", "cab"), default="free", help="camera (default: free)")
+    view.add_argument("--panels", action="store_true", help="open with the viewer's side panels (Tab, Shift+Tab "
+                      "toggle them; default: the site fills the window)")  # fmt: skip
     view.add_argument("--seconds", type=float, default=None, help="close after this much simulated time")
     view.add_argument("--frames", type=int, default=None, help="close after this many frames")
     view.add_argument("--screenshot", metavar="PNG", default=None, help="save the window before closing")

@@ -58,8 +58,8 @@ def single_function_speeds(sim: ReferenceModel) -> dict[str, float]:
         traj = replay(sim, _step_log(spools, end=3.0), start=pose)
         out[name] = round(_steady(traj, column, 1.5, 2.5), 4)
     traj = replay(sim, _step_log((FULL, 0, 0, 0), end=8.0), start=POSE_SWING)
-    out["swing_rpm"] = round(_steady(traj, "qd_swing", 6.0, 8.0) * 60 / (2 * np.pi), 2)
-    out["swing_seconds_to_90deg"] = round(float(traj["t"][np.argmax(traj["q_swing"] >= np.pi / 2)] - 0.5), 2)
+    out["swing_rpm"] = round(_steady(traj, "qd_swing_radps", 6.0, 8.0) * 60 / (2 * np.pi), 2)
+    out["swing_seconds_to_90deg"] = round(float(traj["t"][np.argmax(traj["q_swing_rad"] >= np.pi / 2)] - 0.5), 2)
     idle = replay(sim, _log([(0.0, 0, 0, 0, 0), (1.0, 0, 0, 0, 0)]))
     out["idle_flow_l_per_min"] = round(float(idle["pump1_flow_m3s"][-1]) * 60000, 1)
     return out
@@ -97,8 +97,8 @@ def interaction_figures(tests: dict[str, dict[str, np.ndarray]]) -> dict[str, fl
         "test1_boom_mps_while_bucket_moves": mean(t1["together"], "boom_velocity_mps", bucket_moving),
         "test1_boom_mps_alone_same_time": mean(t1["alone"], "boom_velocity_mps", bucket_moving),
         "test1_bucket_stops_at_s": round(float(t1["together"]["t"][bucket_moving][-1]), 2),
-        "test2_swing_rad_s_while_stick_moves": mean(t2["together"], "qd_swing", stick_moving),
-        "test2_swing_rad_s_alone_same_time": mean(t2["alone"], "qd_swing", stick_moving),
+        "test2_swing_rad_s_while_stick_moves": mean(t2["together"], "qd_swing_radps", stick_moving),
+        "test2_swing_rad_s_alone_same_time": mean(t2["alone"], "qd_swing_radps", stick_moving),
         "test2_stick_stops_at_s": round(float(t2["together"]["t"][stick_moving][-1]), 2),
         "test3_boom_mps_with_stick_in": mean(t3["together"], "boom_velocity_mps", boom_stick),
         "test3_boom_mps_alone": mean(t3["alone"], "boom_velocity_mps", boom_stick),
@@ -126,7 +126,7 @@ def plot_interactions(tests: dict[str, dict[str, np.ndarray]], path: Path) -> Pa
             ax.step(together["t"], together[f"{name}_spool_mm"], where="post", label=f"{name} spool")
         ax.set(title=title, ylabel="spool (mm)")
         ax.legend(loc="lower right")
-        slowed_col = "qd_swing" if slowed == "swing" else f"{slowed}_velocity_mps"
+        slowed_col = "qd_swing_radps" if slowed == "swing" else f"{slowed}_velocity_mps"
         unit = "rad/s" if slowed == "swing" else "m/s"
         ax = axes[1, col]
         ax.plot(together["t"], together[slowed_col], label=f"{slowed}, with {partner}")

@@ -89,10 +89,10 @@ def interaction_cases(
 
 def tip_errors(reference: np.ndarray, learned: np.ndarray) -> dict[str, np.ndarray]:
     """Overall tip error, each joint's contribution through the Jacobian, boom-foot-to-tip distance."""
-    q_ref = np.column_stack([reference[f"q_{j}"] for j in kinematics.JOINTS])
-    q_learned = np.column_stack([learned[f"q_{j}"] for j in kinematics.JOINTS])
-    tip_ref = np.column_stack([reference[c] for c in ("tip_x", "tip_y", "tip_z")])
-    tip_learned = np.column_stack([learned[c] for c in ("tip_x", "tip_y", "tip_z")])
+    q_ref = np.column_stack([reference[f"q_{j}_rad"] for j in kinematics.JOINTS])
+    q_learned = np.column_stack([learned[f"q_{j}_rad"] for j in kinematics.JOINTS])
+    tip_ref = np.column_stack([reference[c] for c in ("tip_x_m", "tip_y_m", "tip_z_m")])
+    tip_learned = np.column_stack([learned[c] for c in ("tip_x_m", "tip_y_m", "tip_z_m")])
     contributions = np.array(
         [np.linalg.norm(kinematics.tip_jacobian(q) * (ql - q), axis=0) for q, ql in zip(q_ref, q_learned, strict=True)]
     )
@@ -145,8 +145,8 @@ def plot_test(result: dict[str, object], path: Path, error_panels: bool | None =
     fig, axes = plt.subplots(4 + extra, 1, figsize=(11, 2.3 * (4 + extra)), sharex=True)
     t = ref["t"]
     for ax, joint in zip(axes[:4], kinematics.JOINTS, strict=True):
-        ax.plot(t, ref[f"qd_{joint}"], label="reference", color="k")
-        ax.plot(t, lrn[f"qd_{joint}"], "--", label="learned", color="tab:orange")
+        ax.plot(t, ref[f"qd_{joint}_radps"], label="reference", color="k")
+        ax.plot(t, lrn[f"qd_{joint}_radps"], "--", label="learned", color="tab:orange")
         ax.set_ylabel(f"{joint} rate (rad/s)")
         cmd = ax.twinx()
         cmd.step(t, ref[f"{joint}_spool_mm"], where="post", color="tab:blue", alpha=0.35)
@@ -213,8 +213,8 @@ def plot_interactions(
             result, ax = results[f"{name}_{payload / 1000:g}t"], axes[row, col]
             t = result["reference"]["t"]
             for joint, color in ((slowed, "k"), (partner, "tab:green")):
-                ax.plot(t, result["reference"][f"qd_{joint}"], color=color, label=f"{joint}, reference")
-                ax.plot(t, result["learned"][f"qd_{joint}"], "--", color=color, label=f"{joint}, learned")
+                ax.plot(t, result["reference"][f"qd_{joint}_radps"], color=color, label=f"{joint}, reference")
+                ax.plot(t, result["learned"][f"qd_{joint}_radps"], "--", color=color, label=f"{joint}, learned")
             error = result["errors"]["tip_error"].mean()
             ax.set_title(f"{name.replace('_', ' ')}, {payload / 1000:g} t: mean tip error {error:.2f} m", fontsize=9)
             ax.set_ylabel("joint rate (rad/s)")
@@ -235,7 +235,7 @@ def _interaction_summary(name: str, result: dict[str, object]) -> dict[str, obje
     slowed = INTERACTIONS[name.rsplit("_", 1)[0]][0]
     t = result["reference"]["t"]
     window = (t >= INTERACTION_WINDOW_S[0]) & (t <= INTERACTION_WINDOW_S[1])
-    rates = {model: float(result[model][f"qd_{slowed}"][window].mean()) for model in ("reference", "learned")}
+    rates = {model: float(result[model][f"qd_{slowed}_radps"][window].mean()) for model in ("reference", "learned")}
     return {**_tip_error_figures(result), f"{slowed}_mean_rate_rad_s": rates}
 
 
@@ -300,7 +300,7 @@ def _suite_entry(result: dict[str, object], description: dict[str, object]) -> d
         **_tip_error_figures(result),
         "mean_tip_error_from_m": {j: round(float(c), 4) for j, c in zip(kinematics.JOINTS, contributions, strict=True)},
         "mean_joint_error_rad": {
-            j: round(float(np.abs(learned[f"q_{j}"] - ref[f"q_{j}"]).mean()), 4) for j in kinematics.JOINTS
+            j: round(float(np.abs(learned[f"q_{j}_rad"] - ref[f"q_{j}_rad"]).mean()), 4) for j in kinematics.JOINTS
         },
     }
 

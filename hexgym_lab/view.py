@@ -62,7 +62,7 @@ def key_help() -> str:
     lines.append(f"  {'Backspace':<9} the viewer's Reset: the machine back at its start (so does Load key)")
     return (
         f"keys (each press moves a spool {SPOOL_STEP_MM:g} mm, up to ±{SPOOL_RANGE_MM:g} mm; "
-        "or use the Control sliders):\n" + "\n".join(lines)
+        "or the Control sliders, Shift+Tab shows them):\n" + "\n".join(lines)
     )
 
 
@@ -137,19 +137,37 @@ class ViewSite:
         self._world.place(self.data, self.layout)
         mujoco.mj_forward(self.model, self.data)
 
-    def aim(self, camera: mujoco.MjvCamera) -> None:
-        """Point the viewer's free camera at the machine, the pile and the truck: from beyond the pile, on
-        the side away from the truck, so that none hides another."""
-        layout = self.layout
-        centre = (np.array([*layout.pile_centre, 0.0]) + np.array([*layout.truck_centre, 0.0])) / 3.0
-        away = layout.pile_direction + 1.0 * float(
-            np.angle(np.exp(1j * (layout.pile_direction - layout.truck_direction)))
-        )
+    def aim(self, camera: mujoco.MjvCamera, aspect: float = 1.6) -> None:
+        """Point the viewer's free camera at the machine, the pile and the truck so that they fill a view of
+        ``aspect`` (width / height) at the model's field of view: the film's framing
+        (:func:`hexgym.envs.world.site_camera`), as the free camera's look-at point, distance and angles."""
+        from hexgym.envs.world import site_camera, site_points
+
+        position, quat = site_camera(self.layout, aspect, float(self.model.vis.global_.fovy))
+        rotation = np.empty(9)
+        mujoco.mju_quat2Mat(rotation, quat)
+        forward = -rotation.reshape(3, 3)[:, 2]  # the camera looks along its -z
+        distance = float(np.mean((site_points(self.layout) - position) @ forward))  # to the points' middle depth
         camera.type = mujoco.mjtCamera.mjCAMERA_FREE
-        camera.lookat[:] = centre + [0.0, 0.0, 1.5]
-        camera.distance = 22.0
-        camera.azimuth = float(np.degrees(away)) + 180.0  # the camera looks along its azimuth
-        camera.elevation = -25.0
+        camera.lookat[:] = position + distance * forward
+        camera.distance = distance
+        camera.azimuth = float(np.degrees(np.arctan2(forward[1], forward[0])))
+        camera.elevation = float(np.degrees(np.arcsin(np.clip(forward[2], -1.0, 1.0))))
+
+
+def _fit_to_window(site: ViewSite, viewer, aimed: tuple | None) -> tuple | None:
+    """Frame the site for the viewer's scene area (the window less its panels) when that first shows or changes
+    size, unless the user has moved the camera since the last framing; returns the new (size, camera) or ``aimed``."""
+    viewport = viewer.viewport
+    if viewport is None or viewport.width < 2 or viewport.height < 2:
+        return aimed
+    size = (viewport.width, viewport.height)
+    cam = viewer.cam
+    now = (tuple(cam.lookat), cam.distance, cam.azimuth, cam.elevation)
+    if aimed is not None and (aimed[0] == size or aimed[1] != now):
+        return aimed
+    site.aim(cam, size[0] / size[1])
+    return size, (tuple(cam.lookat), cam.distance, cam.azimuth, cam.elevation)
 
 
 def capture_window(path: str | Path, title: str = WINDOW_TITLE) -> Path:
@@ -265,12 +283,16 @@ def run_viewer(
     frames: int | None = None,
     screenshot: str | Path | None = None,
     camera: str = "free",
+    panels: bool = False,
 ) -> dict[str, float | int | list[float]]:
     """Open the passive viewer on ``site`` and simulate in real time until its window is closed.
 
     ``seconds``: stop after this much simulated time; ``frames``: after this many drawn frames
     (with ``screenshot``: save the window's pixels there first; 60 frames if neither limit is given).
-    Returns the simulated time, the frames drawn and the spools (mm) at the end.
+    ``panels``: open with the viewer's side panels (Tab and Shift+Tab show and hide them either way); without, the
+    site fills the window. The free camera frames machine, pile and truck for the window's scene area whenever that
+    changes size, until the camera is moved. Returns the simulated time, the frames drawn and the spools (mm) at the
+    end.
     """
     if screenshot is not None and frames is None and seconds is None:
         frames = 60
@@ -282,7 +304,9 @@ def run_viewer(
     steps_per_frame = max(1, round(FRAME_PERIOD / model.opt.timestep))
     presses: queue.SimpleQueue[int] = queue.SimpleQueue()  # the viewer's thread calls back; we step here
     before = set(threading.enumerate())
-    viewer = mujoco.viewer.launch_passive(model, data, key_callback=presses.put)
+    viewer = mujoco.viewer.launch_passive(
+        model, data, key_callback=presses.put, show_left_ui=panels, show_right_ui=panels
+    )
     ui_threads = [t for t in threading.enumerate() if t not in before]
     drawn = 0
     try:
@@ -292,9 +316,12 @@ def run_viewer(
             else:
                 viewer.cam.type = mujoco.mjtCamera.mjCAMERA_FIXED
                 viewer.cam.fixedcamid = model.camera(camera).id
+        aimed = None  # (viewport size, camera) of the last framing: the free camera fits the window until moved
         start = time.perf_counter()
         while viewer.is_running():
             with viewer.lock():
+                if camera == "free":
+                    aimed = _fit_to_window(site, viewer, aimed)
                 spools = data.ctrl[site.spools]  # as the sliders left them
                 pressed = False
                 while not presses.empty():

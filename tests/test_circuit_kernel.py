@@ -236,7 +236,7 @@ def test_native_period_follows_the_numpy_period(table_set: str) -> None:
         runs[name] = replay(model, log, start="home", payload_kg=1000.0, dt_out=0.05)
     tip = {name: np.column_stack([run[f"tip_{c}"] for c in "xyz"]) for name, run in runs.items()}
     assert np.max(np.linalg.norm(tip["native"] - tip["numpy"], axis=1)) <= 1e-6
-    assert np.ptp(runs["numpy"]["q_swing"]) > 0.3 and np.ptp(runs["numpy"]["q_boom"]) > 0.2  # it moved
+    assert np.ptp(runs["numpy"]["q_swing_rad"]) > 0.3 and np.ptp(runs["numpy"]["q_boom_rad"]) > 0.2  # it moved
     stroke = compiled.circuit.stroke[2] - STOP_CLEARANCE
     assert runs["numpy"]["bucket_extension_m"][-1] == pytest.approx(stroke, abs=1e-4)  # held at the stop
     assert compiled.circuit.split_count == reference.circuit.split_count > 0

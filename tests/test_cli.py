@@ -44,8 +44,8 @@ def test_simulate_reference_writes_the_trajectory(tmp_path, capsys):
     lines = out.read_text().splitlines()
     header = lines[0].split(",")
     assert header[:12] == [
-        "t", "q_swing", "q_boom", "q_stick", "q_bucket", "qd_swing", "qd_boom", "qd_stick", "qd_bucket",
-        "tip_x", "tip_y", "tip_z",
+        "t", "q_swing_rad", "q_boom_rad", "q_stick_rad", "q_bucket_rad",
+        "qd_swing_radps", "qd_boom_radps", "qd_stick_radps", "qd_bucket_radps", "tip_x_m", "tip_y_m", "tip_z_m",
     ]  # fmt: skip
     for column in ("pump1_pressure_pa", "pump2_pressure_pa", "pump1_flow_m3s", "pump_power_w", "fuel_rate_l_per_h"):
         assert column in header

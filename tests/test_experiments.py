@@ -68,8 +68,8 @@ def test_own_pressure_flow_derivative_matches_a_finite_difference():
 
 def test_acceleration_at_rate_reads_the_first_crossing():
     t = np.arange(0.0, 1.0001, 0.02)
-    traj = np.zeros(len(t), dtype=[("t", float), ("qd_swing", float)])
-    traj["t"], traj["qd_swing"] = t, 0.5 * t**2  # acceleration = t
+    traj = np.zeros(len(t), dtype=[("t", float), ("qd_swing_radps", float)])
+    traj["t"], traj["qd_swing_radps"] = t, 0.5 * t**2  # acceleration = t
     assert acceleration_at_rate(traj, 0.125) == pytest.approx(0.5, abs=0.02)
     with pytest.raises(ValueError, match="never reached 0.6"):
         acceleration_at_rate(traj, 0.6)

@@ -67,7 +67,12 @@ def test_bad_spools_are_refused(model, spools):
 def test_replay_gives_the_common_columns_and_zero_error_against_itself(model):
     log = CommandLog(np.array([0.0, 0.2, 0.5]), np.array([[0, 0, 0, 0], [8, 5, -5, 3], [0, 0, 0, 0]], float))
     traj = replay(model, log, start=POSE_LOW)
-    for column in ("t", *(f"q_{j}" for j in kinematics.JOINTS), *(f"qd_{j}" for j in kinematics.JOINTS), "tip_x"):
+    for column in (
+        "t",
+        *(f"q_{j}_rad" for j in kinematics.JOINTS),
+        *(f"qd_{j}_radps" for j in kinematics.JOINTS),
+        "tip_x_m",
+    ):
         assert column in traj.dtype.names
     errors = tip_errors(traj, traj)
     assert np.all(errors["tip_error"] == 0) and np.all(errors["joint_contribution"] == 0)

@@ -25,7 +25,7 @@ needs_plugin = pytest.mark.skipif(not plugin.native_available(), reason=f"native
 
 
 def _tip(rows: np.ndarray) -> np.ndarray:
-    return np.column_stack([rows["tip_x"], rows["tip_y"], rows["tip_z"]])
+    return np.column_stack([rows["tip_x_m"], rows["tip_y_m"], rows["tip_z_m"]])
 
 
 def test_plugin_is_built_wherever_a_compiler_is():

@@ -525,7 +525,7 @@ def test_a_fitted_swing_comes_to_rest_at_its_target_on_the_circuit_model(env, pa
     assert (spools[fitted, 0] == -p.SPOOL_STROKE).all() and fitted[-1] + 1 == len(fitted) > switch
     assert not spools[:, 1:].any()
     run = replay_plan(check.machine, spools, state, dump_goal(layout), model)
-    assert abs(run.rows["q_swing"][-1] - target) < 0.03 and abs(run.rows["qd_swing"][-1]) < 0.02
+    assert abs(run.rows["q_swing_rad"][-1] - target) < 0.03 and abs(run.rows["qd_swing_radps"][-1]) < 0.02
 
 
 def test_a_plan_with_a_fitted_swing_runs_the_fitted_spools(env, model):

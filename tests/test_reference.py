@@ -13,10 +13,14 @@ from hexgym.machine import mjcf
 from hexgym.machine import parameters as p
 from hexgym.machine.assets import AssetError, asset_path, assets_dir
 from hexgym.machine.physics import force_actuated_model
+from hexgym.machine.trajectory import COMMON_COLUMNS
 from hexgym.model.commandlog import CommandLog, read_command_log, write_trajectory_csv
 from hexgym.model.replay import replay
 
-REQUIRED = "t,q_swing,q_boom,q_stick,q_bucket,qd_swing,qd_boom,qd_stick,qd_bucket,tip_x,tip_y,tip_z"
+REQUIRED = (
+    "t,q_swing_rad,q_boom_rad,q_stick_rad,q_bucket_rad,qd_swing_radps,qd_boom_radps,qd_stick_radps,qd_bucket_radps,"
+    "tip_x_m,tip_y_m,tip_z_m"
+)
 HYDRAULIC = "pump1_pressure_pa,pump2_pressure_pa,pump1_flow_m3s,pump2_flow_m3s,pump_power_w,fuel_rate_l_per_h"
 
 
@@ -45,7 +49,8 @@ def log(rows: list[list[float]]) -> CommandLog:
 def test_trajectory_columns_and_sampling(reference: ReferenceModel) -> None:
     traj = replay(reference, log([[0, 0, 0, 0, 0], [0.2, 0, 11, 0, 0]]), dt_out=0.05)
     names = list(traj.dtype.names)
-    assert names[:12] == REQUIRED.split(",") and names[12:18] == HYDRAULIC.split(",")
+    assert names[:12] == REQUIRED.split(",") and names[26:32] == HYDRAULIC.split(",")
+    assert tuple(names[:26]) == COMMON_COLUMNS  # the leading columns every model writes
     assert {"boom_head_pressure_pa", "swing_b_pressure_pa", "boom_force_n"} <= set(names)
     assert tuple(names) == TRAJECTORY_COLUMNS
     assert np.allclose(traj["t"], np.arange(5) * 0.05)
@@ -54,7 +59,7 @@ def test_trajectory_columns_and_sampling(reference: ReferenceModel) -> None:
 
 def test_holds_still_with_neutral_spools(reference: ReferenceModel) -> None:
     traj = replay(reference, log([[0, 0, 0, 0, 0]]), duration=1.0, payload_kg=2000.0)
-    q = np.column_stack([traj[f"q_{j}"] for j in ("swing", "boom", "stick", "bucket")])
+    q = np.column_stack([traj[f"q_{j}_rad"] for j in ("swing", "boom", "stick", "bucket")])
     assert np.abs(q - q[0]).max() < 2e-4  # rad: the start pressures hold the loads, ports closed
     for pump in ("pump1", "pump2"):
         assert traj[f"{pump}_flow_m3s"][-1] == pytest.approx(p.PUMP_IDLE_FLOW_FRACTION * p.PUMP_MAX_FLOW)
@@ -72,7 +77,7 @@ def test_boom_raises_at_pump_flow(reference: ReferenceModel) -> None:
     late = traj["t"] > 1.0
     speed = traj["boom_velocity_mps"][late].mean()
     assert speed == pytest.approx(p.PUMP_MAX_FLOW / p.BOOM_CYLINDER.head_area, rel=0.1)
-    assert traj["tip_z"][-1] > traj["tip_z"][0] + 0.3
+    assert traj["tip_z_m"][-1] > traj["tip_z_m"][0] + 0.3
     assert traj["pump_power_w"].max() <= p.PUMP_POWER_LIMIT * (1 + 1e-9)
     assert 5.0 < traj["fuel_rate_l_per_h"][-1] < 35.0
 
@@ -125,14 +130,14 @@ def test_command_log_object_is_checked_too() -> None:
 # --------------------------------------------------------------------------------------------
 # Trajectory CSV
 def test_trajectory_csv_is_written_atomically(tmp_path: Path) -> None:
-    traj = np.zeros(3, dtype=[("t", float), ("q_swing", float)])
+    traj = np.zeros(3, dtype=[("t", float), ("q_swing_rad", float)])
     traj["t"] = [0.0, 0.05, 0.1]
     path = tmp_path / "out.csv"
     write_trajectory_csv(path, traj)
     lines = path.read_text().splitlines()
-    assert lines[0] == "t,q_swing" and lines[2] == "0.05,0" and len(lines) == 4
-    bad = np.zeros(2, dtype=[("t", float), ("q_swing", object)])  # fails while writing
-    bad["q_swing"] = [1.0, "x"]
+    assert lines[0] == "t,q_swing_rad" and lines[2] == "0.05,0" and len(lines) == 4
+    bad = np.zeros(2, dtype=[("t", float), ("q_swing_rad", object)])  # fails while writing
+    bad["q_swing_rad"] = [1.0, "x"]
     with pytest.raises((TypeError, ValueError)):
         write_trajectory_csv(path, bad)
     assert path.read_text().splitlines() == lines  # the old file is untouched

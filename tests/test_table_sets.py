@@ -66,9 +66,9 @@ def test_python_and_native_agree_on_each_set(table_set):
     log, pose = scenarios()["test3"]
     python = replay(python_learned_model(table_set), log, start=pose, duration=20.0)
     native = replay(NativeLearnedModel(table_set=table_set), log, start=pose, duration=20.0)
-    tip = [np.column_stack([r["tip_x"], r["tip_y"], r["tip_z"]]) for r in (python, native)]
+    tip = [np.column_stack([r["tip_x_m"], r["tip_y_m"], r["tip_z_m"]]) for r in (python, native)]
     assert np.abs(tip[0] - tip[1]).max() < 1e-6
-    assert np.ptp(python["q_swing"]) > 0.05  # it moved
+    assert np.ptp(python["q_swing_rad"]) > 0.05  # it moved
 
 
 @needs_plugin

@@ -76,6 +76,27 @@ def test_restart_puts_back_what_the_viewers_reset_takes_away():
     assert d.time == 0.0 and np.all(d.ctrl[site.spools] == 0.0)
 
 
+@needs_plugin
+@pytest.mark.parametrize("aspect", [0.6, 1.6, 2.4])
+def test_free_camera_frames_the_site_for_the_windows_shape(aspect):
+    from hexgym.envs.world import site_points
+
+    site = view.ViewSite(seed=4)
+    camera = mujoco.MjvCamera()
+    site.aim(camera, aspect)
+    el, az = np.radians(camera.elevation), np.radians(camera.azimuth)
+    forward = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    points = site_points(site.layout) - (camera.lookat - camera.distance * forward)
+    depth = points @ forward
+    half = np.tan(np.radians(site.model.vis.global_.fovy) / 2.0)
+    x, y = points @ right / (depth * half * aspect), points @ up / (depth * half)
+    assert np.all(depth > 0) and np.all(np.abs(x) <= 1.0) and np.all(np.abs(y) <= 1.0)  # all in view
+    assert max(np.ptp(x), np.ptp(y)) > 1.5  # and filling it along one side
+
+
 def test_keys_move_the_spools_as_documented():
     spools = np.zeros(4)
     documented = {  # key name -> spool, direction

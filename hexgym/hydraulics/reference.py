@@ -32,28 +32,22 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from hexgym.hydraulics.circuit import CYLINDER_NAMES, NODES, HydraulicCircuit, fuel_rate, validate_spools, valve_layout
-from hexgym.machine import kinematics
+from hexgym.hydraulics.circuit import NODES, HydraulicCircuit, fuel_rate, validate_spools, valve_layout
+from hexgym.machine import kinematics, trajectory
 from hexgym.machine import parameters as p
 from hexgym.machine.physics import ExcavatorPhysics, force_actuated_model
 
 DEFAULT_TIMESTEP = 0.002  # s, MuJoCo and hydraulics alike (see the module docstring)
 _CHAMBERS = NODES[4:]  # boom_head ... swing_b
+# the common columns, then the circuit's pumps, power and fuel, chamber pressures, swing torque and brake power
 TRAJECTORY_COLUMNS = (
-    ("t",)
-    + tuple(f"q_{j}" for j in kinematics.JOINTS)
-    + tuple(f"qd_{j}" for j in kinematics.JOINTS)
-    + ("tip_x", "tip_y", "tip_z")
-    + ("pump1_pressure_pa", "pump2_pressure_pa", "pump1_flow_m3s", "pump2_flow_m3s")
-    + ("pump_power_w", "fuel_rate_l_per_h")
+    trajectory.COMMON_COLUMNS
+    + trajectory.PUMP_COLUMNS
+    + trajectory.POWER_COLUMNS
     + tuple(f"{n}_pressure_pa" for n in _CHAMBERS)
-    + tuple(f"{j}_spool_mm" for j in kinematics.JOINTS)
-    + tuple(f"{c}_extension_m" for c in CYLINDER_NAMES)
-    + tuple(f"{c}_velocity_mps" for c in CYLINDER_NAMES)
-    + tuple(f"{c}_force_n" for c in CYLINDER_NAMES)
-    + ("swing_torque_nm", "swing_inertia_kgm2", "brake_power_w")
+    + ("swing_torque_nm", "brake_power_w")
 )
-TRAJECTORY_DTYPE = np.dtype([(name, np.float64) for name in TRAJECTORY_COLUMNS])
+TRAJECTORY_DTYPE = trajectory.row_dtype(TRAJECTORY_COLUMNS)
 
 
 @dataclass
@@ -183,9 +177,9 @@ class ReferenceModel:
         forces, torque = self.circuit.actuator_forces(self.state, mech.ext, mech.vel, mech.swing_rate, end_stops=False)
         values = (
             [ph.time, *ph.joint_positions(), *ph.joint_velocities(), *ph.tip_position()]
-            + [out[k] for k in TRAJECTORY_COLUMNS[12:18]]
+            + [*(self.spools_m * 1e3), *mech.ext, *mech.vel, *forces, ph.swing_inertia()]
+            + [out[k] for k in trajectory.PUMP_COLUMNS + trajectory.POWER_COLUMNS]
             + [out[f"{n}_pressure_pa"] for n in _CHAMBERS]
-            + [*(self.spools_m * 1e3), *mech.ext, *mech.vel, *forces, torque]
-            + [ph.swing_inertia(), out["brake_power_w"]]
+            + [torque, out["brake_power_w"]]
         )
         return np.array(tuple(values), dtype=TRAJECTORY_DTYPE)

@@ -15,7 +15,7 @@ from typing import Protocol
 
 import numpy as np
 
-from hexgym.machine import kinematics
+from hexgym.machine import kinematics, trajectory
 from hexgym.machine import parameters as p
 from hexgym.machine.physics import ExcavatorPhysics
 
@@ -25,18 +25,8 @@ STROKES = np.array([p.CYLINDERS[n].stroke for n in kinematics.FRONT_CYLINDERS])
 PUSH_LIMIT = np.array([p.LINE_RELIEF[n] * p.CYLINDERS[n].head_area for n in kinematics.FRONT_CYLINDERS])
 PULL_LIMIT = np.array([p.LINE_RELIEF[n] * p.CYLINDERS[n].rod_area for n in kinematics.FRONT_CYLINDERS])
 SWING_REST_RATE = 0.01  # rad/s: below this a swing with its spool closed is at rest
-LEARNED_COLUMNS = (
-    ("t",)
-    + tuple(f"q_{j}" for j in kinematics.JOINTS)
-    + tuple(f"qd_{j}" for j in kinematics.JOINTS)
-    + ("tip_x", "tip_y", "tip_z")
-    + tuple(f"{j}_spool_mm" for j in kinematics.JOINTS)
-    + tuple(f"{c}_extension_m" for c in kinematics.FRONT_CYLINDERS)
-    + tuple(f"{c}_velocity_mps" for c in kinematics.FRONT_CYLINDERS)
-    + tuple(f"{c}_force_n" for c in kinematics.FRONT_CYLINDERS)
-    + ("swing_inertia_kgm2", "swing_acceleration_target")
-)
-LEARNED_DTYPE = np.dtype([(name, np.float64) for name in LEARNED_COLUMNS])
+LEARNED_COLUMNS = trajectory.COMMON_COLUMNS + (trajectory.SWING_ACCELERATION,)  # the common ones, the swing table's
+LEARNED_DTYPE = trajectory.row_dtype(LEARNED_COLUMNS)
 
 
 def next_swing_rate(
@@ -122,7 +112,8 @@ class LearnedModelBase:
         return self.joint_loads()[1:] / (self.physics.moment_arms() if arms is None else arms)
 
     def observe(self) -> np.ndarray:
-        """One trajectory row (``LEARNED_DTYPE``): the common columns, spools, cylinders, loads."""
+        """One trajectory row (``LEARNED_DTYPE``): the common columns (spools, cylinders, loads), the swing table's
+        acceleration."""
         ph = self.physics
         arms = ph.moment_arms()  # once: the cylinders' speeds and loads both need them (the costliest part)
         rates = ph.joint_velocities()

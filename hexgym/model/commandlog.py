@@ -1,4 +1,4 @@
-"""Replay files: the command log CSV read and checked, the trajectory CSV written.
+"""Replay files: the command log CSV read and checked, the trajectory CSV written and read.
 
 A command log has the header ``t,swing,boom,stick,bucket``: time in s, ascending from 0, and
 spool positions in mm (within the ±11 mm stroke), each row held until the next. A log that is
@@ -17,6 +17,7 @@ import numpy as np
 from hexgym.checks import parse_float
 from hexgym.files import atomic_path, check_input_file
 from hexgym.machine import parameters as p
+from hexgym.machine.trajectory import current_name, row_dtype
 
 COLUMNS = ("t", "swing", "boom", "stick", "bucket")
 SPOOL_LIMIT_MM = p.SPOOL_STROKE * 1e3
@@ -165,6 +166,31 @@ def write_trajectory_csv(path: str | Path, trajectory: np.ndarray) -> None:
         raise ValueError("trajectory must be a structured array with named fields")
     rows = np.column_stack([trajectory[n] for n in names]) if len(trajectory) else np.empty((0, len(names)))
     _write_csv_atomic(Path(path), names, rows)
+
+
+def read_trajectory_csv(path: str | Path) -> np.ndarray:
+    """A trajectory CSV (:func:`write_trajectory_csv`'s, or one of any model's) as a structured array of its columns
+    (float64), under their current names: a file with the names before the format (``q_swing``, ``tip_x``...,
+    :data:`hexgym.machine.trajectory.OLD_NAMES`) reads as one with the names now; either name indexes the rows."""
+    path = check_input_file(path, "trajectory")
+    with path.open(newline="") as f:
+        reader = csv.reader(f)
+        header = [current_name(name.strip()) for name in next(reader, [])]
+        if not header or header == [""]:
+            raise ValueError(f"{path}: empty file; expected a trajectory's header (t, q_swing_rad, ...)")
+        if len(set(header)) != len(header):
+            raise ValueError(f"{path}: repeated column(s) in the header {','.join(header)[:80]!r}")
+        rows = []
+        for number, fields in enumerate(reader, start=2):
+            if len(fields) != len(header):
+                raise ValueError(f"{path}, row {number}: {len(fields)} values for {len(header)} columns")
+            rows.append(
+                tuple(
+                    parse_float(v, f"{path}, row {number}, column {n!r}", finite=False)
+                    for n, v in zip(header, fields, strict=True)
+                )
+            )
+    return np.array(rows, dtype=row_dtype(header))
 
 
 def _write_csv_atomic(path: Path, header: tuple[str, ...], rows: np.ndarray) -> None:

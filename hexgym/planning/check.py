@@ -97,10 +97,10 @@ def replay_plan(
     planned = math.ceil(n * period / ROW_S - 1e-9)  # rows to the plan's end
     rows = replay(machine, log, start=state.q, payload_kg=state.payload_kg, dt_out=ROW_S,
                   duration=(planned + round(SETTLE_S / ROW_S)) * ROW_S)  # fmt: skip
-    q = np.column_stack([rows[f"q_{j}"] for j in ("swing", "boom", "stick", "bucket")])
+    q = np.column_stack([rows[f"q_{j}_rad"] for j in ("swing", "boom", "stick", "bucket")])
     poses = model.at_angles(q, state.layout)
     error = goal.error_m(poses.mouth, poses.tip)
-    at = (error <= (0.0 if goal.task == "dump" else goal.tolerance_m)) & (np.abs(rows["qd_swing"]) < 0.1)
+    at = (error <= (0.0 if goal.task == "dump" else goal.tolerance_m)) & (np.abs(rows["qd_swing_radps"]) < 0.1)
     return PlanReplay(rows, poses.tip, poses.mouth, poses.clearance, error, at, planned)
 
 
@@ -234,11 +234,11 @@ class PlanCheck:
         for rows_to in (min(2 * first + round(1.0 / ROW_S), len(trial) * period / ROW_S), len(trial) * period / ROW_S):
             rows = replay(self.machine, log, start=state.q, payload_kg=state.payload_kg, dt_out=ROW_S,
                           duration=math.floor(rows_to) * ROW_S)  # fmt: skip
-            stopped = np.nonzero(sign * rows["qd_swing"][first:] <= SWING_STOPPED)[0]
+            stopped = np.nonzero(sign * rows["qd_swing_radps"][first:] <= SWING_STOPPED)[0]
             if len(stopped):
                 row = first + stopped[0]
-                return float(rows["q_swing"][row]), round(rows["t"][row] / period)
-        return float(rows["q_swing"][-1]), len(trial)
+                return float(rows["q_swing_rad"][row]), round(rows["t"][row] / period)
+        return float(rows["q_swing_rad"][-1]), len(trial)
 
     def correct(
         self, spools_m: np.ndarray, state: MachineState, goal: Goal, checked: CheckResult | None = None

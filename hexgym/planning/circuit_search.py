@@ -88,8 +88,8 @@ def _replays(machine: MachineModel, geometry: RolloutModel, state: MachineState,
     for b in range(nbatch):  # each replay's rows at the end of each period (its first row is the start)
         rows = replay(machine, plan_log(spools[b], period), start=state.q, payload_kg=state.payload_kg,
                       dt_out=period, duration=periods * period)[1:]  # fmt: skip
-        q[b] = np.column_stack([rows[f"q_{j}"] for j in kinematics.JOINTS])
-        qd[b] = np.column_stack([rows[f"qd_{j}"] for j in kinematics.JOINTS])
+        q[b] = np.column_stack([rows[f"q_{j}_rad"] for j in kinematics.JOINTS])
+        qd[b] = np.column_stack([rows[f"qd_{j}_radps"] for j in kinematics.JOINTS])
         fuel[b] = rows["fuel_rate_l_per_h"]
     poses = geometry.at_angles(q.reshape(-1, 4), state.layout)
     return {
