@@ -42,6 +42,7 @@ import numpy as np
 
 from hexgym.hydraulics.circuit import STATE_NAMES, STATE_SIZE, HydraulicCircuit, fuel_rate, valve_layout
 from hexgym.machine import parameters as p
+from hexgym.machine import trajectory
 from hexgym.mbl.schema import CIRCUIT_TABLE_SETS, VALVE_OF_TABLE_SET
 from hexgym.mbl.table import MBLTable
 from hexgym.mbl.valve import LearnedValve
@@ -55,7 +56,7 @@ MAX_RATE = 10.0  # rad/s: the servos' range here, far beyond any joint's
 SUBSTEPS = 5  # circuit steps per 25 ms period (5 ms): 3.1 ms steps moved the selection logs by < 0.02 m
 
 # a row: the learned models' columns, and the pumps' power and the fuel rate as the reference reports them
-CIRCUIT_DTYPE = np.dtype(LEARNED_DTYPE.descr + [("pump_power_w", np.float64), ("fuel_rate_l_per_h", np.float64)])
+CIRCUIT_DTYPE = trajectory.row_dtype(LEARNED_DTYPE.names + trajectory.PUMP_COLUMNS + trajectory.POWER_COLUMNS)
 
 
 class CircuitModel(LearnedModel):
@@ -110,11 +111,9 @@ class CircuitModel(LearnedModel):
         self.rates = np.zeros(4)
 
     def observe(self) -> np.ndarray:
-        """One trajectory row (``CIRCUIT_DTYPE``): the learned models' columns, the pumps' power and the fuel rate
-        (L/h) from the circuit's pressures and pump flows, as :class:`~hexgym.hydraulics.reference.ReferenceModel`
-        reports them."""
-        _, hydraulic, brake = self.circuit.pump_power(self.state)
-        return np.array((*super().observe().tolist(), hydraulic, fuel_rate(brake)), dtype=CIRCUIT_DTYPE)
+        """One trajectory row (``CIRCUIT_DTYPE``): the learned models' columns, then the pumps' pressures and flows,
+        their power and the fuel rate (L/h), as :class:`~hexgym.hydraulics.reference.ReferenceModel` reports them."""
+        return circuit_row(super().observe(), self.circuit, self.state)
 
     def _control_period(self) -> None:
         arms, mass, load = self._period_start()
@@ -210,6 +209,13 @@ class CircuitModel(LearnedModel):
 
 
 _fallback_said = False
+
+
+def circuit_row(row: np.ndarray, circuit: HydraulicCircuit, state: np.ndarray) -> np.ndarray:
+    """A learned model's trajectory ``row`` with what the circuit ``state`` adds (``CIRCUIT_DTYPE``)."""
+    flows, hydraulic, brake = circuit.pump_power(state)
+    pumps = (state[0], state[1], flows[0], flows[1])
+    return np.array((*row.tolist(), *pumps, hydraulic, fuel_rate(brake)), dtype=CIRCUIT_DTYPE)
 
 
 def check_state(state: np.ndarray, fault_pressure: float) -> None:

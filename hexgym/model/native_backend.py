@@ -19,14 +19,14 @@ import numpy as np
 
 from hexgym.hydraulics.circuit import STATE_NAMES as CIRCUIT_STATE_NAMES
 from hexgym.hydraulics.circuit import STATE_SIZE as CIRCUIT_STATE_SIZE
-from hexgym.hydraulics.circuit import HydraulicCircuit, fuel_rate, validate_spools, valve_layout
+from hexgym.hydraulics.circuit import HydraulicCircuit, validate_spools, valve_layout
 from hexgym.machine import kinematics
 from hexgym.machine.assets import AssetError, asset_path
 from hexgym.machine.physics import ExcavatorPhysics, contiguous_index
 from hexgym.mbl.schema import CIRCUIT_TABLE_SETS, DEFAULT_TABLE_SET, VALVE_OF_TABLE_SET
 from hexgym.mbl.table import require_packaged
 from hexgym.model.base import LearnedModelBase
-from hexgym.model.circuit_model import CIRCUIT_DTYPE
+from hexgym.model.circuit_model import circuit_row
 from hexgym.model.plugin import CTRL_PER_SPOOL_M, STATE, STATE_SIZE, plugin_config_values, require_plugin
 
 
@@ -177,13 +177,10 @@ class NativeLearnedModel(LearnedModelBase):
         return self.physics.data.plugin_state[self._hydraulics].copy()
 
     def observe(self) -> np.ndarray:
-        """One trajectory row; the circuit model's also its pumps' power and fuel rate (``CIRCUIT_DTYPE``, as
-        :class:`~hexgym.model.circuit_model.CircuitModel`)."""
+        """One trajectory row; the circuit model's also its pumps' pressures, flows, power and fuel rate
+        (``CIRCUIT_DTYPE``, as :class:`~hexgym.model.circuit_model.CircuitModel`)."""
         row = super().observe()
-        if self._circuit is None:
-            return row
-        _, hydraulic, brake = self._circuit.pump_power(self.hydraulic_state)
-        return np.array((*row.tolist(), hydraulic, fuel_rate(brake)), dtype=CIRCUIT_DTYPE)
+        return row if self._circuit is None else circuit_row(row, self._circuit, self.hydraulic_state)
 
     def joint_loads(self) -> np.ndarray:
         """Torque each main joint's actuator must supply to hold the present motion (N m).
