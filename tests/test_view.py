@@ -183,7 +183,7 @@ def test_viewer_window_shows_the_lit_site(xvfb_env, tmp_path):
     proc = _run_view(xvfb_env, "--frames", "30", "--screenshot", str(shot), "--payload-kg", "1500")
     out, err = proc.communicate(timeout=180)
     assert proc.returncode == 0, err
-    assert "Insert" in out and "screenshot:" in out
+    assert "Insert" in out and f"wrote {shot}" in err  # the key help on stdout, where the picture went on stderr
     image = iio.imread(shot).astype(float)
     assert image.shape[0] > 400 and image.shape[1] > 600
     assert image.std() > 20.0  # not blank
