@@ -25,7 +25,8 @@ import os
 import sys
 from pathlib import Path
 
-from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS  # names only: no MuJoCo, no numpy
+from hexgym.hydraulics.circuit import VALVE_LAYOUTS  # names only: no MuJoCo
+from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS  # names only: no MuJoCo
 
 _REPOSITORY = Path(__file__).resolve().parents[1]
 _REPOSITORY_ASSETS = _REPOSITORY / "assets"  # where build-assets writes by default, in a source checkout
@@ -597,7 +598,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "(the figures) and interactions.png (default: out/reference)")  # fmt: skip
     report.add_argument(
         "--valve",
-        choices=("paper", "cat"),
+        choices=tuple(VALVE_LAYOUTS),
         default="paper",
         help="main valve: the paper's schematic, or a Cat two-pump valve (both pumps on boom and stick, swing "
         "priority, regeneration) (default: paper)",

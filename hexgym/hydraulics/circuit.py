@@ -140,7 +140,26 @@ def compliance(pressure: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 # --------------------------------------------------------------------------------------------
 # The valve: its sections, and spool position -> passage areas.
 PASSAGES = ("pa", "pb", "at", "bt")
-REGENERATION_PASSAGES = ("stick_regeneration", "stick_unloading", "boom_regeneration")
+
+
+@dataclass(frozen=True)
+class RegenerationPassage:
+    """A passage beside the sections' metering ones: the cylinder whose oil it passes (its spool opens it), the
+    spool's side that opens it (+1 extending, -1 retracting), the end the oil leaves from (through that end's
+    cushion), and whether the valve's tables learn its area (else the data sheet's)."""
+
+    cylinder: str
+    side: int
+    leaves_rod: bool
+    learned: bool = True
+
+
+REGENERATION = {
+    "stick_regeneration": RegenerationPassage("stick", 1, leaves_rod=True),  # stick in: rod -> head, a check
+    "stick_unloading": RegenerationPassage("stick", 1, leaves_rod=True, learned=False),  # rod -> tank, head-piloted
+    "boom_regeneration": RegenerationPassage("boom", -1, leaves_rod=False),  # boom lower: head -> rod, a check
+}
+REGENERATION_PASSAGES = tuple(REGENERATION)
 
 
 @dataclass(frozen=True)
@@ -163,8 +182,7 @@ class ValveSection:
 class ValveLayout:
     """The main valve: its sections (the first four are one per function, in ``FUNCTIONS`` order) and whether
     it has the swing's and the boom raise's priority over the stick and the stick's and boom's regeneration
-    (parameters in
-    :mod:`hexgym.machine.parameters`)."""
+    (parameters in :mod:`hexgym.machine.parameters`)."""
 
     name: str
     sections: tuple[ValveSection, ...]
@@ -312,9 +330,7 @@ def spool_areas(spools_m: np.ndarray, layout: ValveLayout = PAPER_VALVE) -> Spoo
     u = np.asarray(spools_m, dtype=float)
     if len(layout.sections) != len(FUNCTIONS):
         u = section_spools(layout, u)
-    span = p.SPOOL_STROKE - p.SPOOL_DEAD_BAND
-    up = _unit((u - p.SPOOL_DEAD_BAND) / span) ** p.METERING_EXPONENT
-    down = _unit((-u - p.SPOOL_DEAD_BAND) / span) ** p.METERING_EXPONENT
+    up, down = metering_fraction(u)
     stroke = np.abs(u) - p.BYPASS_CLOSE_START
     land = 1.0 - _unit(stroke / (p.BYPASS_LAND_CLOSED - p.BYPASS_CLOSE_START))
     notch = 1.0 - _unit(stroke / (p.BYPASS_CLOSED - p.BYPASS_CLOSE_START))
@@ -414,8 +430,8 @@ class _Branches:
 
 
 def _build_branches(layout: ValveLayout) -> tuple[_Branches, dict[str, np.ndarray]]:
-    """The branches and, per passage (``PASSAGES``, ``bypass``, ``stick_regeneration``, ``stick_unloading``),
-    the branches the valve's areas go to; ``"<passage>_section"`` names the section each comes from."""
+    """The branches and, per passage (``PASSAGES``, ``bypass`` and the layout's ``REGENERATION_PASSAGES``), the
+    branches the valve's areas go to; ``"<passage>_section"`` names the section each comes from."""
     rows: list[tuple[str, int, int, float, float | None, float, float, int]] = []
 
     def add(name: str, frm: int, to: int, area: float = 0.0, crack=None, span=1.0, lam=0.0, pilot=-1) -> None:
@@ -564,8 +580,8 @@ class HydraulicCircuit:
     @property
     def branch_groups(self) -> dict[str, np.ndarray]:
         """Branch indices of the valve's passages: ``pa``, ``pb``, ``at``, ``bt`` in section order (the sections
-        that have the passage, ``"<passage>_section"``), ``bypass`` one per pump, the stick's ``stick_regeneration``
-        and ``stick_unloading`` where the layout has them (copies)."""
+        that have the passage, ``"<passage>_section"``), ``bypass`` one per pump, and the layout's regeneration
+        passages (``REGENERATION_PASSAGES``) (copies)."""
         return {k: v.copy() for k, v in self._groups.items()}
 
     @property
@@ -625,18 +641,16 @@ class HydraulicCircuit:
         area[g["pa"]], area[g["pb"]] = sa.pa[g["pa_section"]], sa.pb[g["pb_section"]]
         at, bt = sa.at.copy(), sa.bt.copy()
         c = self._cushioned  # a->T leaves the head end (retracting), b->T the rod end (extending)
-        at[c] = series_area(at[c], self._cushion(np.asarray(ext)))
-        bt[c] = series_area(bt[c], self._cushion(self.stroke - np.asarray(ext)))
+        head_cushion, rod_cushion = self._cushion(np.asarray(ext)), self._cushion(self.stroke - np.asarray(ext))
+        at[c] = series_area(at[c], head_cushion)
+        bt[c] = series_area(bt[c], rod_cushion)
         area[g["at"]], area[g["bt"]] = at[g["at_section"]], bt[g["bt_section"]]
         for k, sections in enumerate(self._pump_sections):  # the pump's spools in series
             series = functools.reduce(series_area, sa.bypass[sections])
             area[g["bypass"][k]] = series if sa.pump_bypass is None else sa.pump_bypass[k]
-        for passage in REGENERATION_PASSAGES:  # out of the cylinder's port, through its cushion like the valve's
+        for passage, r in REGENERATION.items():  # out of the cylinder's port, through its cushion like the valve's
             if passage in g:
-                j = CYLINDER_NAMES.index(passage.split("_")[0])
-                leaving_rod = passage.startswith("stick")  # stick in: the rod's oil; boom lower: the head's
-                distance = self.stroke[j] - ext[j] if leaving_rod else ext[j]
-                cushion = self._cushion(np.full(3, distance))[j]
+                cushion = (rod_cushion if r.leaves_rod else head_cushion)[CYLINDER_NAMES.index(r.cylinder)]
                 area[g[passage]] = series_area(getattr(sa, passage), cushion)
         return area
 

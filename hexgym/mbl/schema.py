@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from hexgym.hydraulics.circuit import CAT_VALVE, PAPER_VALVE, ValveLayout
+from hexgym.hydraulics.circuit import CAT_VALVE, PAPER_VALVE, REGENERATION, ValveLayout
 
 # Every quantity a table may read, in a fixed order (the plugin's query vector uses this order).
 QUANTITIES = (
@@ -76,9 +76,9 @@ TABLE_SETS: dict[str, dict[str, TableSchema]] = {
 # The control valve's passages: each section's centre bypass, then pump -> port a, pump -> port b,
 # port a -> tank, port b -> tank (port a: a cylinder's head end, the swing motor's turning-positive port).
 VALVE_PASSAGES = ("bypass", "pa", "pb", "at", "bt")
-# the regeneration passages (in the spools) a layout may have, and the function whose spool opens each; the stick's
+# the regeneration passages (in the spools) the tables learn, and the function whose spool opens each; the stick's
 # unloading valve, piloted by its head pressure, is the machine's data like the priority valves
-REGENERATION_SPOOLS = {"stick_regeneration": "stick", "boom_regeneration": "boom"}
+REGENERATION_SPOOLS = {name: r.cylinder for name, r in REGENERATION.items() if r.learned}
 
 
 def valve_tables(layout: ValveLayout) -> dict[str, TableSchema]:

@@ -32,6 +32,7 @@ import numpy as np
 from hexgym.hydraulics.circuit import (
     FUNCTIONS,
     PAPER_VALVE,
+    REGENERATION,
     SWING_DISPLACEMENT_RAD,
     SpoolAreas,
     ValveLayout,
@@ -225,11 +226,11 @@ def _section_flows(layout: ValveLayout, functions: dict, pressures, compression,
 
 
 def _regeneration_passage(layout: ValveLayout, fn: _Function) -> str | None:
-    """The regeneration passage that feeds ``fn``'s inlet as its spool is now, if the layout has one."""
-    if fn.name == "stick" and fn.positive and "stick_regeneration" in layout.regeneration_passages:
-        return "stick_regeneration"
-    if fn.name == "boom" and not fn.positive and "boom_regeneration" in layout.regeneration_passages:
-        return "boom_regeneration"
+    """The learned regeneration passage that feeds ``fn``'s inlet as its spool is now, if the layout has one."""
+    for passage, cylinder in REGENERATION_SPOOLS.items():
+        opens = REGENERATION[passage].side > 0
+        if cylinder == fn.name and opens == fn.positive and passage in layout.regeneration_passages:
+            return passage
     return None
 
 
@@ -359,7 +360,7 @@ class LearnedValve:
         for passage, function in REGENERATION_SPOOLS.items():
             if passage in self.layout.regeneration_passages:
                 x = u[FUNCTIONS.index(function)]
-                opens = x <= -p.SPOOL_DEAD_BAND if passage == "boom_regeneration" else x >= p.SPOOL_DEAD_BAND
+                opens = REGENERATION[passage].side * x >= p.SPOOL_DEAD_BAND
                 extra[passage] = self._area(passage, None, x) if opens else 0.0
         if "stick_unloading" in self.layout.regeneration_passages:
             extra["stick_unloading"] = p.STICK_UNLOADING_AREA * float(metering_fraction(u[_STICK])[0])

@@ -33,6 +33,7 @@ from hexgym.hydraulics.circuit import (
     NODES,
     PAPER_VALVE,
     PASSAGES,
+    REGENERATION,
     REST_PRESSURE,
     STATE_SIZE,
     SWING_DISPLACEMENT_RAD,
@@ -43,7 +44,7 @@ from hexgym.hydraulics.circuit import (
     priority_shares,
 )
 from hexgym.machine import parameters as p
-from hexgym.mbl.schema import REGENERATION_SPOOLS, VALVE_PASSAGES, valve_tables
+from hexgym.mbl.schema import VALVE_PASSAGES, valve_tables
 from hexgym.mbl.table import MBLTable
 from hexgym.mbl.valve import CLOSED_AREA
 from hexgym.model.plugin import (
@@ -202,11 +203,14 @@ def _regenerations(layout: ValveLayout, groups: dict[str, np.ndarray], table: di
     rod's; boom lower, the head's)."""
     rows = []
     for passage in layout.regeneration_passages:
-        function = REGENERATION_SPOOLS.get(passage, "stick")  # the unloading valve opens with stick in
-        side = -1 if passage == "boom_regeneration" else 1
-        area = p.STICK_UNLOADING_AREA if passage == "stick_unloading" else 0.0
-        cylinder, end = CYLINDER_NAMES.index(passage.split("_")[0]), 1 if passage.startswith("stick") else -1
-        rows.append((groups[passage][0], FUNCTIONS.index(function), side, table.get(passage, -1), area, cylinder, end))
+        r = REGENERATION[passage]
+        area = 0.0 if r.learned else p.STICK_UNLOADING_AREA  # the one not learned: the stick's unloading valve
+        function, cylinder, end = (
+            FUNCTIONS.index(r.cylinder),
+            CYLINDER_NAMES.index(r.cylinder),
+            1 if r.leaves_rod else -1,
+        )
+        rows.append((groups[passage][0], function, r.side, table.get(passage, -1), area, cylinder, end))
     return np.array(rows, dtype=float).reshape(-1, 7)
 
 
