@@ -25,7 +25,7 @@ import os
 import sys
 from pathlib import Path
 
-from hexgym.hydraulics.circuit import VALVE_LAYOUTS  # names only: no MuJoCo
+from hexgym.hydraulics.circuit import DEFAULT_VALVE, VALVE_LAYOUTS  # names only: no MuJoCo
 from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS  # names only: no MuJoCo
 
 _REPOSITORY = Path(__file__).resolve().parents[1]
@@ -599,9 +599,9 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_argument(
         "--valve",
         choices=tuple(VALVE_LAYOUTS),
-        default="paper",
-        help="main valve: the paper's schematic, or a Cat two-pump valve (both pumps on boom and stick, swing "
-        "priority, regeneration) (default: paper)",
+        default=DEFAULT_VALVE,
+        help="main valve: a Cat two-pump valve (both pumps on boom and stick, swing and boom priority, "
+        f"regeneration), or the paper's simplified schematic (default: {DEFAULT_VALVE})",
     )
     report.set_defaults(func=_cmd_reference_report)
 

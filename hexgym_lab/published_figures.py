@@ -1,56 +1,114 @@
 """The reference model beside a real machine's published figures: cylinder times, swing, relief settings.
 
 What a service manual's acceptance tests measure on a new machine (:mod:`hexgym.machine.parameters`,
-``PUBLISHED_*``), measured the same way on the reference model: each cylinder run from one end of its stroke to
-the other at full spool, empty bucket, engine at full speed, timed from the command until the cylinder is within
-``STROKE_END_MARGIN`` of its far end (the end cushion included, as a stopwatch on a machine includes it); the swing
-from rest through 180 degrees, and its top speed.
+``PUBLISHED_*``), measured the same way on the reference model: empty bucket, engine at full speed, full spool,
+in the poses of Cat's "Cylinder Speed - Check" procedure [pub: Cat 323F, 325D/329D and 330D-340D testing and
+adjusting, one procedure]:
+
+- boom: stick and bucket cylinders fully retracted; raise timed from the bucket resting on level ground to the boom
+  cylinders' full extension, lower timed from full extension until the bucket touches the ground;
+- stick: the boom's upper surface parallel to the ground (its pin-to-pin line level, our reading), the bucket
+  cylinder fully extended; each way over the stick cylinder's full stroke;
+- bucket: the boom level, the stick perpendicular to the ground; each way over the bucket cylinder's full stroke.
+
+A cylinder's end counts as reached within ``STROKE_END_MARGIN`` (the end cushion included, as a stopwatch on a
+machine includes it); the ground is the tracks' plane, z = 0. The swing is timed from rest through 180 degrees, and
+its top speed taken after.
 """
 
 from __future__ import annotations
 
+import mujoco
 import numpy as np
+from scipy.optimize import brentq
 
+from hexgym.hydraulics.circuit import DEFAULT_VALVE
 from hexgym.hydraulics.reference import ReferenceModel
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
+from hexgym.machine.names import BUCKET_BODY
 
 TIME_LIMIT_S = 15.0  # a cylinder not at its end by then is reported as not reaching it (NaN)
-# Where the other joints stand while a cylinder is timed (fraction of each joint's range, boom/stick/bucket):
-# the stick near vertical and the bucket half curled for the boom, the boom half up for the stick and bucket.
-_POSE_FRACTIONS = {"boom": (None, 0.5, 0.5), "stick": (0.6, None, 0.5), "bucket": (0.6, 0.5, None)}
 _SPOOL = p.SPOOL_STROKE
+_RETRACTED, _EXTENDED = 0, 1  # ends of kinematics.joint_range
 
 
-def _pose(cylinder: str, extend: bool) -> np.ndarray:
-    """Joint angles (swing, boom, stick, bucket) with ``cylinder`` at the end it starts from."""
-    q = np.zeros(4)
-    for i, (name, fraction) in enumerate(zip(kinematics.FRONT_CYLINDERS, _POSE_FRACTIONS[cylinder], strict=True)):
-        lower, upper = kinematics.joint_range(name)
-        share = (0.0 if extend else 1.0) if fraction is None else fraction
-        q[i + 1] = lower + share * (upper - lower)
-    return q
+def _end(name: str, end: int) -> float:
+    """The joint angle (rad) with ``name``'s cylinder at one end of its stroke."""
+    return kinematics.joint_range(name)[end]
+
+
+def _within(name: str, share: float) -> float:
+    """The joint angle (rad) with ``name``'s cylinder ``share`` of the way from retracted to extended."""
+    retracted, extended = kinematics.joint_range(name)
+    return retracted + share * (extended - retracted)
+
+
+# the swing test's pose: the boom 0.6 of its range up, the stick half way, the bucket 0.5 rad [est]
+_SWING_POSE = np.array([0.0, _within("boom", 0.6), _within("stick", 0.5), 0.5])
+
+
+def bucket_lowest_z(sim: ReferenceModel, q: np.ndarray) -> float:
+    """The bucket's lowest point (m above the tracks' plane) with the joints at ``q``: its collision mesh's vertices."""
+    sim.reset(q)
+    m, d = sim.physics.model, sim.physics.data
+    lowest = np.inf
+    for g in np.flatnonzero(m.geom_bodyid == m.body(BUCKET_BODY).id):
+        mesh = m.geom_dataid[g]
+        if m.geom_type[g] != mujoco.mjtGeom.mjGEOM_MESH or mesh < 0:
+            continue
+        start, count = m.mesh_vertadr[mesh], m.mesh_vertnum[mesh]
+        vertices = m.mesh_vert[start : start + count] @ d.geom_xmat[g].reshape(3, 3).T + d.geom_xpos[g]
+        lowest = min(lowest, float(vertices[:, 2].min()))
+    return lowest
+
+
+def boom_on_ground(sim: ReferenceModel) -> float:
+    """The boom's angle (rad) in its test pose, stick and bucket cylinders retracted, with the bucket resting on the
+    ground; the boom's lowest angle if the bucket cannot reach the ground."""
+    stick, bucket = _end("stick", _RETRACTED), _end("bucket", _RETRACTED)
+    low, high = sorted(kinematics.joint_range("boom"))
+    height = lambda boom: bucket_lowest_z(sim, np.array([0.0, boom, stick, bucket]))  # noqa: E731
+    return low if height(low) >= 0.0 else brentq(height, low, high, xtol=1e-6)
+
+
+def _start_pose(cylinder: str, extend: bool, boom_ground: float) -> np.ndarray:
+    """Joint angles (swing, boom, stick, bucket) where ``cylinder``'s test starts."""
+    if cylinder == "boom":
+        boom = boom_ground if extend else _end("boom", _EXTENDED)
+        return np.array([0.0, boom, _end("stick", _RETRACTED), _end("bucket", _RETRACTED)])
+    start = _RETRACTED if extend else _EXTENDED
+    if cylinder == "stick":
+        return np.array([0.0, 0.0, _end("stick", start), _end("bucket", _EXTENDED)])
+    return np.array([0.0, 0.0, 0.0, _end("bucket", start)])  # boom level, stick vertical (kinematics' frames)
 
 
 def cylinder_time(sim: ReferenceModel, cylinder: str, extend: bool) -> float:
-    """Seconds from full spool until ``cylinder`` is within ``STROKE_END_MARGIN`` of its far end (NaN: not by
-    :data:`TIME_LIMIT_S`), from rest at the other end."""
+    """Seconds from full spool until ``cylinder``'s test ends (NaN: not by :data:`TIME_LIMIT_S`): its far end
+    within ``STROKE_END_MARGIN``, or, lowering the boom, the bucket on the ground."""
     j = kinematics.FRONT_CYLINDERS.index(cylinder)
-    sim.reset(_pose(cylinder, extend))
+    boom_ground = boom_on_ground(sim)
+    q0 = _start_pose(cylinder, extend, boom_ground)
     spools = np.zeros(4)
     spools[j + 1] = _SPOOL if extend else -_SPOOL
     goal = p.CYLINDERS[cylinder].stroke - p.STROKE_END_MARGIN if extend else p.STROKE_END_MARGIN
+    to_ground = cylinder == "boom" and not extend and boom_ground != min(kinematics.joint_range("boom"))
+    sim.reset(q0)
     for step in range(1, int(TIME_LIMIT_S / sim.timestep) + 1):
         sim.step(spools)
-        ext = sim.physics.cylinder_extensions()[j]
-        if (ext >= goal) if extend else (ext <= goal):
+        if to_ground:
+            done = sim.physics.joint_positions()[1] <= boom_ground
+        else:
+            ext = sim.physics.cylinder_extensions()[j]
+            done = (ext >= goal) if extend else (ext <= goal)
+        if done:
             return step * sim.timestep
     return float("nan")
 
 
 def swing_figures(sim: ReferenceModel) -> tuple[float, float]:
     """(seconds from rest through 180 degrees at full spool, top speed in rpm over the following seconds)."""
-    sim.reset(np.array([0.0, *(_pose("bucket", True)[1:3]), 0.5]))
+    sim.reset(_SWING_POSE)
     spools = np.array([_SPOOL, 0.0, 0.0, 0.0])
     half_turn, top = float("nan"), 0.0
     for step in range(1, int(TIME_LIMIT_S / sim.timestep) + 1):
@@ -79,7 +137,7 @@ def _row(model: float, published: float, at_most: bool = False) -> dict[str, flo
     return {"model": round(float(model), 2), "published": published, "ratio": round(ratio, 3), "within": ok}
 
 
-def published_figures(valve: str = "paper") -> dict[str, dict]:
+def published_figures(valve: str = DEFAULT_VALVE) -> dict[str, dict]:
     """Every published figure beside the reference model's (with valve layout ``valve``): ``cylinder_times_s``
     (model, published, ratio, within +-20 %, the service limit), ``swing`` and ``relief_settings_mpa``."""
     sim = ReferenceModel(valve=valve)

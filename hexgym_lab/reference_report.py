@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from hexgym.files import save_figure, write_json
+from hexgym.hydraulics.circuit import DEFAULT_VALVE
 from hexgym.hydraulics.reference import ReferenceModel
 from hexgym.model.commandlog import CommandLog
 from hexgym.model.replay import replay
@@ -171,7 +172,7 @@ def benchmark(sim: ReferenceModel, seconds: float = 10.0) -> dict[str, float]:
     }
 
 
-def run_report(out_dir: str | Path, valve: str = "paper") -> dict[str, object]:
+def run_report(out_dir: str | Path, valve: str = DEFAULT_VALVE) -> dict[str, object]:
     """Run everything on the reference model with valve layout ``valve``, write ``summary.json`` and
     ``interactions.png`` to ``out_dir``; return the summary."""
     out_dir = Path(out_dir)

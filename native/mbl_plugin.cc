@@ -21,7 +21,7 @@
 // and the targets held within it (the swing's unclipped rate) are the plugin state (mjSTATE_PLUGIN).
 // So mj_getState/mj_setState (mjSTATE_FULLPHYSICS) restore a step exactly.
 //
-// With a circuit model's table set ("circuit", "circuit_cat": the valve's tables of a valve layout) a query runs
+// With the circuit model's table set ("circuit": the tables of the valve layout's passages) a query runs
 // the circuit model's control period instead of the tables
 // (hexgym.model.circuit_model.CircuitModel._control_period; circuit.cc): the joints' loads, moment arms and
 // mass matrix at the period's start, the circuit's steps at the spools, the joints' mean rates over the period

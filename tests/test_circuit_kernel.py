@@ -1,7 +1,7 @@
 """The circuit model's native kernel (native/circuit.cc, through hexgym.model.circuit_kernel) against the numpy
-circuit it mirrors (hexgym.hydraulics.circuit, the definition), on each circuit table set's valve layout: the paper's
-one section per function, and the Cat two-pump valve (boom 2, stick 2, priority valves, regeneration, the stick
-unloading valve piloted by the head pressure)."""
+circuit it mirrors (hexgym.hydraulics.circuit, the definition), on each valve layout: the Cat two-pump valve (boom 2,
+stick 2, priority valves, regeneration, the stick unloading valve piloted by the head pressure) with the packaged
+tables, and the paper's one section per function with those of its passages."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from hexgym.hydraulics.circuit import NODES, HydraulicCircuit, valve_layout
-from hexgym.mbl.schema import CIRCUIT_TABLE_SETS, VALVE_OF_TABLE_SET
+from hexgym.mbl.schema import CIRCUIT_TABLE_SETS, valve_tables
 from hexgym.mbl.table import MBLTable, load_tables
 from hexgym.mbl.valve import LearnedValve
 from hexgym.model import circuit_kernel as ck
@@ -24,13 +24,16 @@ pytestmark = pytest.mark.skipif(bool(ck.native_reason()), reason="the native lib
 RTOL = 1e-10
 
 
-@pytest.fixture(scope="module", params=CIRCUIT_TABLE_SETS)
+@pytest.fixture(scope="module", params=("cat", "paper"))
 def circuit(request) -> HydraulicCircuit:
-    return _circuit(request.param, load_tables(table_set=request.param))
+    return _circuit(request.param)
 
 
-def _circuit(table_set: str, tables: dict[str, MBLTable]) -> HydraulicCircuit:
-    layout = valve_layout(VALVE_OF_TABLE_SET[table_set])
+def _circuit(valve: str) -> HydraulicCircuit:
+    """A circuit of layout ``valve`` with the packaged tables of its passages."""
+    layout = valve_layout(valve)
+    packaged = load_tables(table_set="circuit")
+    tables = {name: packaged[name] for name in valve_tables(layout)}
     return HydraulicCircuit(valve=LearnedValve(tables, layout), layout=layout)
 
 
@@ -76,7 +79,7 @@ def test_branch_areas_are_the_learned_valves(circuit, kernel) -> None:
 def test_the_cat_valves_own_rules_are_the_definitions() -> None:
     """A section with passages on one side stays at neutral on the other (boom 2 while the boom lowers: pump 2's
     centre open as at neutral), and a regeneration passage's oil leaves through its cylinder end's cushion."""
-    circuit = _circuit("circuit_cat", load_tables(table_set="circuit_cat"))
+    circuit = _circuit("cat")
     kernel = ck.NativeCircuit(circuit, circuit.valve.tables, STOP_CLEARANCE)
     index, mid = circuit.branch_index, 0.5 * circuit.stroke
     lowering, neutral = (
@@ -199,8 +202,7 @@ def test_the_circuit_is_data_to_the_kernel(circuit, kernel) -> None:
 
 def test_tables_of_another_layout_are_refused() -> None:
     """The Cat valve's numbers with the paper valve's tables (or the reverse) are no circuit."""
-    cat = _circuit("circuit_cat", load_tables(table_set="circuit_cat"))
-    paper = _circuit("circuit", load_tables(table_set="circuit"))
+    cat, paper = _circuit("cat"), _circuit("paper")
     for numbers_of, tables_of in ((cat, paper), (paper, cat)):
         numbers = ck.circuit_numbers(numbers_of, STOP_CLEARANCE)
         kernel = ck.NativeCircuit.__new__(ck.NativeCircuit)

@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hexgym.hydraulics.circuit import CAT_VALVE, FUNCTIONS, PUMP_OF, HydraulicCircuit, series_area, spool_areas
+from hexgym.hydraulics.circuit import CAT_VALVE, PAPER_VALVE, HydraulicCircuit, ValveLayout, series_area, spool_areas
 from hexgym.hydraulics.reference import ReferenceModel
 from hexgym.machine import parameters as p
-from hexgym.mbl.schema import TABLE_SETS, VALVE_PASSAGES
+from hexgym.mbl.schema import TABLE_SETS
 from hexgym.mbl.table import load_tables
 from hexgym.mbl.valve import LearnedValve, identify_areas, pump_bypass_area
 from hexgym.model.circuit_model import CircuitModel
@@ -33,10 +33,16 @@ def _measure(sim: ReferenceModel, spools_m: np.ndarray) -> dict[str, float]:
     )
 
 
+def _pump_bypass(areas: np.ndarray, layout: ValveLayout) -> list[float]:
+    """Each pump's centre bypass: its sections' bypass passages in series (1/A^2 add)."""
+    pumps = [[a for a, s in zip(areas, layout.sections, strict=True) if s.pump == k] for k in (0, 1)]
+    return [float(1.0 / np.sqrt(sum(1.0 / np.square(max(a, 1e-12)) for a in pump))) for pump in pumps]
+
+
 def test_identification_recovers_the_data_sheet_valve() -> None:
-    """Stick out and swing on pump 2 at partial spools: the metering passages and the bypass come out
-    at the data sheet's areas (the reference is the machine that was measured)."""
-    sim = ReferenceModel()
+    """On the paper's valve, stick out and swing on pump 2 at partial spools: the metering passages and the bypass
+    come out at the data sheet's areas (the reference is the machine that was measured)."""
+    sim = ReferenceModel(valve="paper")
     sim.reset("home")
     spools = np.array([6e-3, 0.0, 7e-3, 0.0])
     samples: dict[str, list[float]] = {}
@@ -46,7 +52,7 @@ def test_identification_recovers_the_data_sheet_valve() -> None:
             for key, value in out.items():
                 if not np.isnan(value):
                     samples.setdefault(key, []).append(value)
-    true = spool_areas(spools)
+    true = spool_areas(spools, PAPER_VALVE)
     expected = {
         "stick_pa_area_m2": true.pa[2],
         "stick_bt_area_m2": true.bt[2],
@@ -65,7 +71,8 @@ def test_identification_recovers_the_data_sheet_valve() -> None:
     [  # both pumps feeding the boom; the stick's two sections and its regeneration; the swing's priority
         ((0, 9, 0, 0), (0, -0.4, 0.2, 0), {"boom_pa": ("pa", 1), "boom2_pa": ("pa", 4), "boom_bt": ("bt", 1)}),
         ((0, 0, 7, 0), (0, 0.3, -0.6, 0), {"stick_pa": ("pa", 2), "stick2_pa": ("pa", 5), "stick_bt": ("bt", 2)}),
-        ((0, -7, 0, 0), (0, 0.5, 0, 0), {"boom_pb": ("pb", 1), "boom_at": ("at", 1)}),
+        # boom lower: the head's oil regenerates into the rod end, whose pressure keeps pump 1's load check shut
+        ((0, -7, 0, 0), (0, 0.5, 0, 0), {"boom_at": ("at", 1), "boom_regeneration": ("boom_regeneration", None)}),
         ((6, 0, -7, 0), "home", {"stick_at": ("at", 2), "swing_bt": ("bt", 0)}),
     ],
 )
@@ -83,7 +90,8 @@ def test_identification_recovers_the_cat_valve(spools_mm, pose, expected) -> Non
     true = spool_areas(spools, CAT_VALVE)
     for table, (passage, section) in expected.items():
         assert table in samples, f"no sample of {table}"
-        assert np.median(samples[table]) == pytest.approx(getattr(true, passage)[section], rel=0.01), table
+        area = getattr(true, passage) if section is None else getattr(true, passage)[section]
+        assert np.median(samples[table]) == pytest.approx(area, rel=0.01), table
     for table in ("stick_regeneration", "boom_regeneration"):
         if table in samples:
             assert np.median(samples[table]) == pytest.approx(getattr(true, table), rel=0.01), table
@@ -98,18 +106,22 @@ def test_collected_valve_samples_match_the_data_sheet() -> None:
     (the inlet's continuity gives the meter-in flow)."""
     config = CollectConfig(table_set="circuit", operator_duration_s=20.0)
     result = collect_operator_episode(ReferenceModel(), 0, 0, config)
-    neutral = spool_areas(np.zeros(4)).bypass
+    layout, sections = CAT_VALVE, {s.name: (i, s) for i, s in enumerate(CAT_VALVE.sections)}
+    neutral = _pump_bypass(spool_areas(np.zeros(4), layout).bypass, layout)
     errors = []
     for name, rows in result.rows.items():
-        f, passage = name.split("_")
-        j = FUNCTIONS.index(f)
+        section, passage = name.split("_")
         for x, area, _ in rows:
             spools = np.zeros(4)
-            spools[j] = x[0]
-            true = getattr(spool_areas(spools), passage)[j]
-            full = p.VALVE_AREAS[f][passage]
-            if passage == "bypass":  # the pump's bypass with the partner at neutral
-                true, full = series_area(true, neutral[j]), series_area(neutral[j], neutral[j])
+            if passage == "regeneration":  # the regeneration passages' areas, by cylinder
+                spools[("swing", "boom", "stick", "bucket").index(section)] = x[0]
+                true, full = getattr(spool_areas(spools, layout), name), getattr(p, f"{section.upper()}_REGEN_AREA")
+            else:
+                i, s = sections[section]
+                spools[("swing", "boom", "stick", "bucket").index(s.function)] = x[0]
+                true, full = getattr(spool_areas(spools, layout), passage)[i], s.areas[passage]
+                if passage == "bypass":  # the pump's bypass with its other sections at neutral
+                    true, full = _pump_bypass(spool_areas(spools, layout).bypass, layout)[s.pump], neutral[s.pump]
             errors.append(abs(area - true) / full)
     assert len(errors) > 300
     assert np.percentile(errors, 95) < 0.01  # of the passage's full area (4.7 % with the next row's spools)
@@ -120,8 +132,8 @@ def test_neutral_bypass_is_identified() -> None:
     sim.reset("home")
     for _ in range(400):
         out = _measure(sim, np.zeros(4))
-    neutral = spool_areas(np.zeros(4)).bypass
-    assert out["boom_bypass_area_m2"] == pytest.approx(series_area(neutral[1], neutral[3]), rel=0.02)
+    neutral = _pump_bypass(spool_areas(np.zeros(4), CAT_VALVE).bypass, CAT_VALVE)
+    assert out["boom_bypass_area_m2"] == pytest.approx(neutral[0], rel=0.02)  # boom, bucket and stick 2 in series
     assert np.isnan(out["boom_pa_area_m2"]) and np.isnan(out["stick_at_area_m2"])  # spools closed
 
 
@@ -152,22 +164,23 @@ def test_learned_valve_is_near_the_data_sheet() -> None:
     """The packaged tables against the law they were measured from, at the metering passages' mid and
     full strokes and where the bypass closes (the ``hexgym tables`` figures are the fit's own)."""
     valve = LearnedValve(load_tables(table_set="circuit"))
-    for j, f in enumerate(FUNCTIONS):
+    functions = ("swing", "boom", "stick", "bucket")
+    for i, section in enumerate(CAT_VALVE.sections):
+        j = functions.index(section.function)
         for u in (6e-3, 11e-3, -6e-3, -11e-3):
             spools = np.zeros(4)
             spools[j] = u
-            got, true = valve(spools), spool_areas(spools)
             inlet = "pa" if u > 0 else "pb"
-            full = p.VALVE_AREAS[f][inlet]
-            assert abs(getattr(got, inlet)[j] - getattr(true, inlet)[j]) < 0.15 * full, (f, u)
+            if inlet not in section.passages:
+                continue
+            got, true = valve(spools), spool_areas(spools, CAT_VALVE)
+            assert abs(getattr(got, inlet)[i] - getattr(true, inlet)[i]) < 0.15 * section.areas[inlet], (section, u)
+    for j in range(4):
         for u in (1.0e-3, 2.0e-3, 2.5e-3, 4.0e-3, -2.0e-3):  # the bypass closing, where the pump's pressure builds
             spools = np.zeros(4)
             spools[j] = u
-            got, true = valve(spools).pump_bypass, spool_areas(spools)
-            true_pump = [
-                series_area(*true.bypass[[i for i, g in enumerate(FUNCTIONS) if PUMP_OF[g] == k]]) for k in (0, 1)
-            ]
-            assert got == pytest.approx(true_pump, rel=0.05), (f, u)
+            true = _pump_bypass(spool_areas(spools, CAT_VALVE).bypass, CAT_VALVE)
+            assert valve(spools).pump_bypass == pytest.approx(true, rel=0.05), (j, u)
 
 
 def test_learned_valve_needs_every_table() -> None:
@@ -178,8 +191,13 @@ def test_learned_valve_needs_every_table() -> None:
 
 
 def test_schema_has_a_table_per_passage() -> None:
+    """A bypass table per section (the six of the Cat valve: boom 2 and stick 2 too), one per metering passage it
+    has (boom 2 raise only), and the stick's and boom's regeneration passages."""
     names = set(TABLE_SETS["circuit"])
-    assert names == {f"{f}_{k}" for f in FUNCTIONS for k in VALVE_PASSAGES}
+    sections = {"swing": 5, "boom": 5, "stick": 5, "bucket": 5, "boom2": 2, "stick2": 3}
+    assert len(names) == sum(sections.values()) + 2
+    assert {name.split("_")[0] for name in names} == set(sections) | {"stick", "boom"}
+    assert {"boom2_pa", "boom2_bypass", "stick2_pa", "stick2_pb", "stick_regeneration", "boom_regeneration"} <= names
     assert all(len(spec.inputs) == 1 and spec.inputs[0].endswith("_spool_m") for spec in TABLE_SETS["circuit"].values())
 
 

@@ -140,13 +140,13 @@ def start(sim: ReferenceModel, payload_kg: float) -> None:
     sim.reset(q, payload_kg)
 
 
-def test_full_boom_spool_without_load_moves_at_one_pump_flow(sim: ReferenceModel) -> None:
+def test_full_boom_spool_without_load_moves_at_both_pumps_flow(sim: ReferenceModel) -> None:
     start(sim, 0.0)
     result = run_segment(sim, np.array([0.0, p.SPOOL_STROKE, 0.0, 0.0]), 750, CollectConfig(table_set="paper"))
     assert not result.limited and len(result.windows) == 2
-    one_pump = p.PUMP_MAX_FLOW / p.BOOM_CYLINDER.head_area  # about 0.144 m/s
+    both_pumps = 2.0 * p.PUMP_MAX_FLOW / p.BOOM_CYLINDER.head_area  # about 0.289 m/s: boom 1 and boom 2
     for window in result.windows:
-        assert window.velocity[0] == pytest.approx(one_pump, rel=0.12)
+        assert 0.8 * both_pumps < window.velocity[0] < 1.02 * both_pumps  # below it where the power limit holds
         assert abs(window.velocity[2]) < 0.02  # the bucket's spool is neutral
         assert window.force[0] > 0  # the boom cylinder pushes against gravity
 

@@ -12,7 +12,7 @@ import pytest
 import hexgym  # noqa: F401  (loads the plugin)
 from hexgym.machine import kinematics
 from hexgym.machine.assets import asset_path, assets_dir, load_model
-from hexgym.mbl.schema import CIRCUIT_TABLE_SETS
+from hexgym.mbl.schema import CIRCUIT_TABLE_SETS, NATIVE_TABLE_SETS
 from hexgym.mbl.table import packaged_tables_dir
 from hexgym.model import backend, native_backend, plugin
 from hexgym.model.plugin_mjcf import MBL_FULL_MODEL_FILE, MBL_MODEL_FILE, mbl_model_xml
@@ -64,8 +64,8 @@ def test_mbl_model_compiles_and_a_boom_spool_lifts_the_boom():
     dq = d.qpos - q0
     assert dq[m.joint("boom").qposadr[0]] > 0.05
     assert np.abs(np.delete(dq, m.joint("boom").qposadr[0])).max() < 2e-3
-    d.ctrl[:] = 0.0  # spools closed: the boom rings down, then holds
-    for _ in range(80):
+    d.ctrl[:] = 0.0  # spools closed: the boom rings down on its oil (both pumps raised it fast), then holds
+    for _ in range(120):
         mujoco.mj_step(m, d)
     q1 = d.qpos.copy()
     for _ in range(40):
@@ -99,17 +99,18 @@ def test_full_machine_with_plugin_moves_each_joint_its_way(joint):
             assert (
                 kinematics.cylinder_length(joint, d.qpos[main][k]) > kinematics.cylinder_length(joint, q0[k]) + 0.05
             ), name
-        d.ctrl[:] = 0.0  # spools closed: the machine holds (the swing once its brakes stopped it)
-        while d.time < 3.0:
+        d.ctrl[:] = 0.0  # spools closed: the machine holds (the swing once its brakes stopped it, the boom rung down)
+        while d.time < 4.0:
             mujoco.mj_step(m, d)
         q1 = d.qpos[main].copy()
-        while d.time < 4.0:
+        while d.time < 5.0:
             mujoco.mj_step(m, d)
         assert np.abs(d.qpos[main] - q1).max() < 1e-3, name
     full, lean = moves[MBL_FULL_MODEL_FILE], moves[MBL_MODEL_FILE]
     k = _JOINT_FOR_SPOOL[joint]
     assert full[k] == pytest.approx(lean[k], rel=0.15)
-    assert np.abs(np.delete(full, k)).max() < 0.01
+    # the others only give on their closed chambers' oil (the bucket 0.013 rad under the stick's 0.36 rad)
+    assert np.abs(np.delete(full, k)).max() < 0.02
 
 
 @needs_plugin
@@ -146,7 +147,7 @@ def test_full_machine_follows_the_lean_machine():
 
 @needs_plugin
 @pytest.mark.parametrize("test", ["test1", "test2", "test3"])
-@pytest.mark.parametrize("table_set", ["circuit", "circuit_cat", "paper"])
+@pytest.mark.parametrize("table_set", NATIVE_TABLE_SETS)
 def test_native_and_python_give_the_same_trajectory(test, table_set):
     """One source of truth: the same tables, loads and logic (validate's command logs, up to 50 s); for the
     circuit model the same kernel in the plugin and behind the Python model (1 mm: the target)."""
@@ -418,7 +419,7 @@ def test_make_learned_model_backends():
 
 
 @needs_plugin
-@pytest.mark.parametrize("table_set", ["circuit", "circuit_cat", "paper"])
+@pytest.mark.parametrize("table_set", NATIVE_TABLE_SETS)
 def test_both_backends_stall_at_the_ground_alike_without_kicks(table_set):
     """Driving the bucket into the ground: it stops within a step, no joint is flung, both backends agree."""
     from hexgym.envs.world import build_world_model

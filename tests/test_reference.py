@@ -72,11 +72,14 @@ def test_payload_loads_the_boom(reference: ReferenceModel) -> None:
 
 
 def test_boom_raises_at_pump_flow(reference: ReferenceModel) -> None:
-    """Boom alone at full spool: the cylinder extends at about one pump's flow / head area."""
-    traj = replay(reference, log([[0, 0, 11, 0, 0], [2.0, 0, 11, 0, 0]]))
+    """Boom alone at full spool: both pumps feed it (boom 1 and boom 2), so the cylinder extends at about their
+    flow / head area, a little less where their shared power limit takes over."""
+    traj = replay(reference, log([[0, 0, 11, 0, 0], [2.0, 0, 11, 0, 0]]), start=np.array([0.0, -0.6, 0.3, 0.3]))
     late = traj["t"] > 1.0
+    assert traj["boom_extension_m"][-1] < p.BOOM_CYLINDER.stroke - 0.05  # still short of its stroke's end
     speed = traj["boom_velocity_mps"][late].mean()
-    assert speed == pytest.approx(p.PUMP_MAX_FLOW / p.BOOM_CYLINDER.head_area, rel=0.1)
+    both_pumps = 2.0 * p.PUMP_MAX_FLOW / p.BOOM_CYLINDER.head_area
+    assert 0.8 * both_pumps < speed < 1.02 * both_pumps
     assert traj["tip_z_m"][-1] > traj["tip_z_m"][0] + 0.3
     assert traj["pump_power_w"].max() <= p.PUMP_POWER_LIMIT * (1 + 1e-9)
     assert 5.0 < traj["fuel_rate_l_per_h"][-1] < 35.0

@@ -8,8 +8,8 @@ from hexgym_lab.reference_report import run_report
 
 
 @pytest.mark.slow
-def test_reference_report(tmp_path):
-    summary = run_report(tmp_path)
+def test_reference_report_on_the_papers_valve(tmp_path):
+    summary = run_report(tmp_path, valve="paper")
     assert json.loads((tmp_path / "summary.json").read_text()) == summary
     assert (tmp_path / "interactions.png").stat().st_size > 20_000
     single, inter = summary["single_function"], summary["interactions"]
@@ -25,19 +25,26 @@ def test_reference_report(tmp_path):
 
 @pytest.mark.slow
 def test_the_cat_valve_against_the_published_figures(tmp_path):
-    """Both pumps on boom and stick, priorities and regeneration against the Cat 323F's cylinder times: every
-    figure within +-20 % but the boom raise, which the boom cylinders' oil volume over both pumps' flow bounds."""
+    """Both pumps on boom and stick, priorities and regeneration against the Cat 323F's cylinder times, in the
+    service manual's poses: every figure within +-20 %; the boom raise, from the bucket on the ground, no faster than
+    both pumps' flow can fill the boom cylinders over that stroke."""
+    from hexgym.hydraulics.reference import ReferenceModel
+    from hexgym.machine import kinematics
     from hexgym.machine import parameters as p
+    from hexgym_lab.published_figures import boom_on_ground
 
-    summary = run_report(tmp_path, valve="cat")
+    summary = run_report(tmp_path)
     figures = summary["published_figures"]
-    missed = [name for name, row in figures["cylinder_times_s"].items() if not row["within"]]
-    assert missed == ["boom_raise"]
+    assert figures["valve"] == "cat"
+    assert all(row["within"] for row in figures["cylinder_times_s"].values())
     assert all(row["within"] for row in figures["swing"].values())
     assert all(row["within"] for row in figures["relief_settings_mpa"].values())
     boom = p.BOOM_CYLINDER
-    flow_bound = boom.head_area * (boom.stroke - p.STROKE_END_MARGIN) / (2 * p.PUMP_MAX_FLOW)
-    assert flow_bound < figures["cylinder_times_s"]["boom_raise"]["model"] < 1.15 * flow_bound
+    start = kinematics.cylinder_length("boom", boom_on_ground(ReferenceModel())) - boom.retracted_length
+    assert 0.3 * boom.stroke < start < 0.7 * boom.stroke  # the bucket reaches the ground with the boom part raised
+    flow_bound = boom.head_area * (boom.stroke - p.STROKE_END_MARGIN - start) / (2 * p.PUMP_MAX_FLOW)
+    # slower than the flow bound by what the pumps' shared power limit takes at the boom's pressure
+    assert flow_bound < figures["cylinder_times_s"]["boom_raise"]["model"] < 1.5 * flow_bound
     inter = summary["interactions"]
     one_pump_boom = p.PUMP_MAX_FLOW / boom.head_area  # both cylinders' area
     assert inter["test3_boom_mps_with_stick_in"] > 0.75 * one_pump_boom  # boom priority keeps pump 1 for it

@@ -43,7 +43,7 @@ from hexgym.machine.names import BUCKET_BODY
 from hexgym.mbl.table import MBLTable
 
 _MOUTH_NORMAL_3D = np.array([mouth_normal()[0], 0.0, mouth_normal()[1]])  # bucket frame
-FULL_SPOOL_CYLINDER_SPEED = np.array([0.14, 0.35, 0.29])  # m/s boom, stick, bucket [README: reference model]
+FULL_SPOOL_CYLINDER_SPEED = np.array([0.28, 0.48, 0.29])  # m/s boom up, stick in, bucket curl [hexgym reference-report]
 SWING_BRAKE = 0.35  # rad/s^2: default planned deceleration of swing_spool (the loader plans with swing_brake)
 SWING_GAIN = 4.0  # spool per rad/s of swing-rate error (the valve's dead zone swallows small spools)
 POSITION_GAIN = 1.5  # 1/s: planar velocity per metre (or rad) of error

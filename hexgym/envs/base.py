@@ -143,8 +143,7 @@ class SiteConfig:
         time_limit: episode length, s.
         scene_path: MJCF scene to build the site on (default ``scene_lean.xml``; reference: ``scene.xml``).
         backend: the learned model's: ``"native"`` (MuJoCo plugin), ``"python"``, ``"auto"`` (native if built).
-        tables: the learned model's table set: ``"circuit"``, ``"circuit_cat"`` or ``"paper"``
-            (:mod:`hexgym.mbl.schema`).
+        tables: the learned model's table set: ``"circuit"`` or ``"paper"`` (:mod:`hexgym.mbl.schema`).
         model: ``"learned"``, or ``"reference"``: the same task on the analytical circuit.
         earthwork_periods: control periods (25 ms) per dig near the pile; 1: every period.
     """

@@ -59,7 +59,7 @@ def make_machine(
     no cylinder bodies, 25 ms step); ``"native"``: the ``hexgym.mbl`` MuJoCo plugin on
     ``cat325_mbl.xml`` (:mod:`hexgym.model.native_backend`, needs the built plugin). ``scene_path`` overrides
     the scene (e.g. the full ``scene.xml``). ``"auto"``: :func:`hexgym.model.backend.backend_for`.
-    ``table_set``: the learned model's tables, "paper", "circuit" or "circuit_cat" (:mod:`hexgym.mbl.schema`).
+    ``table_set``: the learned model's tables, "circuit" or "paper" (:mod:`hexgym.mbl.schema`).
     ``tool_contact_slots``: see :func:`hexgym.envs.world.build_world_model`.
     """
     if backend_for(table_set, backend) == "native":

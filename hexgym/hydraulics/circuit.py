@@ -254,7 +254,7 @@ PAPER_VALVE = ValveLayout("paper", _sections(p.VALVE_AREAS, PUMP_OF, {}))
 # stick, stick and boom regeneration (the sources by the parameters).
 CAT_VALVE = ValveLayout(
     "cat",
-    PAPER_VALVE.sections
+    _sections(p.VALVE_AREAS | {"boom": p.VALVE_AREAS["boom"] | {"at": p.CAT_BOOM_LOWER_AREA}}, PUMP_OF, {})
     + _sections(p.COMBINING_VALVE_AREAS, {"boom2": 1, "stick2": 0}, {"boom2": "boom", "stick2": "stick"}),
     swing_priority=True,
     boom_priority=True,
@@ -262,6 +262,8 @@ CAT_VALVE = ValveLayout(
     boom_regeneration=True,
 )
 VALVE_LAYOUTS = {layout.name: layout for layout in (PAPER_VALVE, CAT_VALVE)}
+DEFAULT_LAYOUT = CAT_VALVE  # the reference machine's valve: what every learned model is learned from
+DEFAULT_VALVE = DEFAULT_LAYOUT.name
 
 
 def valve_layout(name: str) -> ValveLayout:
@@ -325,7 +327,7 @@ def priority_shares(layout: ValveLayout, spools_m: np.ndarray) -> tuple[list[int
     return stick2, float(swing), float(boom)
 
 
-def spool_areas(spools_m: np.ndarray, layout: ValveLayout = PAPER_VALVE) -> SpoolAreas:
+def spool_areas(spools_m: np.ndarray, layout: ValveLayout = DEFAULT_LAYOUT) -> SpoolAreas:
     """Open-centre section areas: dead band, progressive metering, bypass closed at full stroke."""
     u = np.asarray(spools_m, dtype=float)
     if len(layout.sections) != len(FUNCTIONS):
@@ -518,7 +520,7 @@ class HydraulicCircuit:
     MAX_SPLITS = 6  # a step is cut to 1/64 at most
 
     def __init__(
-        self, valve: Callable[[np.ndarray], SpoolAreas] | None = None, layout: ValveLayout = PAPER_VALVE
+        self, valve: Callable[[np.ndarray], SpoolAreas] | None = None, layout: ValveLayout = DEFAULT_LAYOUT
     ) -> None:
         check_circuit_parameters()
         self.layout = layout

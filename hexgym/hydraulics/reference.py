@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from hexgym.hydraulics.circuit import NODES, HydraulicCircuit, fuel_rate, validate_spools, valve_layout
+from hexgym.hydraulics.circuit import DEFAULT_VALVE, NODES, HydraulicCircuit, fuel_rate, validate_spools, valve_layout
 from hexgym.machine import kinematics, trajectory
 from hexgym.machine import parameters as p
 from hexgym.machine.physics import ExcavatorPhysics, force_actuated_model
@@ -65,13 +65,13 @@ class ReferenceModel:
         model: a compiled force-actuated model (:func:`hexgym.machine.physics.force_actuated_model`);
             default the packaged machine converted to force inputs.
         timestep: the common step (s); sets the model copy's ``opt.timestep``.
-        valve: the main valve's layout (:data:`hexgym.hydraulics.circuit.VALVE_LAYOUTS`): ``"paper"``, the
-            paper's schematic, or ``"cat"``, a Cat two-pump valve (flow combining, swing priority, stick
-            regeneration).
+        valve: the main valve's layout (:data:`hexgym.hydraulics.circuit.VALVE_LAYOUTS`): ``"cat"`` (default), a
+            Cat two-pump valve (flow combining, swing and boom priority, stick and boom regeneration), or
+            ``"paper"``, the paper's simplified schematic (pump 1 boom and bucket, pump 2 swing and stick).
     """
 
     def __init__(
-        self, model: mujoco.MjModel | None = None, timestep: float = DEFAULT_TIMESTEP, valve: str = "paper"
+        self, model: mujoco.MjModel | None = None, timestep: float = DEFAULT_TIMESTEP, valve: str = DEFAULT_VALVE
     ) -> None:
         if not (np.isfinite(timestep) and 0.0 < timestep <= 0.005):
             raise ValueError(f"timestep must be in (0, 5 ms], got {timestep} s")

@@ -12,8 +12,8 @@ the machine's response: one 1-D table per passage (each section's centre bypass,
 b, port a or b to tank) giving its orifice area against the spool, identified from the pressures,
 pump flows and velocities of operator-like motion (:mod:`hexgym.mbl.valve`). The circuit model
 (:mod:`hexgym.model.circuit_model`) runs the open-centre circuit's structure from the machine's data
-sheet with these areas; ``circuit`` learns the paper's valve, ``circuit_cat`` a Cat two-pump valve
-(:data:`VALVE_OF_TABLE_SET`). The native plugin runs every set (``NATIVE_TABLE_SETS``).
+sheet with these areas: the reference machine's valve, a Cat two-pump valve (:data:`VALVE_OF_TABLE_SET`). The
+native plugin runs both sets (``NATIVE_TABLE_SETS``).
 
 Quantity names carry their SI unit as a suffix: ``_m`` m, ``_n`` N, ``_kgm2`` kg m^2,
 ``_radps`` rad/s, ``_mps`` m/s, ``_radps2`` rad/s^2, ``_m2`` m^2.
@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from hexgym.hydraulics.circuit import CAT_VALVE, PAPER_VALVE, REGENERATION, ValveLayout
+from hexgym.hydraulics.circuit import DEFAULT_VALVE, REGENERATION, ValveLayout, valve_layout
 
 # Every quantity a table may read, in a fixed order (the plugin's query vector uses this order).
 QUANTITIES = (
@@ -97,13 +97,12 @@ def valve_tables(layout: ValveLayout) -> dict[str, TableSchema]:
     return _tables(*specs)
 
 
-# ``circuit``: the paper's valve (the reference's default); ``circuit_cat``: a Cat two-pump valve, collected on the
-# reference with that valve (VALVE_OF_TABLE_SET)
-TABLE_SETS["circuit"] = valve_tables(PAPER_VALVE)
-TABLE_SETS["circuit_cat"] = valve_tables(CAT_VALVE)
-VALVE_OF_TABLE_SET = {"paper": "paper", "circuit": "paper", "circuit_cat": "cat"}
-CIRCUIT_TABLE_SETS = ("circuit", "circuit_cat")  # the sets the circuit model runs
-NATIVE_TABLE_SETS = ("circuit", "paper", "circuit_cat")  # the sets the native plugin runs
+# Both sets are learned from the reference machine with its valve (VALVE_OF_TABLE_SET): ``circuit`` learns that
+# valve's passages.
+TABLE_SETS["circuit"] = valve_tables(valve_layout(DEFAULT_VALVE))
+VALVE_OF_TABLE_SET = {"paper": DEFAULT_VALVE, "circuit": DEFAULT_VALVE}
+CIRCUIT_TABLE_SETS = ("circuit",)  # the sets the circuit model runs
+NATIVE_TABLE_SETS = ("circuit", "paper")  # the sets the native plugin runs
 DEFAULT_TABLE_SET = "circuit"
 
 

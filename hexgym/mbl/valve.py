@@ -30,8 +30,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from hexgym.hydraulics.circuit import (
+    DEFAULT_LAYOUT,
     FUNCTIONS,
-    PAPER_VALVE,
     REGENERATION,
     SWING_DISPLACEMENT_RAD,
     SpoolAreas,
@@ -154,7 +154,7 @@ def identify_areas(
     ext_m: np.ndarray,
     vel_mps: np.ndarray,
     swing_rate: float,
-    layout: ValveLayout = PAPER_VALVE,
+    layout: ValveLayout = DEFAULT_LAYOUT,
 ) -> dict[str, float]:
     """One sample (m^2, or NaN) of every table of ``layout``'s valve (:func:`~hexgym.mbl.schema.valve_tables`) from one
     instant's measurements.
@@ -318,7 +318,7 @@ class LearnedValve:
     structure (:func:`hexgym.hydraulics.circuit.priority_shares`, the data sheet's), applied to the learned areas.
     """
 
-    def __init__(self, tables: dict[str, MBLTable], layout: ValveLayout = PAPER_VALVE) -> None:
+    def __init__(self, tables: dict[str, MBLTable], layout: ValveLayout = DEFAULT_LAYOUT) -> None:
         missing = sorted(set(valve_tables(layout)) - set(tables))
         if missing:
             raise ValueError(f"the circuit model needs the valve tables {missing}")

@@ -77,7 +77,7 @@ def python_learned_model(
     control_period: float | None = None,
 ) -> LearnedModel:
     """The Python learned model of ``table_set`` on ``model`` (default: the lean machine): the circuit model
-    (:class:`hexgym.model.circuit_model.CircuitModel`) for "circuit" and "circuit_cat", the table model
+    (:class:`hexgym.model.circuit_model.CircuitModel`) for "circuit", the table model
     (:class:`hexgym.model.python_backend.LearnedModel`) for "paper"."""
     from hexgym.mbl.schema import CIRCUIT_TABLE_SETS
     from hexgym.mbl.table import load_tables
@@ -99,7 +99,7 @@ def make_learned_model(
 ) -> LearnedModelBase:
     """The learned model on ``backend`` ("native", "python" or "auto"), on the lean machine.
 
-    ``table_set``: "paper", "circuit" or "circuit_cat" (:mod:`hexgym.mbl.schema`; the circuit model,
+    ``table_set``: "circuit" or "paper" (:mod:`hexgym.mbl.schema`; the circuit model,
     :mod:`hexgym.model.circuit_model`, for the circuit sets; all run on either backend);
     ``tables_dir``: other tables of that set than the packaged ones (both backends read the same files).
     """

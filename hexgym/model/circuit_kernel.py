@@ -28,10 +28,10 @@ from hexgym.hydraulics.circuit import (
     _SQRT_2_RHO,
     _VACUUM,
     CYLINDER_NAMES,
+    DEFAULT_LAYOUT,
     FUNCTIONS,
     N_NODES,
     NODES,
-    PAPER_VALVE,
     PASSAGES,
     REGENERATION,
     REST_PRESSURE,
@@ -251,7 +251,7 @@ def pack_fields(fields: dict[str, np.ndarray], counts: dict[str, int]) -> np.nda
 
 
 def valve_arrays(
-    tables: dict[str, MBLTable], layout: ValveLayout = PAPER_VALVE
+    tables: dict[str, MBLTable], layout: ValveLayout = DEFAULT_LAYOUT
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The valve's tables (:func:`valve_table_names` order) as the kernel takes them: nodes per table (int32), and
     all tables' nodes and values, concatenated."""
@@ -324,7 +324,7 @@ class NativeCircuit:
         self._init(numbers, tables, len(circuit.branches.names), circuit.layout)
 
     def _init(
-        self, numbers: np.ndarray, tables: dict[str, MBLTable], branches: int, layout: ValveLayout = PAPER_VALVE
+        self, numbers: np.ndarray, tables: dict[str, MBLTable], branches: int, layout: ValveLayout = DEFAULT_LAYOUT
     ) -> None:
         """A kernel of packed circuit ``numbers`` (:func:`circuit_numbers`) and the valve's tables of ``layout``."""
         lib = _library()

@@ -30,7 +30,7 @@ The period's circuit steps run natively (:class:`hexgym.model.circuit_kernel.Nat
 :class:`HydraulicCircuit`'s numpy methods, the definition the kernel is tested against, and the fallback (several
 times slower, said once per process) where the plugin library was not built. The native plugin runs this whole
 period inside ``mj_step`` (:class:`hexgym.model.native_backend.NativeLearnedModel` with a circuit table set's
-tables); either runs any valve layout, the paper's (``circuit``) and the Cat two-pump valve (``circuit_cat``).
+tables); either runs any valve layout (:data:`hexgym.hydraulics.circuit.VALVE_LAYOUTS`), taken as data.
 """
 
 from __future__ import annotations
@@ -67,7 +67,7 @@ class CircuitModel(LearnedModel):
         model, control_period: as :class:`~hexgym.model.python_backend.LearnedModel`.
         substeps: circuit steps per control period.
         table_set: which valve the tables are of (:data:`hexgym.mbl.schema.CIRCUIT_TABLE_SETS`): ``circuit``, the
-            paper's valve, or ``circuit_cat``, a Cat two-pump valve (the native kernel runs either).
+            reference machine's Cat two-pump valve.
     """
 
     def __init__(

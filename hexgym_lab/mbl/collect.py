@@ -81,7 +81,7 @@ from typing import Any
 import numpy as np
 
 from hexgym.files import atomic_path, check_output_dir, staged_dir
-from hexgym.hydraulics.circuit import HydraulicCircuit
+from hexgym.hydraulics.circuit import DEFAULT_VALVE, HydraulicCircuit
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS, VALVE_OF_TABLE_SET
@@ -548,7 +548,7 @@ def _expected_samples_per_episode(group: str, config: CollectConfig) -> float:
     return config.segments_per_episode * config.windows_per_segment * _YIELD[group]
 
 
-def _simulator(valve: str = "paper") -> Any:
+def _simulator(valve: str = DEFAULT_VALVE) -> Any:
     """This process's reference model with valve layout ``valve`` (one each, made on first use)."""
     if valve not in _SIMS:
         from hexgym.hydraulics.reference import ReferenceModel  # here: the CLI parser must not load MuJoCo
@@ -557,7 +557,7 @@ def _simulator(valve: str = "paper") -> Any:
     return _SIMS[valve]
 
 
-def model_fingerprint(valve: str = "paper") -> str:
+def model_fingerprint(valve: str = DEFAULT_VALVE) -> str:
     """A digest of a short fixed run of this process's reference model (16 hex digits).
 
     Stored with every chunk and data set: chunks from another reference model (any change to
