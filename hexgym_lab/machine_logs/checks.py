@@ -325,8 +325,8 @@ def check_motion(log: s.MachineLog) -> list[Finding]:
     rates = smoothed_rates(log.t, q)
     period = _period(log)
     found = []
-    for j, function in enumerate(FUNCTIONS):
-        section = PAPER_VALVE.sections[j].name
+    for j in range(len(FUNCTIONS)):
+        section = PAPER_VALVE.sections[j].name  # the function's own section
         for side, passages in ((1.0, ("pa", "bt")), (-1.0, ("pb", "at"))):
             seconds = period * np.sum((side * u[:, j] > OPEN_SPOOL_MM) & (side * rates[:, j] > MOVING_RADPS))
             if seconds < MIN_MOTION_S:
