@@ -34,6 +34,7 @@ SIGN_MIN_S = 1.0  # ... over at least this much of such samples (less says nothi
 MIN_MOTION_S = 3.0  # seconds of a passage metering with its joint moving that an LWR fit of its area needs
 PA_PLAUSIBLE = (1e5, 1e8)  # Pa: a working log's largest pressure lies within (standby ~3 MPa, reliefs ~35 MPa)
 MAX_JOINT_RADPS = 3.0  # no joint of the class turns this fast (swing ~1.2 rad/s): faster is degrees read as rad
+RATE_TOLERANCE = 0.05  # a logger's median rate may stray this share outside RATE_RANGE_HZ (jitter, clock drift)
 RPM_PLAUSIBLE = (500.0, 3000.0)  # engine speed, rpm: idle to high idle of the class's engines
 
 
@@ -103,7 +104,7 @@ def _clock_findings(log: str, name: str, t: np.ndarray) -> list[Finding]:
                              f"({dt[i] / period:.0f} sample periods of {period * 1e3:.3g} ms)"))  # fmt: skip
     rate = 1.0 / period
     lo, hi = s.RATE_RANGE_HZ
-    if not lo <= rate <= hi:
+    if not lo * (1 - RATE_TOLERANCE) <= rate <= hi * (1 + RATE_TOLERANCE):
         found.append(Finding(log, name, float(t[0]), float(t[-1]), f"sampled at {rate:.3g} Hz, outside the "
                              f"{lo:g}-{hi:g} Hz a logger records (time in ms or µs, not s?)", WARNING))  # fmt: skip
     return found

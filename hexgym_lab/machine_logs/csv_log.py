@@ -32,9 +32,9 @@ def read_csv_log(path: str | Path) -> MachineLog:
         raise ValueError(f"{path}: not a readable CSV file ({exc})") from None
     columns = _columns(path, header)
     values = _numbers(path, header, rows, columns)
-    signals = {name: values[:, i] for name, i in columns.items() if name != TIME}
+    signals = {name: values[:, k] for k, name in enumerate(columns) if name != TIME}
     ignored = tuple(h for h in header if h not in columns)
-    return MachineLog(str(path), values[:, columns[TIME]], signals, ignored=ignored)
+    return MachineLog(str(path), values[:, list(columns).index(TIME)], signals, ignored=ignored)
 
 
 def _columns(path: Path, header: list[str]) -> dict[str, int]:
