@@ -43,6 +43,7 @@ from typing import Any
 
 import numpy as np
 
+from hexgym.checks import parse_float
 from hexgym.files import check_input_file
 from hexgym.hydraulics.circuit import (
     PAPER_VALVE,
@@ -194,6 +195,11 @@ def _number(value: Any, source: str, key: str, shown: str | None = None) -> floa
     """A finite real number (not a bool, not text) within ``RANGES[key]``."""
     lo, hi, unit = RANGES[key]
     shown = shown or key
+    if isinstance(value, str):  # YAML 1.1 reads 0.8e6 (no sign in the exponent) as text
+        try:
+            value = parse_float(value)
+        except ValueError:
+            pass
     if not isinstance(value, numbers.Real) or isinstance(value, bool) or not math.isfinite(value):
         raise ValueError(f"{source}: {shown} must be a finite number {unit}, got {value!r}")
     if not lo <= value <= hi:

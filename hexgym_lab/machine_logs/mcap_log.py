@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from hexgym.checks import parse_float
 from hexgym.files import check_input_file
 from hexgym_lab.machine_logs.signals import PILOT_FULL_PA, PILOT_START_PA, SIGNALS, TIME, MachineLog
 
@@ -67,9 +68,15 @@ def check_mapping(data: Any, source: str) -> dict[str, Any]:
     pilot = data.get("pilot") or {}
     if not isinstance(pilot, Mapping) or set(pilot) - {"start_pa", "full_pa"}:
         raise ValueError(f"{source}: pilot must be a mapping with start_pa and full_pa")
-    for key, value in pilot.items():
-        _finite(source, f"pilot.{key}", value)
-    return dict(data)
+    pilot = {key: _finite(source, f"pilot.{key}", value) for key, value in pilot.items()}
+    if pilot.get("full_pa", PILOT_FULL_PA) <= pilot.get("start_pa", PILOT_START_PA):
+        raise ValueError(f"{source}: pilot.full_pa must be above pilot.start_pa")
+    signals = {name: dict(spec) for name, spec in data["signals"].items()}
+    for name, spec in signals.items():
+        for key in ("scale", "offset"):
+            if key in spec:
+                spec[key] = _finite(source, f"signals.{name}.{key}", spec[key])
+    return dict(data) | {"pilot": pilot, "signals": signals}
 
 
 def _check_signal(source: str, name: str, spec: Any) -> None:
@@ -80,14 +87,22 @@ def _check_signal(source: str, name: str, spec: Any) -> None:
         raise ValueError(f"{where}: give topic and field (and optionally scale, offset)")
     if not isinstance(spec["field"], str) or not _PATH.fullmatch(spec["field"]):
         raise ValueError(f"{where}: field {spec['field']!r} is not a field path like 'position[1]' or 'a.b'")
-    for key in ("scale", "offset"):
-        if key in spec:
-            _finite(source, f"signals.{name}.{key}", spec[key])
 
 
-def _finite(source: str, key: str, value: Any) -> None:
+def _finite(source: str, key: str, value: Any) -> float:
+    """A finite number, or one written as text (YAML 1.1 reads ``1.0e5`` as a string); ValueError naming the key."""
+    if isinstance(value, str):
+        value = _text_number(value)
     if not isinstance(value, numbers.Real) or isinstance(value, bool) or not math.isfinite(value):
         raise ValueError(f"{source}: {key} must be a finite number, got {value!r}")
+    return float(value)
+
+
+def _text_number(text: str) -> float | str:
+    try:
+        return parse_float(text)
+    except ValueError:
+        return text
 
 
 def _field(message: Any, path: str) -> float:

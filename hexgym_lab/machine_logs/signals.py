@@ -20,6 +20,7 @@ A log holds time (``t``, s, ascending, 50-200 Hz, not necessarily uniform) and, 
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -53,6 +54,7 @@ RATE_RANGE_HZ = (50.0, 200.0)  # what a retrofit's logger records; outside it a 
 # PILOT_FULL_PA (full stroke), the net of the extend and retract pilots; per machine, the YAML mapping may set both.
 # [est: pilot-operated open-centre valves of the class begin to stroke near 0.5 MPa and reach full stroke near
 # 3 MPa of a ~4 MPa pilot supply; a unit's figures come from its valve's service data]
+STROKE_TOLERANCE_M = 2e-3  # a stroke sensor's reading this far beyond an end of the stroke is the end (its noise)
 PILOT_START_PA = 0.5e6
 PILOT_FULL_PA = 3.0e6
 
@@ -103,7 +105,8 @@ def spools_from_pilots(
     return np.sign(net) * travel * p.SPOOL_STROKE * 1e3
 
 
-def _length_table(name: str, samples: int = 2001) -> tuple[np.ndarray, np.ndarray]:
+@functools.cache
+def _length_table(name: str, samples: int = 20001) -> tuple[np.ndarray, np.ndarray]:
     """Cylinder length (m) against joint angle (rad) over the joint's range: rising, so it inverts by np.interp."""
     lo, hi = kinematics.joint_range(name)
     angles = np.linspace(lo, hi, samples)
@@ -112,14 +115,14 @@ def _length_table(name: str, samples: int = 2001) -> tuple[np.ndarray, np.ndarra
 
 def angles_from_extensions(extensions_m: np.ndarray) -> np.ndarray:
     """(n, 3) boom, stick, bucket angles (rad) from the cylinders' extensions (m from fully retracted), through
-    :func:`hexgym.machine.kinematics.cylinder_length` tabulated over each joint's range (within 1e-6 rad);
-    an extension beyond the stroke is NaN."""
+    :func:`hexgym.machine.kinematics.cylinder_length` tabulated over each joint's range (within 1e-6 rad); an
+    extension up to :data:`STROKE_TOLERANCE_M` beyond an end is that end (a sensor's noise), further is NaN."""
     x = np.atleast_2d(np.asarray(extensions_m, dtype=float))
     out = np.empty_like(x)
     for i, name in enumerate(kinematics.FRONT_CYLINDERS):
         lengths, angles = _length_table(name)
         length = x[:, i] + p.CYLINDERS[name].retracted_length
-        inside = (length >= lengths[0] - 1e-9) & (length <= lengths[-1] + 1e-9)
+        inside = (length >= lengths[0] - STROKE_TOLERANCE_M) & (length <= lengths[-1] + STROKE_TOLERANCE_M)
         out[:, i] = np.where(inside, np.interp(length, lengths, angles), np.nan)
     return out
 
