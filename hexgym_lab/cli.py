@@ -1093,7 +1093,7 @@ def check_arguments(args: argparse.Namespace, given: set[str] | None = None) -> 
     command = args.command
     for (cmd, name), (mode, wanted, what) in _ONLY_WITH.items():
         if cmd == command and name in (given or ()) and values.get(mode) != wanted:
-            raise ValueError(f"--{name} ({what}) does not apply with --{mode} {values.get(mode)}")
+            raise ValueError(f"--{name.replace('_', '-')} ({what}) does not apply with --{mode} {values.get(mode)}")
     for cmd, first, second in _EXCLUSIVE:
         if cmd == command and {first, second} <= (given or set()) and values.get(first) is not None:
             raise ValueError(f"--{second} does not apply with --{first}: the Ray cluster's cores run the tasks")
