@@ -222,6 +222,14 @@ def test_a_csv_log_without_time_or_with_ragged_rows_is_refused(tmp_path):
         read_machine_log(tmp_path / "c.mcap")
 
 
+def test_empty_cells_read_as_nan_and_unknown_columns_are_listed(tmp_path):
+    (tmp_path / "a.csv").write_text("t,q_swing,q_boom_rad,oil_temp_c\n0,0.1,,40\n0.01,,0.2,40\n0.02,nan,0.3,41\n")
+    log = read_machine_log(tmp_path / "a.csv")
+    assert np.array_equal(log.t, [0, 0.01, 0.02]) and log.ignored == ("oil_temp_c",)
+    assert np.isnan(log.signals["q_boom_rad"][0]) and np.isnan(log.signals["q_swing_rad"][1:]).all()
+    assert "ignored: oil_temp_c" in _only(check_log(log), "log", "columns not in the format").what
+
+
 # -- MCAP (ROS 2) -----------------------------------------------------------------------------------------------
 MAPPING = """\
 clock: /joints
