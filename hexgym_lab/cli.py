@@ -211,10 +211,12 @@ def _cmd_check_log(args: argparse.Namespace) -> int:
 
 
 def _cmd_compare(args: argparse.Namespace) -> int:
-    from hexgym_lab.compare import compare_logs, plot_comparison, summary_text
+    from hexgym_lab.compare import compare_logs, plot_comparison, require_plotting, summary_text
     from hexgym_lab.machine_logs import read_machine_log
     from hexgym_lab.progress import wrote
 
+    if args.out:
+        require_plotting()
     result = compare_logs(read_machine_log(args.a, args.mapping), read_machine_log(args.b, args.mapping))
     summary = {k: v for k, v in result.items() if k != "series"}
     print(json.dumps(summary, indent=2) if args.json else summary_text(result))

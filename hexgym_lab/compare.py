@@ -93,15 +93,22 @@ def summary_text(result: dict) -> str:
     return "\n".join(lines)
 
 
-def plot_comparison(result: dict, path: str | Path) -> Path:
-    """The tip error and the four joints of both runs over time, to a PNG (needs matplotlib: ``hexgym[plots]``)."""
+def require_plotting() -> None:
+    """ValueError, one line, where matplotlib (``hexgym[plots]``) is not installed: checked before any work."""
     try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
+        import matplotlib  # noqa: F401
     except ImportError:
         raise ValueError("--out: plotting needs matplotlib: pip install 'hexgym[plots]'") from None
+
+
+def plot_comparison(result: dict, path: str | Path) -> Path:
+    """The tip error and the four joints of both runs over time, to a PNG (needs matplotlib: ``hexgym[plots]``)."""
+    require_plotting()
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
     from hexgym.files import save_figure
 
     series = result["series"]

@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 import pytest
 
@@ -282,3 +284,30 @@ def test_a_bad_mapping_is_refused_naming_the_key(tmp_path):
     (tmp_path / "m.yaml").write_text("signals:\n  q_boom_rad: {topic: /j, field: x, scale: big}\n")
     with pytest.raises(ValueError, match=r"signals\.q_boom_rad\.scale must be a finite number, got 'big'"):
         read_mapping(tmp_path / "m.yaml")
+
+
+def test_without_the_logs_extra_an_mcap_log_is_one_line(tmp_path, monkeypatch, capsys):
+    (tmp_path / "map.yaml").write_text(MAPPING)
+    (tmp_path / "run.mcap").write_bytes(b"\x89MCAP0\r\n")
+    monkeypatch.setitem(sys.modules, "mcap", None)
+    monkeypatch.setitem(sys.modules, "mcap.reader", None)
+    assert main(["check-log", str(tmp_path / "run.mcap"), "--mapping", str(tmp_path / "map.yaml")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "run.mcap: reading MCAP needs the optional extra: pip install 'hexgym[logs]'" in err
+
+
+def test_a_file_that_is_not_mcap_is_one_line(tmp_path, capsys):
+    pytest.importorskip("mcap_ros2")
+    (tmp_path / "map.yaml").write_text(MAPPING)
+    (tmp_path / "run.mcap").write_text("t,q_boom_rad\n0,0\n")
+    assert main(["check-log", str(tmp_path / "run.mcap"), "--mapping", str(tmp_path / "map.yaml")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "run.mcap: not a readable MCAP file" in err
+
+
+def test_compare_plot_without_matplotlib_is_one_line_before_any_work(tmp_path, monkeypatch, capsys):
+    write_csv_log(tmp_path / "a.csv", np.array([0.0, 1.0]), dict(zip(s.JOINT_ANGLES, np.zeros((4, 2)), strict=True)))
+    monkeypatch.setitem(sys.modules, "matplotlib", None)
+    assert main(["compare", str(tmp_path / "a.csv"), str(tmp_path / "a.csv"), "--out", str(tmp_path / "p.png")]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and "--out: plotting needs matplotlib: pip install 'hexgym[plots]'" in captured.err
