@@ -1108,7 +1108,7 @@ def check_arguments(args: argparse.Namespace, given: set[str] | None = None) -> 
         value = values.get(name) if cmd == command else None
         if value is None:
             continue
-        check(value, f"{what} --{name.replace('_', '-')}" if name != "pkl" else what)
+        check(value, f"{what} --{name.replace('_', '-')}" if name not in ("pkl", "a", "b") else what)  # positional
         inputs.append(value)
     outputs: list[str] = []
     for cmd, name in sorted(_OUTPUT_FILES | _OUTPUT_DIRS):

@@ -16,6 +16,7 @@ import numpy as np
 
 from hexgym.machine import kinematics
 from hexgym_lab.machine_logs.signals import MachineLog
+from hexgym_lab.progress import track
 
 MAX_SAMPLES = 1_000_000  # the common time base's length (memory: a few arrays of this many rows)
 
@@ -40,9 +41,10 @@ def _period(t: np.ndarray) -> float:
     return float(np.median(dt[dt > 0]))
 
 
-def tip_positions(q: np.ndarray) -> np.ndarray:
-    """(n, 3) tip positions (m, world frame) of (n, 4) joint angles."""
-    return np.array([kinematics.tip_position(row) for row in q])
+def tip_positions(q: np.ndarray, what: str = "tips") -> np.ndarray:
+    """(n, 3) tip positions (m, world frame) of (n, 4) joint angles, through the kinematics' own law (about 45 µs a
+    sample: an hour at 200 Hz takes half a minute, with progress shown)."""
+    return np.array([kinematics.tip_position(row) for row in track(q, what, "sample")]).reshape(-1, 3)
 
 
 def compare_logs(a: MachineLog, b: MachineLog) -> dict:
@@ -63,7 +65,7 @@ def compare_logs(a: MachineLog, b: MachineLog) -> dict:
     jb = np.column_stack([np.interp(t, tb, qb[:, j]) for j in range(4)])
     error = ja - jb
     error[:, 0] = (error[:, 0] + np.pi) % (2 * np.pi) - np.pi  # the swing the short way round
-    tip = np.linalg.norm(tip_positions(ja) - tip_positions(jb), axis=1)
+    tip = np.linalg.norm(tip_positions(ja, "compare: A's tips") - tip_positions(jb, "compare: B's tips"), axis=1)
     worst = int(np.argmax(tip))
     rms, top = np.sqrt(np.mean(error**2, axis=0)), np.max(np.abs(error), axis=0)
     joints = {name: {"rms_rad": float(rms[j]), "max_rad": float(top[j])} for j, name in enumerate(kinematics.JOINTS)}
