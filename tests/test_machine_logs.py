@@ -244,7 +244,7 @@ signals:
 """
 
 
-def _write_mcap(path, t, signals, gap=(None, None)) -> None:
+def _write_mcap(path, t, signals, gap=(None, None), back_at=None) -> None:
     writer_module = pytest.importorskip("mcap_ros2.writer")
     with open(path, "wb") as f:
         writer = writer_module.Writer(f)
@@ -256,6 +256,7 @@ def _write_mcap(path, t, signals, gap=(None, None)) -> None:
             writer.write_message("/joints", joints, {"position": q[k].tolist()}, log_time=ns, publish_time=ns)
             if k % 2 == 0 and not (gap[0] is not None and gap[0] < time < gap[1]):  # half the rate, in bar
                 bar = {"boom_head": float(signals["boom_head_pressure_pa"][k] / 1e5)}
+                ns -= int(0.3e9) if back_at is not None and time > back_at else 0  # this topic's clock set back
                 writer.write_message("/pressures", pressures, bar, log_time=ns, publish_time=ns)
         writer.finish()
 
@@ -272,6 +273,15 @@ def test_an_mcap_log_reads_through_its_mapping_and_a_topic_gap_is_a_nan_run(clea
     f = _only(_errors(log), "boom_head_pressure_pa", "NaN")
     assert 5.9 < f.t0 < 6.05 and 6.95 < f.t1 < 7.1
     assert f.log == str(tmp_path / "run.mcap")
+
+
+def test_a_topic_whose_clock_jumps_back_is_named(clean, tmp_path):
+    t, signals = clean
+    (tmp_path / "map.yaml").write_text(MAPPING)
+    _write_mcap(tmp_path / "run.mcap", t, signals, back_at=4.0)
+    findings = _errors(read_machine_log(tmp_path / "run.mcap", tmp_path / "map.yaml"))
+    f = _only(findings, "clock /pressures", "clock jumps backwards by 0.2")
+    assert 3.98 < f.t0 < 4.05 and not [x for x in findings if x.signal in ("t", "clock /joints")]
 
 
 def test_a_bad_mapping_is_refused_naming_the_key(tmp_path):

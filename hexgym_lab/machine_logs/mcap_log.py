@@ -171,7 +171,7 @@ def read_mcap_log(path: str | Path, mapping: dict[str, Any] | str | Path) -> Mac
             spec = mapping["signals"][name]
             raw = np.array(columns[name]) * spec.get("scale", 1.0) + spec.get("offset", 0.0)
             signals[name] = raw if topic == clock else resample(stamps, raw, t)
-    clocks = {f"clock {topic}": np.array(c["t"]) for topic, c in topics.items()}
+    clocks = {f"clock {topic}": np.array(c["t"]) for topic, c in topics.items() if topic != clock}  # t is clock's
     pilot = mapping.get("pilot") or {}
     pilot_pa = (pilot.get("start_pa", PILOT_START_PA), pilot.get("full_pa", PILOT_FULL_PA))
     return MachineLog(str(path), t, signals, clocks=clocks, pilot_pa=pilot_pa)
