@@ -141,7 +141,7 @@ def _check_simulate_outputs(args: argparse.Namespace) -> None:
     if args.out is None and args.machine_log is None:
         raise ValueError("give --out (the trajectory), --machine-log (the run as a machine log) or both")
     if args.machine_log is None:
-        for name in ("rate", "jitter", "sensor_noise"):
+        for name in ("rate", "jitter", "sensor_noise", "seed"):
             if getattr(args, name) is not None:
                 raise ValueError(f"--{name.replace('_', '-')} (the machine log's) does not apply without --machine-log")
     if args.jitter is not None and not 0.0 <= args.jitter < 1.0:
@@ -181,7 +181,7 @@ def _write_machine_log(args: argparse.Namespace, rows) -> None:
 
     noise = parse_noise(args.sensor_noise or "default")
     t, signals = machine_log_of(rows, rate_hz=args.rate or 100.0, noise=noise, jitter=args.jitter or 0.0,
-                                seed=args.seed, payload_kg=args.payload_kg)  # fmt: skip
+                                seed=args.seed or 0, payload_kg=args.payload_kg)  # fmt: skip
     write_csv_log(args.machine_log, t, signals)
 
 
@@ -695,7 +695,7 @@ def build_parser() -> argparse.ArgumentParser:
     simulate.add_argument("--sensor-noise", default=None, metavar="SPEC", help="--machine-log: Gaussian noise, "
                           "'default' (pressure_pa=2e5,angle_rad=0.001745,spool_mm=0), 'off' or kind=sigma,... "
                           "(default: default)")  # fmt: skip
-    simulate.add_argument("--seed", type=int, default=0, help="--machine-log: the noise's and jitter's seed "
+    simulate.add_argument("--seed", type=int, default=None, help="--machine-log: the noise's and jitter's seed "
                           "(default: 0)")  # fmt: skip
     simulate.add_argument("--payload-kg", type=float, default=0.0, help="material in the bucket, kg (default: 0)")
     simulate.add_argument("--dt-out", type=float, default=0.05, help="output row interval, s (default: 0.05)")

@@ -64,6 +64,7 @@ def test_the_machine_log_is_seeded_and_jittered(commands, tmp_path):
     "extra,message",
     [
         (["--rate", "50"], r"--rate \(the machine log's\) does not apply without --machine-log"),
+        (["--seed", "3"], r"--seed \(the machine log's\) does not apply without --machine-log"),
         (["--machine-log", "m.csv", "--jitter", "1.5"], r"--jitter must be from 0 to below 1"),
         (["--machine-log", "m.csv", "--sensor-noise", "loud"], r"--sensor-noise 'loud': 'loud' is not kind=sigma"),
         (["--machine-log", "m.csv", "--model", "learned"], r"--machine-log .* does not apply with --model learned"),
