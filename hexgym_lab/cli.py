@@ -196,7 +196,7 @@ def _cmd_check_log(args: argparse.Namespace) -> int:
         findings = check_log(log)
         status = status if trusted(findings) else 1
         if args.json:
-            report.append({"log": str(path), "trusted": trusted(findings), "findings": [vars(f) for f in findings]})
+            report.append({"log": str(path), "trusted": trusted(findings), "findings": [f.as_dict() for f in findings]})
             continue
         for finding in findings:
             print(finding.line())

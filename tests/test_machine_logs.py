@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import json
 import sys
 
 import numpy as np
@@ -207,6 +208,9 @@ def test_check_log_prints_findings_and_exits_1_for_a_log_it_cannot_trust(clean, 
     assert main(["check-log", str(good), str(bad)]) == 1
     out = capsys.readouterr().out
     assert f"{bad}: error: pump2_pressure_pa, t 0.00-10.00 s: largest value" in out
+    assert main(["check-log", str(bad), "--json"]) == 1
+    report = json.loads(capsys.readouterr().out)
+    assert report[0]["trusted"] is False and {"log", "signal", "t0", "t1", "what"} <= set(report[0]["findings"][0])
     (tmp_path / "garbage.csv").write_text("t,q_boom_rad\n0,abc\n")
     assert main(["check-log", str(tmp_path / "garbage.csv")]) == 2
     err = capsys.readouterr().err

@@ -50,6 +50,11 @@ class Finding:
     what: str
     severity: str = ERROR
 
+    def as_dict(self) -> dict:
+        """JSON-ready (a time that is not a number: None)."""
+        times = {k: (v if np.isfinite(v) else None) for k, v in (("t0", self.t0), ("t1", self.t1))}
+        return {"log": self.log, "signal": self.signal, **times, "what": self.what, "severity": self.severity}
+
     def line(self) -> str:
         """The finding as one line: ``log: severity: signal, t0-t1 s: what``."""
         return f"{self.log}: {self.severity}: {self.signal}, t {self.t0:.2f}-{self.t1:.2f} s: {self.what}"
