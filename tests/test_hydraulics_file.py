@@ -48,7 +48,7 @@ def test_without_a_file_the_circuit_is_the_packaged_one():
 
 def test_an_identity_file_runs_bit_identical(packaged, tmp_path):
     path = tmp_path / "unit.json"
-    path.write_text(json.dumps(identity()))
+    path.write_text(json.dumps(identity(ReferenceModel().circuit.layout)))  # the default valve's passages
     again = replay(ReferenceModel(hydraulics=str(path)), COMMANDS, dt_out=0.02)
     assert again.tobytes() == packaged.tobytes()
 
@@ -101,7 +101,7 @@ def test_a_bad_file_is_refused_naming_file_and_key(content, message):
 
 def test_a_passage_the_valve_lacks_is_refused_naming_the_valve():
     with pytest.raises(ValueError, match=r"passage_area_scale\.boom2_pa: the 'paper' valve has no such passage"):
-        ReferenceModel(hydraulics={"valve": {"passage_area_scale": {"boom2_pa": 1.1}}})
+        ReferenceModel(valve="paper", hydraulics={"valve": {"passage_area_scale": {"boom2_pa": 1.1}}})
 
 
 def test_yaml_files_read_with_safe_load_numbers_as_yaml_writes_them(tmp_path):
