@@ -131,6 +131,15 @@ def test_angles_in_degrees_are_found(clean):
     assert "degrees, not radians" in _only(errors, "q_swing_rad", "turns at").what
 
 
+def test_time_in_ms_and_engine_speed_in_rad_per_s_are_found(clean):
+    log = _log(clean)
+    log.signals[s.ENGINE_SPEED] = log.signals[s.ENGINE_SPEED] * 2 * np.pi / 60
+    assert "engine speed is in rpm" in _only(_errors(log), s.ENGINE_SPEED, "median").what
+    log = _log(clean)
+    log.t = log.t * 1e3
+    assert _only(check_log(log), "t", "sampled at 0.0999 Hz").severity == "warning"
+
+
 def test_a_flipped_sign_convention_is_found(clean):
     log = _log(clean)
     log.signals["stick_spool_mm"] = -log.signals["stick_spool_mm"]
