@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml setup.py $(wildcard native/*.cc native/*.h)
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet torch==2.13.0
-	$(BIN)/python -m pip install --quiet -e ".[train,video,plots,dev,cluster]"
+	$(BIN)/python -m pip install --quiet -e ".[train,video,plots,dev,cluster,logs]"
 	touch $@
 
 demo: $(STAMP)

@@ -105,25 +105,123 @@ def _cmd_model(args: argparse.Namespace) -> int:
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from hexgym.model.commandlog import read_command_log, write_trajectory_csv
-    from hexgym.model.replay import replay
+    from hexgym.model.replay import check_replay_size, replay
 
+    _check_simulate_outputs(args)
     commands = read_command_log(args.commands)
-    from hexgym.model.replay import check_replay_size
-
+    start = _start_pose(args)
     check_replay_size(commands.duration, args.dt_out)  # before building the model
     if args.model == "reference":
         from hexgym.hydraulics.reference import ReferenceModel
 
-        model = ReferenceModel()
+        model = ReferenceModel(hydraulics=args.hydraulics)
     else:
         from hexgym.model.backend import make_learned_model
 
         model = make_learned_model(args.backend, table_set=args.tables)
     from hexgym_lab.progress import wrote
 
-    trajectory = replay(model, commands, start=args.start, payload_kg=args.payload_kg, dt_out=args.dt_out)
-    write_trajectory_csv(args.out, trajectory)
-    wrote(args.out, f"the trajectory: {len(trajectory)} rows, {commands.duration:g} s simulated")
+    if args.machine_log is None:
+        trajectory = replay(model, commands, start=start, payload_kg=args.payload_kg, dt_out=args.dt_out)
+    else:  # every step for the logger's samples; the trajectory's rows are every dt_out / step-th of them
+        fine = replay(model, commands, start=start, payload_kg=args.payload_kg, dt_out=model.control_period)
+        _write_machine_log(args, fine)
+        steps = int(round(args.dt_out / model.control_period))
+        trajectory = fine[::steps][: check_replay_size(commands.duration, args.dt_out)]
+    if args.out is not None:
+        write_trajectory_csv(args.out, trajectory)
+        wrote(args.out, f"the trajectory: {len(trajectory)} rows, {commands.duration:g} s simulated")
+    if args.machine_log is not None:
+        wrote(args.machine_log, f"the run as a machine log at {args.rate or 100:g} Hz")
+    return 0
+
+
+def _check_simulate_outputs(args: argparse.Namespace) -> None:
+    """At least one output; the machine log's options only with it; one start."""
+    if args.out is None and args.machine_log is None:
+        raise ValueError("give --out (the trajectory), --machine-log (the run as a machine log) or both")
+    if args.machine_log is None:
+        for name in ("rate", "jitter", "sensor_noise", "seed"):
+            if getattr(args, name) is not None:
+                raise ValueError(f"--{name.replace('_', '-')} (the machine log's) does not apply without --machine-log")
+    if args.jitter is not None and not 0.0 <= args.jitter < 1.0:
+        raise ValueError(f"--jitter must be from 0 to below 1 (a share of the sample period), got {args.jitter!r}")
+    if args.start is not None and args.start_from is not None:
+        raise ValueError("--start and --start-from: give one of them")
+    if args.mapping is not None and args.start_from is None:
+        raise ValueError("--mapping (an MCAP log's topics) applies only with --start-from")
+
+
+def _start_pose(args: argparse.Namespace):
+    """The start: a keyframe name, four angles (rad) or a log's first measured pose, checked against the joints'
+    ranges."""
+    from hexgym.machine.kinematics import check_joint_angles
+
+    if args.start_from is not None:
+        import numpy as np
+
+        from hexgym_lab.machine_logs import read_machine_log
+
+        log = read_machine_log(args.start_from, args.mapping)
+        q = log.angles()
+        good = np.flatnonzero(np.isfinite(log.t) & np.all(np.isfinite(q), axis=1)) if q is not None else []
+        if not len(good):
+            raise ValueError(f"--start-from {args.start_from}: no sample with all four joint angles (or the swing "
+                             "angle and the cylinder strokes)")  # fmt: skip
+        first = good[int(np.argmin(log.t[good]))]
+        return check_joint_angles(q[first], f"--start-from {args.start_from} (its pose at t {log.t[first]:g} s)")
+    from hexgym_lab.view import parse_start
+
+    return parse_start(args.start or "home")
+
+
+def _write_machine_log(args: argparse.Namespace, rows) -> None:
+    from hexgym_lab.machine_logs.csv_log import write_csv_log
+    from hexgym_lab.machine_logs.synthetic import machine_log_of, parse_noise
+
+    noise = parse_noise(args.sensor_noise or "default")
+    t, signals = machine_log_of(rows, rate_hz=args.rate or 100.0, noise=noise, jitter=args.jitter or 0.0,
+                                seed=args.seed or 0, payload_kg=args.payload_kg)  # fmt: skip
+    write_csv_log(args.machine_log, t, signals)
+
+
+def _cmd_check_log(args: argparse.Namespace) -> int:
+    from hexgym_lab.machine_logs import read_machine_log
+    from hexgym_lab.machine_logs.checks import check_log, trusted
+    from hexgym_lab.progress import track
+
+    status, report = 0, []
+    for path in track(args.logs, "check-log", "log"):
+        log = read_machine_log(path, args.mapping)
+        findings = check_log(log)
+        status = status if trusted(findings) else 1
+        if args.json:
+            report.append({"log": str(path), "trusted": trusted(findings), "findings": [f.as_dict() for f in findings]})
+            continue
+        for finding in findings:
+            print(finding.line())
+        rate = (len(log.t) - 1) / max(float(log.t[-1] - log.t[0]), 1e-9)
+        verdict = "trusted" if trusted(findings) else "cannot be trusted"
+        print(f"{path}: {verdict}: {len(log.t)} samples, t {log.t[0]:g}-{log.t[-1]:g} s (~{rate:.0f} Hz), "
+              f"{sum(f.severity == 'error' for f in findings)} errors, "
+              f"{sum(f.severity == 'warning' for f in findings)} warnings")  # fmt: skip
+    if args.json:
+        print(json.dumps(report, indent=2))
+    return status
+
+
+def _cmd_compare(args: argparse.Namespace) -> int:
+    from hexgym_lab.compare import compare_logs, plot_comparison, require_plotting, summary_text
+    from hexgym_lab.machine_logs import read_machine_log
+    from hexgym_lab.progress import wrote
+
+    if args.out:
+        require_plotting()
+    result = compare_logs(read_machine_log(args.a, args.mapping), read_machine_log(args.b, args.mapping))
+    summary = {k: v for k, v in result.items() if k != "series"}
+    print(json.dumps(summary, indent=2) if args.json else summary_text(result))
+    if args.out:
+        wrote(plot_comparison(result, args.out), "tip error and joints over time")
     return 0
 
 
@@ -577,9 +675,28 @@ def build_parser() -> argparse.ArgumentParser:
         "--model", choices=["reference", "learned"], default="reference", help="machine model (default: reference)"
     )
     simulate.add_argument("--commands", required=True, help="command log CSV: t,swing,boom,stick,bucket (s, mm)")
-    simulate.add_argument("--out", required=True, metavar="FILE.csv", help="output file: the trajectory (CSV, "
+    simulate.add_argument("--out", default=None, metavar="FILE.csv", help="output file: the trajectory (CSV, "
                           "a row per --dt-out; columns: docs/machine.md, trajectory format)")  # fmt: skip
-    simulate.add_argument("--start", default="home", help="keyframe to start from (default: home)")
+    simulate.add_argument("--start", default=None, help="keyframe to start from, or four joint angles "
+                          "'q_swing,q_boom,q_stick,q_bucket' (rad, within the joints' ranges) "
+                          "(default: home)")  # fmt: skip
+    simulate.add_argument("--start-from", default=None, metavar="LOG", help="start at a machine log's first "
+                          "measured pose (CSV, or MCAP with --mapping; docs/machine-logs.md)")  # fmt: skip
+    simulate.add_argument("--mapping", default=None, metavar="FILE.yaml", help="--start-from an MCAP log: its "
+                          "topics and fields to signals")  # fmt: skip
+    simulate.add_argument("--hydraulics", default=None, metavar="FILE", help="reference: a unit that is not the "
+                          "packaged one, YAML or JSON (passage areas, pumps, reliefs, leakage; "
+                          "docs/machine-logs.md)")  # fmt: skip
+    simulate.add_argument("--machine-log", default=None, metavar="FILE.csv", help="reference: also an output file: "
+                          "the run as a machine log (CSV, docs/machine-logs.md)")  # fmt: skip
+    simulate.add_argument("--rate", type=float, default=None, help="--machine-log: samples per second (default: 100)")
+    simulate.add_argument("--jitter", type=float, default=None, help="--machine-log: each sample time moved by up "
+                          "to ±jitter/2 of a period, uniformly (0 to below 1; default: 0)")  # fmt: skip
+    simulate.add_argument("--sensor-noise", default=None, metavar="SPEC", help="--machine-log: Gaussian noise, "
+                          "'default' (pressure_pa=2e5,angle_rad=0.001745,spool_mm=0), 'off' or kind=sigma,... "
+                          "(default: default)")  # fmt: skip
+    simulate.add_argument("--seed", type=int, default=None, help="--machine-log: the noise's and jitter's seed "
+                          "(default: 0)")  # fmt: skip
     simulate.add_argument("--payload-kg", type=float, default=0.0, help="material in the bucket, kg (default: 0)")
     simulate.add_argument("--dt-out", type=float, default=0.05, help="output row interval, s (default: 0.05)")
     simulate.add_argument("--tables", **_TABLES_OPTION)
@@ -590,6 +707,25 @@ def build_parser() -> argparse.ArgumentParser:
         help="learned model: native plugin or Python (default: auto = native when built)",
     )
     simulate.set_defaults(func=_cmd_simulate)
+
+    check_log = sub.add_parser("check-log", help="check machine logs: time, missing signals, NaN runs, units, stuck "
+                               "sensors, signs, motion; exit 1 when one cannot be trusted")  # fmt: skip
+    check_log.add_argument("logs", nargs="+", metavar="LOG", help="machine logs: CSV, or MCAP with --mapping")
+    check_log.add_argument("--mapping", default=None, metavar="FILE.yaml", help="MCAP logs: topics and fields to "
+                           "signals (docs/machine-logs.md)")  # fmt: skip
+    check_log.add_argument("--json", action="store_true", help="print the findings as JSON")
+    check_log.set_defaults(func=_cmd_check_log)
+
+    compare = sub.add_parser("compare", help="score two runs (trajectories or machine logs): tip and joint errors "
+                             "over their common time")  # fmt: skip
+    compare.add_argument("a", metavar="A", help="a trajectory CSV or a machine log")
+    compare.add_argument("b", metavar="B", help="another, compared with A")
+    compare.add_argument("--mapping", default=None, metavar="FILE.yaml", help="MCAP logs: topics and fields to "
+                         "signals")  # fmt: skip
+    compare.add_argument("--out", default=None, metavar="FILE.png", help="output file: a plot of the tip error and "
+                         "the joints over time (needs matplotlib)")  # fmt: skip
+    compare.add_argument("--json", action="store_true", help="print the figures as JSON")
+    compare.set_defaults(func=_cmd_compare)
 
     report = sub.add_parser(
         "reference-report", help="reference model: full-spool speeds, interaction plots (Figs 5-8), speed"
@@ -891,24 +1027,28 @@ _COUNTS = {"episodes": 1, "steps": 1, "samples": 1, "epochs": 1, "workers": 1, "
            "frames": 1, "dagger_episodes": 1, "checkpoint_every": 1, "suite": 0, "dagger_rounds": 0,
            "select_episodes": 0, "width": 1, "height": 1, "num_env_runners": 1, "generations": 1}  # fmt: skip
 _SEEDS = ("seed", "suite_seed")
-_POSITIVE = {"seconds": "s", "dt_out": "s"}
+_POSITIVE = {"seconds": "s", "dt_out": "s", "rate": "Hz"}
 # Paths, by (command, option): files and directories written, files and directories read.
 _OUTPUT_FILES = {("simulate", "out"), ("video", "out"), ("video", "snapshot"), ("evaluate", "json"),
                  ("bench", "json"), ("scripted", "json"), ("clone", "out"), ("view", "screenshot"),
                  ("convert-normalizer", "out"), ("shield", "json"), ("shield", "plot"),
                  ("plan", "json"), ("plan", "plot"), ("plan", "video"), ("curves", "out"),
-                 ("curves", "json")}  # fmt: skip
+                 ("curves", "json"), ("simulate", "machine_log"), ("compare", "out")}  # fmt: skip
 _OUTPUT_DIRS = {("demo", "out"), ("reference-report", "out"), ("validate", "out"), ("collect", "out"),
                 ("fit", "out"), ("build-assets", "dir"), ("clone", "rounds_dir"), ("train", "log_dir")}  # fmt: skip
 _INPUT_FILES = {("simulate", "commands"), ("train", "hyperparams"), ("train", "init_from"), ("clone", "hyperparams"),
                 ("convert-normalizer", "pkl"), ("scripted", "loader_settings"), ("evaluate", "loader_settings"),
-                ("clone", "loader_settings")}  # fmt: skip
+                ("clone", "loader_settings"), ("simulate", "hydraulics"), ("simulate", "start_from"),
+                ("simulate", "mapping"), ("check-log", "mapping"), ("compare", "mapping"), ("compare", "a"),
+                ("compare", "b")}  # fmt: skip
 # Options that apply only in one mode: (command, option) -> (the mode's option, its value, what the option is for).
 # Given in another mode they are refused, not ignored.
 _ONLY_WITH = {
     ("simulate", "tables"): ("model", "learned", "the learned model's tables"),
     ("simulate", "backend"): ("model", "learned", "the learned model's backend"),
     ("evaluate", "tables"): ("model", "learned", "the learned model's tables"),
+    ("simulate", "hydraulics"): ("model", "reference", "the reference's hydraulics"),
+    ("simulate", "machine_log"): ("model", "reference", "the reference's pressures as a machine log"),
 }
 # Options that cannot be given together: the second is ignored by the first.
 _EXCLUSIVE = {
@@ -955,7 +1095,7 @@ def check_arguments(args: argparse.Namespace, given: set[str] | None = None) -> 
     command = args.command
     for (cmd, name), (mode, wanted, what) in _ONLY_WITH.items():
         if cmd == command and name in (given or ()) and values.get(mode) != wanted:
-            raise ValueError(f"--{name} ({what}) does not apply with --{mode} {values.get(mode)}")
+            raise ValueError(f"--{name.replace('_', '-')} ({what}) does not apply with --{mode} {values.get(mode)}")
     for cmd, first, second in _EXCLUSIVE:
         if cmd == command and {first, second} <= (given or set()) and values.get(first) is not None:
             raise ValueError(f"--{second} does not apply with --{first}: the Ray cluster's cores run the tasks")
@@ -968,7 +1108,7 @@ def check_arguments(args: argparse.Namespace, given: set[str] | None = None) -> 
         value = values.get(name) if cmd == command else None
         if value is None:
             continue
-        check(value, f"{what} --{name.replace('_', '-')}" if name != "pkl" else what)
+        check(value, f"{what} --{name.replace('_', '-')}" if name not in ("pkl", "a", "b") else what)  # positional
         inputs.append(value)
     outputs: list[str] = []
     for cmd, name in sorted(_OUTPUT_FILES | _OUTPUT_DIRS):

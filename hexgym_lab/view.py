@@ -82,7 +82,8 @@ def apply_key(spools_mm: np.ndarray, keycode: int, step_mm: float = SPOOL_STEP_M
 
 
 def parse_start(start: str) -> str | np.ndarray:
-    """``--start``: a keyframe name, or four joint angles in rad ("swing,boom,stick,bucket")."""
+    """``--start``: a keyframe name, or four joint angles in rad ("swing,boom,stick,bucket") within the joints'
+    ranges."""
     if "," not in start:
         return start
     try:
@@ -93,7 +94,7 @@ def parse_start(start: str) -> str | np.ndarray:
         raise ValueError(
             f"--start must be a keyframe name or four angles 'swing,boom,stick,bucket' (rad), got {start!r}"
         )
-    return q
+    return kinematics.check_joint_angles(q, f"--start {start}")
 
 
 class ViewSite:

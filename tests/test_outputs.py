@@ -228,7 +228,7 @@ def test_model_prints_a_table_with_units(capsys):
     "command,kind",
     [("demo", "directory"), ("collect", "directory"), ("fit", "directory"), ("validate", "directory"),
      ("reference-report", "directory"), ("simulate", "file"), ("video", "file"), ("clone", "file"),
-     ("curves", "file"), ("tune-loader", "file"), ("convert-normalizer", "file")],
+     ("curves", "file"), ("tune-loader", "file"), ("convert-normalizer", "file"), ("compare", "file")],
 )  # fmt: skip
 def test_each_out_says_whether_it_is_a_file_or_a_directory(command, kind, capsys):
     with pytest.raises(SystemExit):

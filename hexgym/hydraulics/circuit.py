@@ -682,28 +682,37 @@ class HydraulicCircuit:
         return p.DISCHARGE_COEFFICIENT * area[b] * orifice_law(dp)[0] * ds * inv_span
 
     @staticmethod
-    def nfc_target(p_bypass: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """NFC displacement fraction for the bypass (NFC signal) pressure, and its derivative."""
-        width = p.NFC_PRESSURE_MIN_FLOW - p.NFC_PRESSURE_FULL_FLOW
-        s, ds = smoothstep((p_bypass - p.NFC_PRESSURE_FULL_FLOW) / width)
+    def nfc_target(
+        p_bypass: np.ndarray, full_flow_pa: float | None = None, min_flow_pa: float | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """NFC displacement fraction for the bypass (NFC signal) pressure, and its derivative; the regulator's
+        corner pressures default to ``NFC_PRESSURE_FULL_FLOW`` and ``NFC_PRESSURE_MIN_FLOW``."""
+        full = p.NFC_PRESSURE_FULL_FLOW if full_flow_pa is None else full_flow_pa
+        width = (p.NFC_PRESSURE_MIN_FLOW if min_flow_pa is None else min_flow_pa) - full
+        s, ds = smoothstep((p_bypass - full) / width)
         drop = 1.0 - p.PUMP_IDLE_FLOW_FRACTION
         return 1.0 - drop * s, -drop * ds / width
 
     @staticmethod
-    def pump_flows(p_pumps: np.ndarray, displacement: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def pump_flows(
+        p_pumps: np.ndarray, displacement: np.ndarray, max_flow: float | None = None, power_limit: float | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Pump flows (m^3/s), dQ/d(displacement) (2,) and dQ/d(p1, p2) (2, 2).
 
-        Cross-sensing horsepower control: ``Q_i = Q_max min(d_i, P_lim / (Q_max (p1 + p2)))``.
+        Cross-sensing horsepower control: ``Q_i = Q_max min(d_i, P_lim / (Q_max (p1 + p2)))``; ``Q_max`` and
+        ``P_lim`` default to ``PUMP_MAX_FLOW`` and ``PUMP_POWER_LIMIT``.
         """
+        q_max = p.PUMP_MAX_FLOW if max_flow is None else max_flow
+        p_lim = p.PUMP_POWER_LIMIT if power_limit is None else power_limit
         d = np.minimum(np.maximum(displacement, 0.0), 1.0)
         total = p_pumps[0] + p_pumps[1]
-        q_hp = p.PUMP_POWER_LIMIT / total if total > 0.0 else np.inf
-        nfc = p.PUMP_MAX_FLOW * d
+        q_hp = p_lim / total if total > 0.0 else np.inf
+        nfc = q_max * d
         limited = nfc > q_hp
         q = np.where(limited, q_hp, nfc)
-        dq_dd = np.where(limited, 0.0, p.PUMP_MAX_FLOW)
+        dq_dd = np.where(limited, 0.0, q_max)
         dq_dp = np.zeros((2, 2))
-        dq_dp[limited, :] = -p.PUMP_POWER_LIMIT / total**2 if total > 0.0 else 0.0
+        dq_dp[limited, :] = -p_lim / total**2 if total > 0.0 else 0.0
         return q, dq_dd, dq_dp
 
     # ---- the ODE ----------------------------------------------------------------------------

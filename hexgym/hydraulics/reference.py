@@ -27,12 +27,15 @@ at about 0.4 s of computing per simulated second (1 ms: 1.9 cm / 3 mm at 0.7 s/s
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 
 import mujoco
 import numpy as np
 
 from hexgym.hydraulics.circuit import DEFAULT_VALVE, NODES, HydraulicCircuit, fuel_rate, validate_spools, valve_layout
+from hexgym.hydraulics.overrides import HydraulicsOverrides, overridden_circuit
 from hexgym.machine import kinematics, trajectory
 from hexgym.machine import parameters as p
 from hexgym.machine.physics import ExcavatorPhysics, force_actuated_model
@@ -68,10 +71,16 @@ class ReferenceModel:
         valve: the main valve's layout (:data:`hexgym.hydraulics.circuit.VALVE_LAYOUTS`): ``"cat"`` (default), a
             Cat two-pump valve (flow combining, swing and boom priority, stick and boom regeneration), or
             ``"paper"``, the paper's simplified schematic (pump 1 boom and bucket, pump 2 swing and stick).
+        hydraulics: a unit that is not the packaged one (:mod:`hexgym.hydraulics.overrides`: its overrides, a
+            hydraulics file's path or content); default the packaged circuit.
     """
 
     def __init__(
-        self, model: mujoco.MjModel | None = None, timestep: float = DEFAULT_TIMESTEP, valve: str = DEFAULT_VALVE
+        self,
+        model: mujoco.MjModel | None = None,
+        timestep: float = DEFAULT_TIMESTEP,
+        valve: str = DEFAULT_VALVE,
+        hydraulics: HydraulicsOverrides | Mapping | str | Path | None = None,
     ) -> None:
         if not (np.isfinite(timestep) and 0.0 < timestep <= 0.005):
             raise ValueError(f"timestep must be in (0, 5 ms], got {timestep} s")
@@ -83,7 +92,7 @@ class ReferenceModel:
         model.actuator_biasprm[:] = 0.0
         self.physics = ExcavatorPhysics(model)
         self._ctrl, self._bias = self.physics.data.ctrl, model.actuator_biasprm[:, 2]
-        self.circuit = HydraulicCircuit(layout=layout)
+        self.circuit = HydraulicCircuit(layout=layout) if hydraulics is None else overridden_circuit(hydraulics, layout)
         self.spools_m = np.zeros(len(kinematics.JOINTS))
         self.state = self.circuit.initial_state()
         self.reset()

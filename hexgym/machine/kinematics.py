@@ -302,3 +302,16 @@ def moment_arm_tables() -> tuple[UniformTable, ...]:
 def tabulated_moment_arms(q: np.ndarray) -> np.ndarray:
     """[boom, stick, bucket] moment arms (m/rad) at main joint angles ``q``, from the sampled tables."""
     return np.array([table(float(q[i + 1])) for i, table in enumerate(moment_arm_tables())])
+
+
+def check_joint_angles(q: np.ndarray, what: str = "joint angles") -> np.ndarray:
+    """Four finite joint angles (rad; swing, boom, stick, bucket) within the joints' ranges (:func:`joint_range`),
+    as an array; ValueError naming ``what`` and the joint otherwise."""
+    q = np.asarray(q, dtype=float)
+    if q.shape != (len(JOINTS),) or not np.all(np.isfinite(q)):
+        raise ValueError(f"{what}: need four finite angles {','.join(JOINTS)} (rad), got {np.array2string(q)}")
+    for name, angle in zip(JOINTS, q, strict=True):
+        lo, hi = joint_range(name)
+        if not lo - 1e-9 <= angle <= hi + 1e-9:
+            raise ValueError(f"{what}: {name} {angle:.4g} rad is outside its range {lo:.4f} to {hi:.4f} rad")
+    return q
