@@ -59,6 +59,7 @@ MATERIAL_DEPTH = 0.1  # m: ...where it is at least this high (elsewhere the teet
 EMPTY_KG = 100.0  # kg: less left in the bucket counts as empty (the open bucket drops the rest on its way)
 WORTH_CARRYING_KG = 500.0  # kg: out of the pile with this much, curl and carry it; with less, dig on
 CARRIED_TILT = 0.6  # rad: the mouth this close to facing up holds its load (repose 0.59): carry it
+CARRY_MARGIN = 0.2  # rad inside CARRIED_TILT by which the carried bucket's pull-in takes its full target
 DUMP_PIN_BEYOND = 0.0  # m: bucket pin radius beyond the bed's centre line
 
 
@@ -425,6 +426,9 @@ def _to_truck(env: HexLoadingEnv, s: LoaderState, settings: LoaderSettings) -> T
     target = np.array([CARRY_RADIUS, RIM + settings.clearance, CARRY_ANGLE])
     if s.radius > CARRY_RADIUS + 0.5:  # pull in low first: only close in can the curled bucket be level
         target[1] = min(target[1], s.tip[2] + 0.3)
+    # the teeth pull in only as the mouth curls inside the carried tilt: the stick pulling in at once would take
+    # the flow the bucket needs (stick 2 shares its pump) and tip the mouth back past that tilt
+    target[0] = s.radius + float(np.clip((CARRIED_TILT - s.tilt) / CARRY_MARGIN, 0.0, 1.0)) * (target[0] - s.radius)
     # the boom keeps rising while it swings: clear of the pile, swing to short of the truck until above its rim
     swing = s.q[0]
     if s.above_pile > PILE_CLEARANCE:  # the curled bucket hangs ~1 m below the teeth: clear the cab and rim
@@ -488,6 +492,8 @@ def _phase_action(env: HexLoadingEnv, s: LoaderState, phase: str, settings: Load
     brake = swing_brake(env.physics.swing_inertia(), settings)
     action[0] = swing_spool(_wrap(swing_target - s.q[0]), s.qd[0], brake)
     action[1:] = front_spools(env, target, feed)
+    if phase == "to_truck" and s.above_pile < PILE_CLEARANCE:  # a loaded bucket is never pushed down into the pile
+        action[1] = max(action[1], 0.0)
     return action.astype(np.float32)
 
 
