@@ -76,12 +76,16 @@ def test_acceleration_at_rate_reads_the_first_crossing():
 
 
 def test_reference_with_own_pressure_pumps_gives_one_pump_more_flow_when_both_work():
+    from hexgym.hydraulics.circuit import PAPER_VALVE
     from hexgym.hydraulics.reference import ReferenceModel
     from hexgym_lab.validate import POSE_CYCLE
 
-    flows = {}
-    for name, circuit in (("real", HydraulicCircuit()), ("own", OwnPressureCircuit())):
-        model = ReferenceModel()
+    flows = {}  # on the paper's valve, one pump per function: swing on pump 2, boom on pump 1
+    for name, circuit in (
+        ("real", HydraulicCircuit(layout=PAPER_VALVE)),
+        ("own", OwnPressureCircuit(layout=PAPER_VALVE)),
+    ):
+        model = ReferenceModel(valve="paper")
         model.circuit = circuit
         model.reset(POSE_CYCLE)
         model.step(np.array([0.011, 0.011, 0.0, 0.0]), 400)  # full swing and boom raise, 0.8 s

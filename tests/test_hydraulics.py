@@ -17,6 +17,7 @@ from hexgym.hydraulics.circuit import (
     CYLINDER_NAMES,
     N_NODES,
     NODES,
+    PAPER_VALVE,
     STATE_SIZE,
     VALVE_LAYOUTS,
     HydraulicCircuit,
@@ -33,7 +34,8 @@ Q_MAX = p.PUMP_MAX_FLOW
 
 @pytest.fixture(scope="module")
 def circuit() -> HydraulicCircuit:
-    return HydraulicCircuit()
+    """The paper's valve: one section per function, pump 1 boom and bucket, pump 2 swing and stick."""
+    return HydraulicCircuit(layout=PAPER_VALVE)
 
 
 @pytest.fixture(scope="module")
@@ -100,12 +102,12 @@ def test_jacobian_matches_finite_differences(any_circuit: HydraulicCircuit) -> N
 
 
 def test_valve_areas_open_centre() -> None:
-    neutral = spool_areas(np.zeros(4))
-    full = spool_areas(np.array([11, -11, 11, -11]) * MM)
+    neutral = spool_areas(np.zeros(4), PAPER_VALVE)
+    full = spool_areas(np.array([11, -11, 11, -11]) * MM, PAPER_VALVE)
     assert np.all(neutral.pa == 0) and np.all(neutral.at == 0) and np.all(neutral.bypass > 0)
     assert np.all(full.bypass == 0)
     assert full.pa[0] > 0 and full.bt[0] > 0 and full.pb[1] > 0 and full.at[1] > 0
-    inside_dead_band = spool_areas(np.full(4, 0.9 * p.SPOOL_DEAD_BAND))
+    inside_dead_band = spool_areas(np.full(4, 0.9 * p.SPOOL_DEAD_BAND), PAPER_VALVE)
     assert np.all(inside_dead_band.pa == 0)
 
 
@@ -294,7 +296,7 @@ def test_stick_regenerates_while_its_weight_pulls_it_in(cat: HydraulicCircuit) -
     assert regen > 1e-3 and unload == pytest.approx(0.0, abs=1e-6)
     regen, unload = _regeneration_flows(cat, head=15e6, rod=2e6)
     assert regen == pytest.approx(0.0, abs=1e-6) and unload > 1e-3
-    assert "stick_regeneration" not in HydraulicCircuit().branch_index  # the paper's valve has none
+    assert "stick_regeneration" not in HydraulicCircuit(layout=PAPER_VALVE).branch_index  # the paper's valve has none
 
 
 def test_stick_in_is_faster_with_regeneration(cat: HydraulicCircuit) -> None:
@@ -354,7 +356,7 @@ def test_inconsistent_circuit_parameters_are_refused(
 def test_the_native_kernel_takes_either_layout_as_numbers(cat: HydraulicCircuit) -> None:
     from hexgym.model.circuit_kernel import circuit_counts, circuit_numbers
 
-    paper = HydraulicCircuit()
+    paper = HydraulicCircuit(layout=PAPER_VALVE)
     for circuit, sections, regenerations in ((paper, 4, 0), (cat, 6, 3)):
         counts = {"nodes": 12, "branches": len(circuit.branches.names), "sections": sections}
         assert circuit_counts(circuit) == counts | {"regenerations": regenerations}

@@ -30,20 +30,20 @@ def test_closed_spools_hold_a_full_bucket(model):
     assert np.abs(model.physics.joint_velocities()).max() < 1e-3
 
 
-def test_full_boom_spool_runs_at_one_pumps_speed(model):
+def test_full_boom_spool_runs_at_both_pumps_speed(model):
     model.reset(POSE_LOW)
     model.step(np.array([0.0, FULL, 0.0, 0.0]), n=periods(model, 1.5))
-    assert model.physics.cylinder_velocities()[0] == pytest.approx(0.143, rel=0.15)  # reference: 0.143 m/s
+    assert model.physics.cylinder_velocities()[0] == pytest.approx(0.276, rel=0.15)  # reference: 0.276 m/s
 
 
-def test_bucket_takes_the_flow_until_it_stalls(model):
+def test_bucket_takes_pump_1_until_it_stalls(model):
     model.reset(POSE_LOW)
     model.step(np.array([0.0, FULL, 0.0, FULL]), n=periods(model, 1.5))
     boom, _, bucket = model.physics.cylinder_velocities()
-    assert bucket > 0.2 and boom < 0.03  # flow sharing on pump 1
+    assert bucket > 0.2 and 0.1 < boom < 0.2  # the bucket takes pump 1, the boom rises on pump 2's boom 2
     model.step(np.array([0.0, FULL, 0.0, FULL]), n=periods(model, 3.5))  # the bucket reaches its stroke end
     boom, _, bucket = model.physics.cylinder_velocities()
-    assert abs(bucket) < 0.01 and boom > 0.1
+    assert abs(bucket) < 0.01 and boom > 0.2
 
 
 def test_loads_follow_payload_and_tip_force(model):
@@ -86,11 +86,12 @@ def test_test3_is_an_operator_like_cycle_of_about_50_s():
 
 
 def test_swing_never_outruns_its_table(model):
-    """A long full swing levels off at the fastest swing in the table's data, never beyond it."""
+    """A long full swing levels off at the reference's top speed (11.39 rpm, 1.19 rad/s), never beyond the
+    table's fastest swing rate."""
     model.reset(POSE_LOW)
     model.step(np.array([FULL, 0.0, 0.0, 0.0]), n=periods(model, 8.0))
     fastest = model.tables["swing"].axes[-1][-1]
-    assert 0.9 * fastest < model.physics.joint_velocities()[0] <= fastest + 1e-9
+    assert 0.9 * 1.19 < model.physics.joint_velocities()[0] <= min(1.1 * 1.19, fastest + 1e-9)
 
 
 def test_a_stroke_end_stop_carries_its_load_not_the_oil(model):

@@ -318,7 +318,7 @@ _DAMAGE = {
     "name": (lambda p: _rewrite_meta(p, name="stick"), "holds table 'stick', expected 'swing'"),
     "shape": (
         lambda p: _rewrite_values(p, lambda v: v[..., :-1].copy()),
-        "'values' has shape (23, 23, 3, 4, 22) dtype <f8; its axes need shape (23, 23, 3, 4, 23)",
+        "'values' has shape (23, 23, 2, 8, 29) dtype <f8; its axes need shape (23, 23, 2, 8, 30)",  # the swing table
     ),
     "dtype": (lambda p: _rewrite_values(p, lambda v: v.astype(np.float32)), "values.npy has dtype <f4, expected <f8"),
     "truncated": (lambda p: p.write_bytes(p.read_bytes()[: p.stat().st_size // 2]), "is corrupt or not a table file"),

@@ -612,8 +612,8 @@ def test_a_plan_searched_on_the_circuit_model_predicts_the_reference():
     from hexgym.planning.circuit_search import CIRCUIT_MARGIN_M
     from hexgym_lab.plan import plan_task
 
-    result = plan_task("dump", 0, budget=40, nthread=1, search="circuit")
-    assert result["search"] == "circuit" and result["target_margin_m"] == CIRCUIT_MARGIN_M and result["rollouts"] >= 40
+    result = plan_task("dump", 0, budget=80, nthread=1, search="circuit")  # 40 rollouts ended 0.27 m short
+    assert result["search"] == "circuit" and result["target_margin_m"] == CIRCUIT_MARGIN_M and result["rollouts"] >= 80
     assert result["predicted_fuel_l"] == pytest.approx(result["reference_fuel_l"], rel=0.03)
     assert result["predicted_reached"] and result["reference_time_s"] is not None
     assert "at the goal" in result["plan_message"]
