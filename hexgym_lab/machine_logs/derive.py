@@ -166,7 +166,8 @@ def estimated_pump_flows(t: np.ndarray, pressures: np.ndarray, max_flow: float) 
     for k in range(1, len(t)):
         a = 1.0 - math.exp(-(t[k] - t[k - 1]) / p.PUMP_REGULATOR_TIME_CONSTANT)
         d[k] = d[k - 1] + a * (target[k] - d[k - 1])
-    return np.array([HydraulicCircuit.pump_flows(pr, dk, max_flow)[0] for pr, dk in zip(pressures[:, 0:2], d)])
+    pumps = pressures[:, 0:2]
+    return np.array([HydraulicCircuit.pump_flows(pr, dk, max_flow)[0] for pr, dk in zip(pumps, d, strict=True)])
 
 
 def area_samples(rows: LogRows, max_flow: float) -> list[dict[str, float]]:
@@ -181,7 +182,8 @@ def area_samples(rows: LogRows, max_flow: float) -> list[dict[str, float]]:
     out = []
     for k in np.flatnonzero(rows.usable)[::every]:
         u, ext = rows.spools_m[k], rows.ext[k]
-        if (ext[stick] <= p.STROKE_END_MARGIN and u[2] < 0) or (ext[stick] >= stroke - p.STROKE_END_MARGIN and u[2] > 0):
+        margin = p.STROKE_END_MARGIN
+        if (ext[stick] <= margin and u[2] < 0) or (ext[stick] >= stroke - margin and u[2] > 0):
             continue
         volumes = circuit.volumes(ext)
         sample = identify_areas(rows.pressures[k], rows.rates[k], volumes, flows[k], u, ext, rows.vel[k],

@@ -7,8 +7,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
 from hexgym.model.commandlog import CommandLog, write_command_log
 from hexgym_lab.mbl.operator_logs import suite_log
 
@@ -23,13 +21,18 @@ def _one(task: tuple[str, str | None, int, int, str, float | None]) -> str:
     from hexgym_lab.machine_logs.csv_log import write_csv_log
     from hexgym_lab.machine_logs.synthetic import machine_log_of
 
-    drawn = suite_log(suite_seed, index, duration, style)
-    commands = CommandLog(drawn.t - drawn.t[0], drawn.spools_mm)
+    if style == "excitation":
+        from hexgym_lab.machine_logs.excitation import excitation_log, start_pose
+
+        commands, start, payload = excitation_log(), start_pose(), 0.0
+    else:
+        drawn = suite_log(suite_seed, index, duration, style)
+        commands, start, payload = CommandLog(drawn.t - drawn.t[0], drawn.spools_mm), drawn.start_pose, drawn.payload_kg
     name = f"{style}_{suite_seed}_{index:03d}"
     write_command_log(Path(out_dir) / "commands" / f"{name}.csv", commands)
     model = ReferenceModel(hydraulics=hydraulics)
-    rows = replay(model, commands, start=drawn.start_pose, payload_kg=drawn.payload_kg, dt_out=model.control_period)
-    t, signals = machine_log_of(rows, RATE_HZ, None, JITTER, seed=1000 * suite_seed + index, payload_kg=drawn.payload_kg)
+    rows = replay(model, commands, start=start, payload_kg=payload, dt_out=model.control_period)
+    t, signals = machine_log_of(rows, RATE_HZ, None, JITTER, seed=1000 * suite_seed + index, payload_kg=payload)
     return str(write_csv_log(Path(out_dir) / f"{name}.csv", t, signals))
 
 
@@ -42,8 +45,9 @@ def write_unit_logs(
     duration_s: float | None = None,
     workers: int = 2,
 ) -> list[Path]:
-    """``count`` machine logs of the reference with ``hydraulics`` on suite ``suite_seed``'s logs in ``style``,
-    as ``out_dir/<style>_<seed>_<i>.csv`` (their command logs under ``out_dir/commands``)."""
+    """``count`` machine logs of the reference with ``hydraulics`` on suite ``suite_seed``'s logs in ``style``
+    (a :data:`hexgym_lab.mbl.operator_logs.STYLES` key, or ``excitation``: :mod:`.excitation`'s log), as
+    ``out_dir/<style>_<seed>_<i>.csv`` (their command logs under ``out_dir/commands``)."""
     from hexgym.parallel import executor
 
     (Path(out_dir) / "commands").mkdir(parents=True, exist_ok=True)
