@@ -258,7 +258,11 @@ def _cmd_collect(args: argparse.Namespace) -> int:
 def _cmd_fit(args: argparse.Namespace) -> int:
     if args.logs is not None:
         return _fit_logs(args)
+    from hexgym.files import check_input_dir
     from hexgym.mbl.schema import TABLE_SETS
+
+    if args.data is None:
+        args.data = str(check_input_dir("data", "input directory --data"))
     from hexgym_lab.mbl.fit import fit_all
     from hexgym_lab.progress import wrote
 
@@ -820,7 +824,7 @@ def build_parser() -> argparse.ArgumentParser:
     collect.set_defaults(func=_cmd_collect)
 
     fit = sub.add_parser("fit", help="fit the four MBL tables (LWR + leave-one-out selection) from collected data")
-    fit.add_argument("--data", default="data", help="directory with <table>.npz data sets (default: data)")
+    fit.add_argument("--data", default=None, help="directory with <table>.npz data sets (default: data)")
     fit.add_argument("--out", default=None, metavar="DIR", help="output directory: <table>.npz, a fitted table "
                      f"each (default: {DEFAULT_FIT_DIR}/<--tables> in the working directory; to replace the packaged "
                      "tables, name their directory, hexgym/mbl_tables/<--tables>)")  # fmt: skip

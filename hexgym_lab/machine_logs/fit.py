@@ -158,6 +158,9 @@ def fit_passage(name: str, data: TableData, packaged: MBLTable, held: np.ndarray
         return packaged, report | {"kept": why}
     data = _subsample(_with_prior(data, packaged), seed)
     test = np.isin(data.episode, held)
+    if not test.any():  # the held-out logs do not meter this passage: hold out a share of those that do
+        measured = np.unique(data.episode[data.episode >= 0])
+        test = np.isin(data.episode, measured[_held_out_logs(len(measured), seed)])
     split = (np.flatnonzero(~test), np.flatnonzero(test))
     table = fit_table(name, data, seed=seed, table_set=TABLE_SET, split=split)
     span = float(np.ptp(data.y[data.episode >= 0])) or 1.0
