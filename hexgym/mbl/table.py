@@ -400,6 +400,32 @@ def resolve_tables(tables: str | os.PathLike[str], option: str = "tables") -> tu
                      f"{MODEL_PROVENANCE}, from `hexgym fit --logs`), got {tables!r}")  # fmt: skip
 
 
+MODEL_HYDRAULICS = ("pump.max_flow_m3s",)  # what of a unit's hydraulics the learned model applies (the rest: fixed)
+
+
+def model_hydraulics(directory: str | os.PathLike[str] | None):
+    """A fitted model's unit hydraulics (its ``provenance.json``'s ``hydraulics``, in the hydraulics file's format,
+    :mod:`hexgym.hydraulics.overrides`): HydraulicsOverrides, or None for packaged tables or a model without any.
+    Only :data:`MODEL_HYDRAULICS` may be set (the learned valve is the unit's own); ValueError naming the key."""
+    from hexgym.hydraulics.overrides import parse_hydraulics
+
+    path = Path(directory) / MODEL_PROVENANCE if directory is not None else None
+    if path is None or not path.is_file():
+        return None
+    try:
+        data = json.loads(path.read_text(encoding="utf-8")).get("hydraulics")
+    except (ValueError, OSError, AttributeError) as exc:
+        raise TableFileError(f"{path}: not a model's provenance (a JSON object): {exc}") from None
+    if not data:
+        return None
+    overrides = parse_hydraulics(data, f"{path} hydraulics")
+    given = {f"{section}.{key}" for section, body in data.items() for key in (body or {})}
+    other = sorted(given - set(MODEL_HYDRAULICS))
+    if other:
+        raise TableFileError(f"{path}: hydraulics.{other[0]}: the learned model applies only {MODEL_HYDRAULICS}")
+    return overrides
+
+
 def check_model_table_set(directory: str | os.PathLike[str], table_set: str) -> None:
     """TableFileError where ``directory`` is a fitted model of another table set than ``table_set``."""
     held = model_table_set(directory)

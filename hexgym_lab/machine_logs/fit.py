@@ -200,7 +200,8 @@ def fit_logs(log_dir: str | Path, out_dir: str | Path, seed: int = 0, say=print)
                                             f"{max_flow * 60000:.1f} L/min"},  # fmt: skip
         "tables": reports,
         "kept_from_package": {n: r["kept"] for n, r in reports.items() if "kept" in r},
-        "scalars": {"pump_max_flow": pump | {"applied_by_model": False},
+        "hydraulics": {"pump": {"max_flow_m3s": max_flow}} if pump["identified"] else {},
+        "scalars": {"pump_max_flow": pump | {"applied_by_model": bool(pump["identified"])},
                     "relief_settings": {"identified": False, "why": "not done: the packaged settings stand"},
                     "leakage": {"identified": False, "why": "not done: the packaged leaks stand"}},  # fmt: skip
         "fit_seconds": round(time.perf_counter() - t0, 1),
@@ -247,8 +248,7 @@ def coverage_report(provenance: dict) -> str:
     if pump["identified"]:
         lines.append(f"pump max flow: {pump['value_l_min']:.1f} L/min ({pump['relative_to_packaged']:.3f} x packaged, "
                      f"standard error {pump['standard_error_m3s'] * 60000:.2f} L/min, {pump['rows']} rows of "
-                     f"{pump['logs']} logs); used for the pump-flow estimate, not yet by the learned "
-                     "model")  # fmt: skip
+                     f"{pump['logs']} logs): the model's pumps")  # fmt: skip
     else:
         lines.append(f"pump max flow: not identified: {pump['why']}")
     return "\n".join(lines + warnings)
