@@ -32,14 +32,14 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import savgol_filter
 
-from hexgym.hydraulics.circuit import DEFAULT_LAYOUT, NODES, HydraulicCircuit
+from hexgym.hydraulics.circuit import DEFAULT_LAYOUT, NODES, HydraulicCircuit, compliance, orifice_law
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.mbl.table import load_tables
 from hexgym.mbl.valve import LearnedValve, identify_areas
 from hexgym_lab.machine_logs import signals as s
 
-SMOOTH_S = 0.25  # s: the Savitzky-Golay window (quadratic); angle noise 0.1 deg gives ~6 mrad/s of rate noise
+SMOOTH_S = 0.15  # s: the Savitzky-Golay window (quadratic); wider rounds off the ~2 Hz modes (tests)
 SAMPLE_EVERY_S = 0.05  # s between the rows a log gives (rows closer than this are near copies)
 # Pump max flow from the bucket alone at full spool (one pump, below its power limit, the bypass closed)
 FULL_SPOOL_MM = 10.5
@@ -195,7 +195,9 @@ def area_samples(rows: LogRows, max_flow: float) -> list[dict[str, float]]:
 def pump_flow_rows(rows: LogRows) -> np.ndarray:
     """Pump 1's delivered flow (m^3/s) at each row where the bucket alone is at full spool, held for
     :data:`HELD_S`, and pump 1 is below its power limit: the bucket cylinder's displacement flow (head area x
-    speed out, rod area x speed in; the bypass is closed at full spool)."""
+    speed out, rod area x speed in), the oil its inlet chamber's and pump 1's line's pressure changes take
+    (``V / beta dp/dt``), and the centre bypass's (nearly closed at full spool: the NFC orifice's at the estimated
+    signal pressure)."""
     u = rows.spools_m * 1e3
     period = float(np.median(np.diff(rows.t)))
     held = max(1, int(round(HELD_S / period)))
@@ -206,11 +208,16 @@ def pump_flow_rows(rows: LogRows) -> np.ndarray:
     below = rows.pressures[:, 0] * p.PUMP_MAX_FLOW * 1.2 + rows.pressures[:, 1] * p.PUMP_MAX_FLOW < p.PUMP_POWER_LIMIT
     ext, stroke = rows.ext[:, 2], p.CYLINDERS["bucket"].stroke
     clear = (ext > p.CUSHION_LENGTH + 0.02) & (ext < stroke - p.CUSHION_LENGTH - 0.02)
-    pick = run & below & clear
-    cyl = p.CYLINDERS["bucket"]
-    v = rows.vel[pick, 2]
-    area = np.where(u[pick, 3] > 0, cyl.head_area, cyl.rod_area) * cyl.count
-    return area * np.abs(v)
+    pick = np.flatnonzero(run & below & clear)
+    cyl, circuit = p.CYLINDERS["bucket"], HydraulicCircuit(layout=DEFAULT_LAYOUT)
+    extending = u[pick, 3] > 0
+    area = np.where(extending, cyl.head_area, cyl.rod_area) * cyl.count
+    inlet = np.where(extending, NODES.index("bucket_head"), NODES.index("bucket_rod"))
+    volumes = np.array([circuit.volumes(rows.ext[k]) for k in pick]).reshape(-1, len(NODES))
+    compression = volumes * compliance(rows.pressures[pick])[0] * rows.rates[pick]  # m^3/s into each node's oil
+    nfc = p.DISCHARGE_COEFFICIENT * p.NFC_ORIFICE_AREA * orifice_law(rows.pressures[pick, 2])[0]
+    chamber = compression[np.arange(len(pick)), inlet]
+    return area * np.abs(rows.vel[pick, 2]) + chamber + compression[:, 0] + compression[:, 2] + nfc
 
 
 def identify_pump_max_flow(all_rows: list[LogRows]) -> dict[str, object]:

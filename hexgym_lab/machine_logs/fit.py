@@ -6,7 +6,8 @@ cannot be trusted is left out, its errors printed one a line. The rest become ro
 meter clearly at that instant (:func:`hexgym.mbl.valve.identify_areas`). Each passage's table is fitted by the same
 LWR and leave-one-out selection as ``hexgym fit --data`` (:func:`hexgym_lab.mbl.fit.fit_table`), a seeded share of
 whole logs held out for its error. Where the logs do not reach (spool bins of :data:`BIN_MM` with fewer than
-:data:`MIN_BIN_SAMPLES` samples) the packaged table's values stand in as points, so a table never extrapolates;
+:data:`MIN_BIN_SAMPLES` samples) the packaged table's values, scaled by the measured-to-packaged ratio of the passage
+(:func:`packaged_ratio`), stand in as points, so a table never extrapolates;
 a passage with fewer than :data:`MIN_SAMPLES` samples or from fewer than :data:`MIN_LOGS` logs keeps the packaged
 table, and the bypass tables are always kept (no NFC signal pressure is logged). The model directory (``.npz``
 tables of the ``circuit`` set and ``provenance.json``) is written as a whole (:func:`hexgym.files.staged_dir`).
@@ -120,9 +121,17 @@ def coverage(data: TableData, packaged: MBLTable) -> dict[str, object]:
             "covered_share": float(full.mean()), "gaps_mm": gaps}  # fmt: skip
 
 
+def packaged_ratio(data: TableData, packaged: MBLTable) -> float:
+    """The median ratio of the measured areas to the packaged table's at the same spools (1 without samples where
+    the packaged passage is open): how much larger this unit's passage is."""
+    reference = np.asarray(packaged.lookup(data.X), dtype=float)
+    open_ = reference > 0.05 * max(float(np.max(packaged.values)), 1e-12)
+    return float(np.median(data.y[open_] / reference[open_])) if open_.sum() >= MIN_BIN_SAMPLES else 1.0
+
+
 def _with_prior(data: TableData, packaged: MBLTable) -> TableData:
-    """The samples and, in each bin with too few of them, :data:`PRIOR_PER_BIN` points of the packaged table
-    (log index -1: always trained on, never held out)."""
+    """The samples and, in each bin with too few of them, :data:`PRIOR_PER_BIN` points of the packaged table times
+    :func:`packaged_ratio` (log index -1: always trained on, never held out)."""
     edges = _bins(packaged)
     counts, _ = np.histogram(data.X[:, 0], edges)
     gap = np.flatnonzero(counts < MIN_BIN_SAMPLES)
@@ -130,7 +139,7 @@ def _with_prior(data: TableData, packaged: MBLTable) -> TableData:
         return data
     width = edges[1] - edges[0]
     x = (edges[gap][:, None] + width * (np.arange(PRIOR_PER_BIN) + 0.5) / PRIOR_PER_BIN).ravel()
-    y = np.asarray(packaged.lookup(x[:, None]), dtype=float)
+    y = np.asarray(packaged.lookup(x[:, None]), dtype=float) * packaged_ratio(data, packaged)
     return TableData(np.vstack([data.X, x[:, None]]), np.concatenate([data.y, y]),
                      np.concatenate([data.episode, np.full(len(x), -1)]))  # fmt: skip
 
@@ -156,6 +165,7 @@ def fit_passage(name: str, data: TableData, packaged: MBLTable, held: np.ndarray
     if report["samples"] < MIN_SAMPLES or logs < MIN_LOGS:
         why = f"{report['samples']} samples from {logs} logs; {MIN_SAMPLES} from {MIN_LOGS} needed"
         return packaged, report | {"kept": why}
+    report["ratio_to_packaged"] = packaged_ratio(data, packaged)
     data = _subsample(_with_prior(data, packaged), seed)
     test = np.isin(data.episode, held)
     if not test.any():  # the held-out logs do not meter this passage: hold out a share of those that do
@@ -239,7 +249,7 @@ def coverage_report(provenance: dict) -> str:
         fitted, packaged = r["holdout_rmse_rel"], r["packaged_holdout_rmse_rel"]
         lines.append(head + (f"{fitted:.3f} / {packaged:.3f}" if fitted is not None else "no held-out samples"))
         if r["gaps_mm"]:
-            lines.append(f"{'':20s} gaps (packaged points stand in), mm: "
+            lines.append(f"{'':20s} gaps (packaged x {r['ratio_to_packaged']:.2f} stands in), mm: "
                          + ", ".join(f"{a:g}..{b:g}" for a, b in r["gaps_mm"][:6]))  # fmt: skip
         if fitted is not None and fitted > POOR_HOLDOUT:
             warnings.append(f"warning: {name}: held-out error {fitted:.1%} of its range (> {POOR_HOLDOUT:.0%}): "
