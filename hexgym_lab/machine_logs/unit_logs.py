@@ -54,3 +54,24 @@ def write_unit_logs(
     tasks = [(str(out_dir), hydraulics, suite_seed, i, style, duration_s) for i in range(count)]
     with executor(workers) as pool:
         return [Path(x) for x in pool.map(_one, tasks)]
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m hexgym_lab.machine_logs.unit_logs OUT --hydraulics FILE --suite-seed S --count N``."""
+    import argparse
+
+    parser = argparse.ArgumentParser(description="machine logs of a reference unit on a suite's operator-like logs")
+    parser.add_argument("out", metavar="DIR", help="output directory: <style>_<seed>_<i>.csv and commands/")
+    parser.add_argument("--hydraulics", default=None, metavar="FILE", help="the unit (default: the packaged one)")
+    parser.add_argument("--suite-seed", type=int, default=0, help="the suite's seed (default: 0)")
+    parser.add_argument("--count", type=int, default=1, help="logs (default: 1)")
+    parser.add_argument("--style", default="operator", help="operator, bucket_stick or excitation (default: operator)")
+    parser.add_argument("--workers", type=int, default=2, help="processes (default: 2)")
+    args = parser.parse_args(argv)
+    for path in write_unit_logs(args.out, args.hydraulics, args.suite_seed, args.count, args.style, None, args.workers):
+        print(path)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
