@@ -137,6 +137,37 @@ def test_a_fitted_model_directory_is_a_tables_directory_of_its_set(tmp_path):
         gymnasium.make("HexLoading-v0", tables=str(tmp_path))  # a directory without provenance.json
 
 
+def test_a_fitted_model_carries_its_pumps_on_both_backends_and_every_tables_option(tmp_path):
+    """A model whose provenance names the unit's pump flow: the python and native circuit models run it alike and
+    differently from the packaged pumps; the batched env and HexReach-v0 take the directory too."""
+    from hexgym.model.backend import make_learned_model
+    from hexgym.model.plugin import load_plugin
+
+    model = _model_dir(tmp_path)
+    provenance = json.loads((model / "provenance.json").read_text())
+    provenance["hydraulics"] = {"pump": {"max_flow_m3s": 0.9 * p.PUMP_MAX_FLOW}}
+    (model / "provenance.json").write_text(json.dumps(provenance))
+    commands = CommandLog(np.array([0.0, 8.0]), np.array([[11.0, 0, 0, 0], [11.0, 0, 0, 0]]))
+    backends = ("python", "native") if not load_plugin() else ("python",)
+    runs = {b: replay(make_learned_model(b, tables_dir=model), commands, dt_out=0.05) for b in backends}
+    packaged = replay(make_learned_model("python"), commands, dt_out=0.05)
+    speed = [r["qd_swing_radps"][-1] for r in (runs["python"], packaged)]  # at full speed: the pump's flow
+    assert 0.85 < speed[0] / speed[1] < 0.95
+    for b in backends[1:]:
+        np.testing.assert_allclose(runs[b]["q_swing_rad"], runs["python"]["q_swing_rad"], atol=1e-9)
+    vec = gymnasium.make_vec("HexLoading-v0", num_envs=2, backend="python", tables=str(model))
+    try:
+        vec.reset(seed=0)
+        vec.step(np.zeros((2, 4), np.float32))
+    finally:
+        vec.close()
+    reach = gymnasium.make("HexReach-v0", tables=str(model), backend="python")
+    try:
+        reach.reset(seed=0)
+    finally:
+        reach.close()
+
+
 @pytest.mark.slow
 def test_a_fit_to_another_unit_is_closer_to_it_than_the_packaged_model(tmp_path):
     """Logs of a unit that is not the packaged one (boom and stick passages x0.8 / x1.2, pumps -10 %): the fitted
