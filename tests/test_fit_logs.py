@@ -133,7 +133,7 @@ def test_a_fitted_model_directory_is_a_tables_directory_of_its_set(tmp_path):
     other = _model_dir(tmp_path, "paper")
     with pytest.raises(TableFileError, match=r"a model of the paper table set \(provenance.json\); the circuit"):
         load_tables(other, "circuit")
-    with pytest.raises(ValueError, match="tables must be one of .* or a fitted model's directory"):
+    with pytest.raises(ValueError, match=r"tables must be one of .*, got .* \(or a fitted model's directory"):
         gymnasium.make("HexLoading-v0", tables=str(tmp_path))  # a directory without provenance.json
 
 

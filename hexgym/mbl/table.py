@@ -396,8 +396,8 @@ def resolve_tables(tables: str | os.PathLike[str], option: str = "tables") -> tu
         held = model_table_set(tables)
         if held is not None:
             return held, Path(tables)
-    raise ValueError(f"{option} must be one of {tuple(TABLE_SETS)} or a fitted model's directory (one with "
-                     f"{MODEL_PROVENANCE}, from `hexgym fit --logs`), got {tables!r}")  # fmt: skip
+    raise ValueError(f"{option} must be one of {tuple(TABLE_SETS)}, got {tables!r} (or a fitted model's directory, "
+                     f"one with {MODEL_PROVENANCE}, from `hexgym fit --logs`)")  # fmt: skip
 
 
 MODEL_HYDRAULICS = ("pump.max_flow_m3s",)  # what of a unit's hydraulics the learned model applies (the rest: fixed)
