@@ -1131,7 +1131,7 @@ _EXCLUSIVE = {
     ("plan", "ray", "workers"),
 }  # fmt: skip
 _INPUT_DIRS = {("fit", "data"), ("tables", "dir"), ("tables", "bench"), ("fit", "logs"), ("validate", "logs"),
-               ("validate", "model")}
+               ("validate", "model")}  # fmt: skip
 _POLICY_NAMES = ("shipped", "scripted")
 
 

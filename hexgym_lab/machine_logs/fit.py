@@ -201,19 +201,25 @@ def fit_logs(log_dir: str | Path, out_dir: str | Path, seed: int = 0, say=print)
     provenance = {
         "table_set": TABLE_SET,
         "seed": seed,
-        "logs": [{"log": r.name, "sha256": r.sha256, "seconds": float(r.t[-1] - r.t[0]),
-                  "held_out": bool(i in held)} for i, r in enumerate(rows)],  # fmt: skip
+        "logs": [
+            {"log": r.name, "sha256": r.sha256, "seconds": float(r.t[-1] - r.t[0]), "held_out": bool(i in held)}
+            for i, r in enumerate(rows)
+        ],  # fmt: skip
         "logs_not_used": left,
         "signals_used": list(derive.SIGNALS_USED),
-        "signals_estimated": {"nfc_signal_pressures": "from the pump pressures and the packaged bypass tables",
-                              "pump_flows": "the regulator's law (NFC through its lag, horsepower limit) at "
-                                            f"{max_flow * 60000:.1f} L/min"},  # fmt: skip
+        "signals_estimated": {
+            "nfc_signal_pressures": "from the pump pressures and the packaged bypass tables",
+            "pump_flows": "the regulator's law (NFC through its lag, horsepower limit) at "
+            f"{max_flow * 60000:.1f} L/min",
+        },  # fmt: skip
         "tables": reports,
         "kept_from_package": {n: r["kept"] for n, r in reports.items() if "kept" in r},
         "hydraulics": {"pump": {"max_flow_m3s": max_flow}} if pump["identified"] else {},
-        "scalars": {"pump_max_flow": pump | {"applied_by_model": bool(pump["identified"])},
-                    "relief_settings": {"identified": False, "why": "not done: the packaged settings stand"},
-                    "leakage": {"identified": False, "why": "not done: the packaged leaks stand"}},  # fmt: skip
+        "scalars": {
+            "pump_max_flow": pump | {"applied_by_model": bool(pump["identified"])},
+            "relief_settings": {"identified": False, "why": "not done: the packaged settings stand"},
+            "leakage": {"identified": False, "why": "not done: the packaged leaks stand"},
+        },  # fmt: skip
         "fit_seconds": round(time.perf_counter() - t0, 1),
     }
     write_model(out_dir, tables, provenance)
