@@ -304,11 +304,16 @@ def _fit_logs(args: argparse.Namespace) -> int:
 
 
 def _cmd_excitation(args: argparse.Namespace) -> int:
-    from hexgym_lab.machine_logs.excitation import start_pose, write_excitation
+    from hexgym_lab.machine_logs.excitation import ORDER, functions_with_gaps, start_pose, write_excitation
     from hexgym_lab.progress import wrote
 
-    functions = tuple(f.strip() for f in args.functions.split(",")) if args.functions else None
-    log = write_excitation(args.out, functions) if functions else write_excitation(args.out)
+    if args.functions and args.model:
+        raise ValueError("--functions and --model: give one of them (--model sweeps the functions with gaps)")
+    functions = tuple(f.strip() for f in args.functions.split(",")) if args.functions else ORDER
+    if args.model:
+        functions = functions_with_gaps(args.model)
+        print(f"functions with gaps in {args.model}: {', '.join(functions) or 'none (only the pump-flow moves)'}")
+    log = write_excitation(args.out, functions)
     pose = ",".join(f"{q:.4f}" for q in start_pose())
     wrote(args.out, f"the excitation command log: {log.duration:.0f} s from the pose --start {pose} (mid-stroke)")
     return 0
@@ -842,6 +847,8 @@ def build_parser() -> argparse.ArgumentParser:
                             "(t,swing,boom,stick,bucket; s, mm)")  # fmt: skip
     excitation.add_argument("--functions", default=None, help="comma-separated functions to sweep, e.g. boom,stick "
                             "(default: all four)")  # fmt: skip
+    excitation.add_argument("--model", default=None, metavar="MODEL_DIR", help="sweep only the functions whose "
+                            "passages a fitted model's logs left gaps in (its provenance.json)")  # fmt: skip
     excitation.set_defaults(func=_cmd_excitation)
 
     tables = sub.add_parser("tables", help="the fitted tables: inputs, output, points, parameters, accuracy")
@@ -1131,7 +1138,7 @@ _EXCLUSIVE = {
     ("plan", "ray", "workers"),
 }  # fmt: skip
 _INPUT_DIRS = {("fit", "data"), ("tables", "dir"), ("tables", "bench"), ("fit", "logs"), ("validate", "logs"),
-               ("validate", "model")}  # fmt: skip
+               ("validate", "model"), ("excitation", "model")}  # fmt: skip
 _POLICY_NAMES = ("shipped", "scripted")
 
 

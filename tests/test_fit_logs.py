@@ -20,7 +20,7 @@ from hexgym.model.replay import replay
 from hexgym_lab.cli import main
 from hexgym_lab.machine_logs import derive
 from hexgym_lab.machine_logs.csv_log import write_csv_log
-from hexgym_lab.machine_logs.excitation import excitation_log, max_travel_m, start_pose
+from hexgym_lab.machine_logs.excitation import excitation_log, functions_with_gaps, max_travel_m, start_pose
 from hexgym_lab.machine_logs.fit import fit_logs
 from hexgym_lab.machine_logs.signals import MachineLog
 from hexgym_lab.machine_logs.synthetic import machine_log_of
@@ -85,6 +85,20 @@ def test_the_excitation_log_sweeps_each_function_both_ways_within_the_stroke(tmp
     assert np.all(np.isfinite(start_pose()))
     assert main(["excitation", "--out", str(tmp_path / "x.csv")]) == 0
     assert (tmp_path / "x.csv").read_text().startswith("t,swing,boom,stick,bucket")
+    model = _model_dir(tmp_path)
+    provenance = {
+        "table_set": "circuit",
+        "tables": {
+            "boom_pa": {"gaps_mm": [[2, 3]]},
+            "stick_pb": {"kept": "few"},
+            "swing_pa": {"gaps_mm": []},
+            "swing_bypass": {"kept": "nfc"},
+        },
+    }
+    (model / "provenance.json").write_text(json.dumps(provenance))
+    assert functions_with_gaps(model) == ("boom", "stick")
+    assert main(["excitation", "--out", str(tmp_path / "y.csv"), "--model", str(model)]) == 0
+    assert excitation_log(("boom", "stick")).duration < log.duration
 
 
 def test_fit_refuses_a_log_it_cannot_trust_in_one_line_and_fits_nothing_from_none(tmp_path, truth, capsys):
@@ -185,6 +199,9 @@ def test_a_fit_to_another_unit_is_closer_to_it_than_the_packaged_model(tmp_path)
     assert provenance["scalars"]["pump_max_flow"]["identified"]
     assert provenance["scalars"]["pump_max_flow"]["relative_to_packaged"] == pytest.approx(0.9, abs=0.05)
     assert "boom_bypass" in provenance["kept_from_package"]
+    gaps = functions_with_gaps(tmp_path / "model")
+    assert set(gaps) <= {"swing", "boom", "stick", "bucket"}
+    assert excitation_log(gaps).duration <= excitation_log().duration
     result = validate_on_logs(tmp_path / "model", held)
     print(summary_text(result))
     fitted, packaged = (result["summary"][m]["tip_error_mean_median_m"] for m in ("fitted", "packaged"))

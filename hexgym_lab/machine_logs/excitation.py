@@ -11,6 +11,7 @@ full-spool moves alone held :data:`PUMP_HOLD_S`, which give the pumps' maximum f
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -54,7 +55,8 @@ def _holds(function: str, hold_s: float) -> tuple[float, float]:
 
 
 def excitation_log(functions: tuple[str, ...] = ORDER) -> CommandLog:
-    """The sweeps of ``functions`` in turn (see the module), then the bucket's full-spool pump-flow moves."""
+    """The sweeps of ``functions`` in turn (see the module; none: only the next), then the bucket's full-spool
+    pump-flow moves."""
     parts = [np.zeros((int(round(1.0 / DT)), 4))]
     for f in functions:
         column = np.zeros((len(sweep := _sweep(f)), 4))
@@ -67,6 +69,24 @@ def excitation_log(functions: tuple[str, ...] = ORDER) -> CommandLog:
     parts.append(column)
     spools = np.round(np.vstack(parts), 3)
     return CommandLog(np.round(DT * np.arange(len(spools)), 10), spools)
+
+
+def functions_with_gaps(model_dir: str | Path) -> tuple[str, ...]:
+    """The functions (in :data:`ORDER`) whose passages a fitted model's logs left gaps in or too few samples of
+    (its ``provenance.json``'s coverage; the bypass tables, never fitted, aside)."""
+    from hexgym.mbl.schema import TABLE_SETS
+
+    path = Path(model_dir) / "provenance.json"
+    if not path.is_file():
+        raise ValueError(f"--model {model_dir}: no provenance.json (a model written by `hexgym fit --logs`)")
+    tables = json.loads(path.read_text(encoding="utf-8")).get("tables", {})
+    short = set()
+    for name, report in tables.items():
+        if name.endswith("_bypass") or name not in TABLE_SETS["circuit"]:
+            continue
+        if report.get("gaps_mm") or "kept" in report:
+            short.add(TABLE_SETS["circuit"][name].inputs[0].removesuffix("_spool_m"))
+    return tuple(f for f in ORDER if f in short)
 
 
 def start_pose() -> np.ndarray:
