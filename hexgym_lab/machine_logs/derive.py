@@ -66,6 +66,7 @@ class LogRows:
     vel: np.ndarray
     swing_rate: np.ndarray
     usable: np.ndarray
+    warnings: tuple[str, ...] = ()  # check-log's warnings on the log
 
     def pump_flows(self, max_flow: float) -> np.ndarray:
         """(n, 2) pump flows (m^3/s) by the regulator's law at this maximum flow (see the module)."""

@@ -65,12 +65,20 @@ def read_logs(paths: list[Path], say=print) -> tuple[list[derive.LogRows], list[
                 for f in findings:
                     if f.severity == "error":
                         say(f.line())
-                raise ValueError("cannot be trusted (the errors above); not used")
-            used.append(derive.log_rows(log, derive.file_sha256(path)))
+                raise ValueError("cannot be trusted (the errors above)")
+            rows = derive.log_rows(log, derive.file_sha256(path))
+            rows.warnings = tuple(f.line() for f in findings if f.severity == "warning")
+            used.append(rows)
         except ValueError as exc:
             text = str(exc)
             say(f"{path}: not used: {text.removeprefix(str(path) + ': ')}")
             left.append({"log": str(path), "why": text})
+    warned = sum(bool(r.warnings) for r in used)
+    if warned:
+        say(
+            f"{warned} of the {len(used)} logs used have check-log warnings (too little motion to learn a passage, "
+            "a short NaN run, ...): provenance.json lists them; the coverage report shows what the logs give"
+        )
     return used, left
 
 
@@ -202,7 +210,8 @@ def fit_logs(log_dir: str | Path, out_dir: str | Path, seed: int = 0, say=print)
         "table_set": TABLE_SET,
         "seed": seed,
         "logs": [
-            {"log": r.name, "sha256": r.sha256, "seconds": float(r.t[-1] - r.t[0]), "held_out": bool(i in held)}
+            {"log": r.name, "sha256": r.sha256, "seconds": float(r.t[-1] - r.t[0]), "held_out": bool(i in held),
+             "warnings": list(r.warnings)}
             for i, r in enumerate(rows)
         ],  # fmt: skip
         "logs_not_used": left,
