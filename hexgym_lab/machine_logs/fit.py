@@ -210,8 +210,13 @@ def fit_logs(log_dir: str | Path, out_dir: str | Path, seed: int = 0, say=print)
         "table_set": TABLE_SET,
         "seed": seed,
         "logs": [
-            {"log": r.name, "sha256": r.sha256, "seconds": float(r.t[-1] - r.t[0]), "held_out": bool(i in held),
-             "warnings": list(r.warnings)}
+            {
+                "log": r.name,
+                "sha256": r.sha256,
+                "seconds": float(r.t[-1] - r.t[0]),
+                "held_out": bool(i in held),
+                "warnings": list(r.warnings),
+            }
             for i, r in enumerate(rows)
         ],  # fmt: skip
         "logs_not_used": left,
