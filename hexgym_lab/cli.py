@@ -118,7 +118,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     else:
         from hexgym.model.backend import make_learned_model
 
-        model = make_learned_model(args.backend, table_set=args.tables)
+        model = make_learned_model(args.backend, tables_dir=args.tables_dir, table_set=args.tables)
     from hexgym_lab.progress import wrote
 
     if args.machine_log is None:
@@ -763,6 +763,8 @@ def build_parser() -> argparse.ArgumentParser:
     simulate.add_argument("--payload-kg", type=float, default=0.0, help="material in the bucket, kg (default: 0)")
     simulate.add_argument("--dt-out", type=float, default=0.05, help="output row interval, s (default: 0.05)")
     simulate.add_argument("--tables", **_TABLES_OPTION)
+    simulate.add_argument("--tables-dir", default=None, metavar="DIR", help="learned model: the tables' directory, "
+                          "e.g. a model fitted by `hexgym fit --logs` (default: the packaged ones)")  # fmt: skip
     simulate.add_argument(
         "--backend",
         choices=("auto", "python", "native"),
@@ -1128,6 +1130,7 @@ _INPUT_FILES = {("simulate", "commands"), ("train", "hyperparams"), ("train", "i
 _ONLY_WITH = {
     ("simulate", "tables"): ("model", "learned", "the learned model's tables"),
     ("simulate", "backend"): ("model", "learned", "the learned model's backend"),
+    ("simulate", "tables_dir"): ("model", "learned", "the learned model's tables"),
     ("evaluate", "tables"): ("model", "learned", "the learned model's tables"),
     ("simulate", "hydraulics"): ("model", "reference", "the reference's hydraulics"),
     ("simulate", "machine_log"): ("model", "reference", "the reference's pressures as a machine log"),
@@ -1138,7 +1141,7 @@ _EXCLUSIVE = {
     ("plan", "ray", "workers"),
 }  # fmt: skip
 _INPUT_DIRS = {("fit", "data"), ("tables", "dir"), ("tables", "bench"), ("fit", "logs"), ("validate", "logs"),
-               ("validate", "model"), ("excitation", "model")}  # fmt: skip
+               ("validate", "model"), ("excitation", "model"), ("simulate", "tables_dir")}  # fmt: skip
 _POLICY_NAMES = ("shipped", "scripted")
 
 

@@ -144,9 +144,14 @@ def test_a_fitted_model_directory_is_a_tables_directory_of_its_set(tmp_path):
         env.step(env.action_space.sample())
     finally:
         env.close()
+    commands = tmp_path / "c.csv"
+    commands.write_text("t,swing,boom,stick,bucket\n0,0,5,0,0\n1,0,0,0,0\n")
+    argv = ["simulate", "--model", "learned", "--backend", "python", "--commands", str(commands), "--out"]
+    assert main([*argv, str(tmp_path / "run.csv"), "--tables-dir", str(model)]) == 0
     other = _model_dir(tmp_path, "paper")
     with pytest.raises(TableFileError, match=r"a model of the paper table set \(provenance.json\); the circuit"):
         load_tables(other, "circuit")
+    assert main([*argv, str(tmp_path / "run2.csv"), "--tables-dir", str(other)]) == 2
     with pytest.raises(ValueError, match=r"tables must be one of .*, got .* \(or a fitted model's directory"):
         gymnasium.make("HexLoading-v0", tables=str(tmp_path))  # a directory without provenance.json
 
