@@ -105,10 +105,14 @@ def test_fit_refuses_a_log_it_cannot_trust_in_one_line_and_fits_nothing_from_non
     t, signals = machine_log_of(truth, rate_hz=100.0, seed=1)
     signals["q_boom_rad"] = -signals["q_boom_rad"] + 2 * np.mean(signals["q_boom_rad"])  # a flipped sign
     write_csv_log(tmp_path / "logs" / "flipped.csv", t, signals)
+    t, signals = machine_log_of(truth, rate_hz=100.0, seed=2)
+    signals["q_stick_rad"] = np.degrees(signals["q_stick_rad"])  # degrees
+    write_csv_log(tmp_path / "logs" / "degrees.csv", t, signals)
     assert main(["fit", "--logs", str(tmp_path / "logs"), "--out", str(tmp_path / "model")]) == 2
     out, err = capsys.readouterr()
     assert "flipped.csv: error: q_boom_rad" in out and "flipped.csv: not used: cannot be trusted" in out
-    assert "none of the 1 logs can be used" in err and err.count("\n") == 1
+    assert "degrees.csv: error: q_stick_rad" in out and "degrees.csv: not used: cannot be trusted" in out
+    assert "none of the 2 logs can be used" in err and err.count("\n") == 1
     assert not (tmp_path / "model").exists()
 
 
