@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 import shutil
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -52,7 +53,7 @@ def log_files(directory: str | Path) -> list[Path]:
     return paths
 
 
-def read_logs(paths: list[Path], say=print) -> tuple[list[derive.LogRows], list[dict]]:
+def read_logs(paths: list[Path], say: Callable[[str], object] = print) -> tuple[list[derive.LogRows], list[dict]]:
     """The trusted logs' rows, and per log left out its name and why (each error is said in one line)."""
     from hexgym_lab.machine_logs import read_machine_log
 
@@ -159,7 +160,7 @@ def _subsample(data: TableData, seed: int) -> TableData:
     return TableData(data.X[keep], data.y[keep], data.episode[keep])
 
 
-def _rmse_rel(table: MBLTable, X: np.ndarray, y: np.ndarray, span: float) -> float:
+def _rmse_rel(table: MBLTable, X: np.ndarray, y: np.ndarray, span: float) -> float | None:
     return float(np.sqrt(np.mean((np.asarray(table.lookup(X), dtype=float) - y) ** 2)) / span) if len(y) else None
 
 
@@ -190,7 +191,9 @@ def fit_passage(name: str, data: TableData, packaged: MBLTable, held: np.ndarray
     return table, report
 
 
-def fit_logs(log_dir: str | Path, out_dir: str | Path, seed: int = 0, say=print) -> dict:
+def fit_logs(
+    log_dir: str | Path, out_dir: str | Path, seed: int = 0, say: Callable[[str], object] = print
+) -> dict:
     """Fit the ``circuit`` tables to the logs in ``log_dir`` and write ``out_dir`` (tables + provenance.json);
     returns the provenance. ValueError where no log can be used."""
     t0 = time.perf_counter()
