@@ -191,9 +191,7 @@ def fit_passage(name: str, data: TableData, packaged: MBLTable, held: np.ndarray
     return table, report
 
 
-def fit_logs(
-    log_dir: str | Path, out_dir: str | Path, seed: int = 0, say: Callable[[str], object] = print
-) -> dict:
+def fit_logs(log_dir: str | Path, out_dir: str | Path, seed: int = 0, say: Callable[[str], object] = print) -> dict:
     """Fit the ``circuit`` tables to the logs in ``log_dir`` and write ``out_dir`` (tables + provenance.json);
     returns the provenance. ValueError where no log can be used."""
     t0 = time.perf_counter()
