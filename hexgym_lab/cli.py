@@ -118,7 +118,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     else:
         from hexgym.model.backend import make_learned_model
 
-        model = make_learned_model(args.backend, table_set=args.tables)
+        model = make_learned_model(args.backend, tables_dir=args.tables_dir, table_set=args.tables)
     from hexgym_lab.progress import wrote
 
     if args.machine_log is None:
@@ -256,7 +256,13 @@ def _cmd_collect(args: argparse.Namespace) -> int:
 
 
 def _cmd_fit(args: argparse.Namespace) -> int:
+    if args.logs is not None:
+        return _fit_logs(args)
+    from hexgym.files import check_input_dir
     from hexgym.mbl.schema import TABLE_SETS
+
+    if args.data is None:
+        args.data = str(check_input_dir("data", "input directory --data"))
     from hexgym_lab.mbl.fit import fit_all
     from hexgym_lab.progress import wrote
 
@@ -272,6 +278,44 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     _check_data_files(args.data, names)
     for name, path in fit_all(args.data, out, seed=args.seed, names=names, table_set=args.tables).items():
         wrote(path, f"the {name} table")
+    return 0
+
+
+def _fit_logs(args: argparse.Namespace) -> int:
+    """``fit --logs DIR --out MODEL_DIR``: the circuit tables fitted to a machine's logs."""
+    from hexgym_lab.machine_logs.fit import coverage_report, fit_logs
+    from hexgym_lab.progress import wrote
+
+    given = getattr(args, "given", set())
+    if args.out is None:
+        raise ValueError("--logs: give --out MODEL_DIR, the fitted model's directory")
+    if args.tables != "circuit":
+        raise ValueError(f"--logs fits the circuit tables (the learned valve), not --tables {args.tables}")
+    for option in ("data", "only"):
+        if option in given:
+            raise ValueError(f"--{option} does not apply with --logs (the logs are the data; every table is fitted)")
+    provenance = fit_logs(args.logs, args.out, seed=args.seed)
+    print(coverage_report(provenance))
+    print(f"fitted in {provenance['fit_seconds']:.0f} s from {len(provenance['logs'])} logs "
+          f"({len(provenance['logs_not_used'])} not used)")  # fmt: skip
+    sys.stdout.flush()
+    wrote(args.out, "the fitted model: the circuit tables and provenance.json (use it as --tables-dir or tables=)")
+    return 0
+
+
+def _cmd_excitation(args: argparse.Namespace) -> int:
+    from hexgym_lab.machine_logs.excitation import ORDER, functions_with_gaps, start_pose, write_excitation
+    from hexgym_lab.progress import wrote
+
+    if args.functions and args.model:
+        raise ValueError("--functions and --model: give one of them (--model sweeps the functions with gaps)")
+    functions = tuple(f.strip() for f in args.functions.split(",")) if args.functions else ORDER
+    if args.model:
+        functions = functions_with_gaps(args.model)
+        print(f"functions with gaps in {args.model}: {', '.join(functions) or 'none (only the pump-flow moves)'}")
+    log = write_excitation(args.out, functions)
+    pose = ",".join(f"{q:.4f}" for q in start_pose())
+    wrote(args.out, f"the excitation command log: {log.duration:.0f} s from the pose --start {pose} (mid-stroke)")
     return 0
 
 
@@ -298,6 +342,8 @@ def _cmd_tables(args: argparse.Namespace) -> int:
 
 
 def _cmd_validate(args: argparse.Namespace) -> int:
+    if args.logs is not None or args.model is not None:
+        return _validate_logs(args)
     from hexgym_lab.validate import run_validation
 
     summary = run_validation(
@@ -321,6 +367,23 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     wrote(Path(args.out) / "summary.json", "the figures")
     for name, what in plots.items():
         wrote(Path(args.out) / name, what)
+    return 0
+
+
+def _validate_logs(args: argparse.Namespace) -> int:
+    """``validate --model MODEL_DIR --logs DIR``: a fitted model and the packaged one against a machine's logs."""
+    from hexgym.files import staged_dir
+    from hexgym_lab.machine_logs.validate_logs import summary_text, validate_on_logs
+    from hexgym_lab.progress import wrote
+
+    if args.logs is None or args.model is None:
+        raise ValueError("--model and --logs go together: the fitted model's directory and the logs to replay")
+    result = validate_on_logs(args.model, args.logs)
+    print(summary_text(result))
+    with staged_dir(args.out, keep=False) as staging:
+        (staging / "summary.json").write_text(json.dumps(result, indent=2))
+    sys.stdout.flush()
+    wrote(Path(args.out) / "summary.json", "the figures per log, fitted and packaged")
     return 0
 
 
@@ -700,6 +763,8 @@ def build_parser() -> argparse.ArgumentParser:
     simulate.add_argument("--payload-kg", type=float, default=0.0, help="material in the bucket, kg (default: 0)")
     simulate.add_argument("--dt-out", type=float, default=0.05, help="output row interval, s (default: 0.05)")
     simulate.add_argument("--tables", **_TABLES_OPTION)
+    simulate.add_argument("--tables-dir", default=None, metavar="DIR", help="learned model: the tables' directory, "
+                          "e.g. a model fitted by `hexgym fit --logs` (default: the packaged ones)")  # fmt: skip
     simulate.add_argument(
         "--backend",
         choices=("auto", "python", "native"),
@@ -766,14 +831,27 @@ def build_parser() -> argparse.ArgumentParser:
     collect.set_defaults(func=_cmd_collect)
 
     fit = sub.add_parser("fit", help="fit the four MBL tables (LWR + leave-one-out selection) from collected data")
-    fit.add_argument("--data", default="data", help="directory with <table>.npz data sets (default: data)")
+    fit.add_argument("--data", default=None, help="directory with <table>.npz data sets (default: data)")
     fit.add_argument("--out", default=None, metavar="DIR", help="output directory: <table>.npz, a fitted table "
                      f"each (default: {DEFAULT_FIT_DIR}/<--tables> in the working directory; to replace the packaged "
                      "tables, name their directory, hexgym/mbl_tables/<--tables>)")  # fmt: skip
     fit.add_argument("--seed", type=int, default=0, help="seed of the held-out split and the search (default: 0)")
     fit.add_argument("--tables", **_TABLES_OPTION)
     fit.add_argument("--only", default="", help="comma-separated subset, e.g. boom,stick (default: all)")
+    fit.add_argument("--logs", default=None, metavar="DIR", help="instead of --data: a directory of machine logs "
+                     "(CSV) of your machine; fits the circuit tables to them, --out MODEL_DIR gets the tables and "
+                     "provenance.json (docs/machine-logs.md, Fitting your machine)")  # fmt: skip
     fit.set_defaults(func=_cmd_fit)
+
+    excitation = sub.add_parser("excitation", help="a command log of slow spool sweeps (each function, both ways) "
+                                "that fills a fit's gaps")  # fmt: skip
+    excitation.add_argument("--out", required=True, metavar="FILE.csv", help="output file: the command log "
+                            "(t,swing,boom,stick,bucket; s, mm)")  # fmt: skip
+    excitation.add_argument("--functions", default=None, help="comma-separated functions to sweep, e.g. boom,stick "
+                            "(default: all four)")  # fmt: skip
+    excitation.add_argument("--model", default=None, metavar="MODEL_DIR", help="sweep only the functions whose "
+                            "passages a fitted model's logs left gaps in (its provenance.json)")  # fmt: skip
+    excitation.set_defaults(func=_cmd_excitation)
 
     tables = sub.add_parser("tables", help="the fitted tables: inputs, output, points, parameters, accuracy")
     tables.add_argument("--json", action="store_true", help="print JSON")
@@ -804,6 +882,11 @@ def build_parser() -> argparse.ArgumentParser:
     add_ray_option(validate, "the interactions and the suite")
     validate.add_argument("--tables", **_TABLES_OPTION)
     validate.add_argument("--tables-dir", default=None, help="the tables' directory (default: the packaged ones)")
+    validate.add_argument("--model", default=None, metavar="MODEL_DIR", help="with --logs: a model fitted by "
+                          "`hexgym fit --logs`, replayed on each log from its first pose beside the packaged "
+                          "one")  # fmt: skip
+    validate.add_argument("--logs", default=None, metavar="DIR", help="with --model: machine logs (CSV) to replay "
+                          "and score against (held out of the fit)")  # fmt: skip
     validate.add_argument(
         "--payload-kg",
         type=float,
@@ -1033,7 +1116,8 @@ _OUTPUT_FILES = {("simulate", "out"), ("video", "out"), ("video", "snapshot"), (
                  ("bench", "json"), ("scripted", "json"), ("clone", "out"), ("view", "screenshot"),
                  ("convert-normalizer", "out"), ("shield", "json"), ("shield", "plot"),
                  ("plan", "json"), ("plan", "plot"), ("plan", "video"), ("curves", "out"),
-                 ("curves", "json"), ("simulate", "machine_log"), ("compare", "out")}  # fmt: skip
+                 ("curves", "json"), ("simulate", "machine_log"), ("compare", "out"),
+                ("excitation", "out")}  # fmt: skip
 _OUTPUT_DIRS = {("demo", "out"), ("reference-report", "out"), ("validate", "out"), ("collect", "out"),
                 ("fit", "out"), ("build-assets", "dir"), ("clone", "rounds_dir"), ("train", "log_dir")}  # fmt: skip
 _INPUT_FILES = {("simulate", "commands"), ("train", "hyperparams"), ("train", "init_from"), ("clone", "hyperparams"),
@@ -1046,6 +1130,7 @@ _INPUT_FILES = {("simulate", "commands"), ("train", "hyperparams"), ("train", "i
 _ONLY_WITH = {
     ("simulate", "tables"): ("model", "learned", "the learned model's tables"),
     ("simulate", "backend"): ("model", "learned", "the learned model's backend"),
+    ("simulate", "tables_dir"): ("model", "learned", "the learned model's tables"),
     ("evaluate", "tables"): ("model", "learned", "the learned model's tables"),
     ("simulate", "hydraulics"): ("model", "reference", "the reference's hydraulics"),
     ("simulate", "machine_log"): ("model", "reference", "the reference's pressures as a machine log"),
@@ -1055,7 +1140,8 @@ _EXCLUSIVE = {
     ("evaluate", "ray", "workers"), ("validate", "ray", "workers"), ("collect", "ray", "workers"),
     ("plan", "ray", "workers"),
 }  # fmt: skip
-_INPUT_DIRS = {("fit", "data"), ("tables", "dir"), ("tables", "bench")}
+_INPUT_DIRS = {("fit", "data"), ("tables", "dir"), ("tables", "bench"), ("fit", "logs"), ("validate", "logs"),
+               ("validate", "model"), ("excitation", "model"), ("simulate", "tables_dir")}  # fmt: skip
 _POLICY_NAMES = ("shipped", "scripted")
 
 
@@ -1151,7 +1237,8 @@ def main(argv: list[str] | None = None) -> int:
 
         progress.configure(quiet=quiet)
         progress.mode()  # a bad HEXGYM_PROGRESS is refused before the work starts
-        check_arguments(args, given_options(argv))
+        args.given = given_options(argv)
+        check_arguments(args, args.given)
         return args.func(args)
     except KeyboardInterrupt:
         print(f"hexgym {args.command}: interrupted", file=sys.stderr)

@@ -21,6 +21,7 @@ import math
 import numbers
 import os
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, ClassVar, NamedTuple, TypeVar
 
 import gymnasium as gym
@@ -49,7 +50,8 @@ from hexgym.machine.assets import SCENE_FILE, asset_path
 from hexgym.machine.bucket import BUCKET
 from hexgym.machine.names import CAMERAS, CHASE_CAMERA
 from hexgym.machine.render import ModelMirror
-from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS
+from hexgym.mbl.schema import DEFAULT_TABLE_SET
+from hexgym.mbl.table import resolve_tables
 from hexgym.model.backend import backend_for
 
 MAX_TIME_LIMIT = 86_400.0  # s: an episode of at most a day (a longer one is a mistake that fills memory)
@@ -143,7 +145,8 @@ class SiteConfig:
         time_limit: episode length, s.
         scene_path: MJCF scene to build the site on (default ``scene_lean.xml``; reference: ``scene.xml``).
         backend: the learned model's: ``"native"`` (MuJoCo plugin), ``"python"``, ``"auto"`` (native if built).
-        tables: the learned model's table set: ``"circuit"`` or ``"paper"`` (:mod:`hexgym.mbl.schema`).
+        tables: the learned model's table set: ``"circuit"`` or ``"paper"`` (:mod:`hexgym.mbl.schema`), or a model
+            directory fitted to a machine's logs (``hexgym fit --logs``; its ``provenance.json`` names its set).
         model: ``"learned"``, or ``"reference"``: the same task on the analytical circuit.
         earthwork_periods: control periods (25 ms) per dig near the pile; 1: every period.
     """
@@ -177,11 +180,21 @@ class SiteConfig:
             if not is_number(size) or int(size) != size or size < 1:
                 raise ValueError(f"{name} must be a whole number of pixels >= 1, got {size!r}")
             self._set(name, int(size))
-        check_choice("tables", self.tables, TABLE_SETS)
+        resolve_tables(self.tables)  # a set's name or a fitted model's directory; else refused in one line
         if self.scene_path is not None:
             check_path_type("scene_path", self.scene_path)
         if self.model == "learned":
-            backend_for(self.tables, self.backend)  # a set the plugin does not run, with backend "native": refused
+            backend_for(self.table_set, self.backend)  # a set the plugin does not run, with backend "native": refused
+
+    @property
+    def table_set(self) -> str:
+        """The learned model's table set: ``tables`` itself, or the one a fitted model's directory holds."""
+        return resolve_tables(self.tables)[0]
+
+    @property
+    def tables_dir(self) -> Path | None:
+        """The learned model's tables' directory: None for a set's packaged tables, else the fitted model's."""
+        return resolve_tables(self.tables)[1]
 
     def _check_model(self) -> None:
         """Refuse an unknown ``model``, and learned-model options given with ``model="reference"``."""
@@ -240,7 +253,9 @@ class SiteEnv(gym.Env):
 
             self.machine = ReferenceMachine(reference_world_model(c.scene_path, tool_contact_slots=CONTACT_SLOTS))
         else:
-            self.machine = make_machine(c.backend, c.scene_path, c.tables, tool_contact_slots=CONTACT_SLOTS)
+            self.machine = make_machine(
+                c.backend, c.scene_path, c.table_set, tool_contact_slots=CONTACT_SLOTS, tables_dir=c.tables_dir
+            )
         self.physics = self.machine.physics
         self.sites = MachineSites([self.machine])
         self.world = self.sites.worlds[0]

@@ -16,12 +16,12 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from hexgym.checks import check_choice
 from hexgym.envs import REACH_ENV_ID
 from hexgym.envs.base import check_open, is_number, make_config, spools_from_action
 from hexgym.envs.task import STEP_PERIOD  # 10 Hz control, as HexLoading-v0
 from hexgym.machine import kinematics
-from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS
+from hexgym.mbl.schema import DEFAULT_TABLE_SET
+from hexgym.mbl.table import resolve_tables
 from hexgym.model.backend import make_learned_model
 
 TARGET_FLOOR_M = 0.5  # targets and starts keep the teeth this high above the ground
@@ -61,7 +61,7 @@ class ReachConfig:
         for term, weight in self.weights.items():
             if not is_number(weight) or not (math.isfinite(weight) and weight >= 0):
                 raise ValueError(f"{term} weight must be a finite number >= 0, got {weight!r}")
-        check_choice("tables", self.tables, TABLE_SETS)
+        resolve_tables(self.tables)  # a set's name or a fitted model's directory; else refused in one line
 
     @property
     def weights(self) -> dict[str, float]:
@@ -129,7 +129,8 @@ class HexReachEnv(gym.Env):
     def __init__(self, config: ReachConfig | None = None, **overrides: Any) -> None:
         self.config = c = make_config(ReachConfig, REACH_ENV_ID, config, overrides)
         self.render_mode = None
-        self.machine = make_learned_model(c.backend, table_set=c.tables)
+        table_set, tables_dir = resolve_tables(c.tables)
+        self.machine = make_learned_model(c.backend, tables_dir=tables_dir, table_set=table_set)
         self.physics = self.machine.physics
         self.machine.reset("home")
         self._home = self.physics.joint_positions()

@@ -52,6 +52,7 @@ def make_machine(
     scene_path: str | Path | None = None,
     table_set: str = DEFAULT_TABLE_SET,
     tool_contact_slots: int = 0,
+    tables_dir: str | Path | None = None,
 ) -> LearnedModelBase:
     """The machine model that drives the environment, on the loading site.
 
@@ -60,18 +61,20 @@ def make_machine(
     ``cat325_mbl.xml`` (:mod:`hexgym.model.native_backend`, needs the built plugin). ``scene_path`` overrides
     the scene (e.g. the full ``scene.xml``). ``"auto"``: :func:`hexgym.model.backend.backend_for`.
     ``table_set``: the learned model's tables, "circuit" or "paper" (:mod:`hexgym.mbl.schema`).
-    ``tool_contact_slots``: see :func:`hexgym.envs.world.build_world_model`.
+    ``tool_contact_slots``: see :func:`hexgym.envs.world.build_world_model`. ``tables_dir``: other tables of that
+    set than the packaged ones (a fitted model's directory).
     """
     if backend_for(table_set, backend) == "native":
         from hexgym.model.native_backend import NativeLearnedModel
 
-        return NativeLearnedModel(model=native_world_model(scene_path, table_set, tool_contact_slots))
+        world = native_world_model(scene_path, table_set, tool_contact_slots, tables_dir=tables_dir)
+        return NativeLearnedModel(model=world)
     model = build_world_model(
         scene_path if scene_path is not None else asset_path(PYTHON_SCENE), tool_contact_slots=tool_contact_slots
     )
     step = model.opt.timestep  # on a finer model than the lean machine's, the tables are asked every 10 ms
     period = step * max(1, round(PYTHON_CONTROL_PERIOD / step))
-    return python_learned_model(table_set, model=model, control_period=period)
+    return python_learned_model(table_set, tables_dir, model=model, control_period=period)
 
 
 def native_world_model(
@@ -79,18 +82,23 @@ def native_world_model(
     table_set: str = DEFAULT_TABLE_SET,
     tool_contact_slots: int = 0,
     customise: Callable[[mujoco.MjSpec], None] | None = None,
+    tables_dir: str | Path | None = None,
 ) -> mujoco.MjModel:
-    """The loading site around the lean machine driven by the native plugin with ``table_set``'s tables
-    (``customise``: see :func:`hexgym.envs.world.build_world_model`)."""
+    """The loading site around the lean machine driven by the native plugin with ``table_set``'s tables (from
+    ``tables_dir``, default the packaged ones; ``customise``: see :func:`hexgym.envs.world.build_world_model`)."""
     from hexgym.model.plugin import require_plugin
     from hexgym.model.plugin_mjcf import MBL_MODEL_FILE, mbl_model_xml
 
     require_plugin()
-    if table_set == DEFAULT_TABLE_SET:  # the packaged machine file
+    if table_set == DEFAULT_TABLE_SET and tables_dir is None:  # the packaged machine file
         return build_world_model(
             scene_path, machine_file=MBL_MODEL_FILE, tool_contact_slots=tool_contact_slots, customise=customise
         )
-    xml = mbl_model_xml(table_set=table_set)
+    if tables_dir is not None:
+        from hexgym.mbl.table import check_model_table_set
+
+        check_model_table_set(tables_dir, table_set)
+    xml = mbl_model_xml(tables_dir, table_set=table_set)
     return build_world_model(scene_path, machine_xml=xml, tool_contact_slots=tool_contact_slots, customise=customise)
 
 

@@ -100,7 +100,7 @@ class HexLoadingVectorEnv(VectorEnv):
         # the single environment's config: its checks, its defaults
         overrides = {"scene_path": scene_path, "backend": backend, **env_kwargs}
         self.config = config = make_config(LoadingConfig, ENV_ID, None, overrides)
-        backend = backend_for(config.tables, backend)
+        backend = backend_for(config.table_set, backend)
         if backend == "native":
             from hexgym.model.plugin import NativePluginError, load_plugin
 
@@ -117,7 +117,9 @@ class HexLoadingVectorEnv(VectorEnv):
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         if backend == "native":
-            model = native_world_model(scene_path, config.tables, tool_contact_slots=CONTACT_SLOTS)
+            model = native_world_model(
+                scene_path, config.table_set, tool_contact_slots=CONTACT_SLOTS, tables_dir=config.tables_dir
+            )
             if nthread is None:
                 nthread = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
             self.nthread = max(1, min(int(nthread), self.num_envs))
@@ -125,7 +127,7 @@ class HexLoadingVectorEnv(VectorEnv):
         else:
             self.nthread = 1
             machines = [
-                make_machine("python", scene_path, config.tables, tool_contact_slots=CONTACT_SLOTS)
+                make_machine("python", scene_path, config.table_set, CONTACT_SLOTS, config.tables_dir)
                 for _ in range(self.num_envs)
             ]  # fmt: skip
             self.sites = MachineSites(machines)

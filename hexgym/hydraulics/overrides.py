@@ -36,7 +36,7 @@ import functools
 import json
 import math
 import numbers
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -218,17 +218,26 @@ def as_overrides(hydraulics: HydraulicsOverrides | Mapping | str | Path) -> Hydr
 
 # -- the circuit with them -----------------------------------------------------------------------------
 class OverriddenCircuit(HydraulicCircuit):
-    """:class:`HydraulicCircuit` with a unit's pumps, regulator, valve passages, reliefs and leakage."""
+    """:class:`HydraulicCircuit` with a unit's pumps, regulator, valve passages, reliefs and leakage; ``valve``: the
+    passages' areas from another law (a learned valve, which already is the unit's: no passage scale then)."""
 
-    def __init__(self, overrides: HydraulicsOverrides, layout: ValveLayout = DEFAULT_LAYOUT) -> None:
+    def __init__(
+        self,
+        overrides: HydraulicsOverrides,
+        layout: ValveLayout = DEFAULT_LAYOUT,
+        valve: Callable[[np.ndarray], SpoolAreas] | None = None,
+    ) -> None:
         known = set(passage_names(layout))
         other = sorted(set(overrides.passage_area_scale) - known)
         if other:
             raise ValueError(f"{overrides.source}: valve.passage_area_scale.{other[0]}: the {layout.name!r} valve has "
                              f"no such passage; it has {', '.join(sorted(known))}")  # fmt: skip
+        if valve is not None and overrides.passage_area_scale:
+            raise ValueError(f"{overrides.source}: valve.passage_area_scale does not apply to a learned valve")
         self.overrides = overrides
-        super().__init__(valve=functools.partial(_scaled_areas, layout=layout, scales=_scales(overrides, layout)),
-                         layout=layout)  # fmt: skip
+        if valve is None:
+            valve = functools.partial(_scaled_areas, layout=layout, scales=_scales(overrides, layout))
+        super().__init__(valve=valve, layout=layout)
         self._override_reliefs(overrides)
         self._scale_leaks(overrides)
 

@@ -387,6 +387,53 @@ def _check_meta(path: Path, meta: Any, arrays: dict[str, np.ndarray]) -> None:
             raise TableFileError(f"MBL table file {path}: {name}.npy is not in C order")
 
 
+def resolve_tables(tables: str | os.PathLike[str], option: str = "tables") -> tuple[str, Path | None]:
+    """(table set, directory) of a ``tables`` value: a set's name (the packaged tables: directory None), or a fitted
+    model's directory (with ``provenance.json``, which names its set); ValueError in one line for anything else."""
+    if isinstance(tables, str) and tables in TABLE_SETS:
+        return tables, None
+    if isinstance(tables, (str, os.PathLike)) and Path(tables).is_dir():
+        held = model_table_set(tables)
+        if held is not None:
+            return held, Path(tables)
+    raise ValueError(f"{option} must be one of {tuple(TABLE_SETS)}, got {tables!r} (or a fitted model's directory, "
+                     f"one with {MODEL_PROVENANCE}, from `hexgym fit --logs`)")  # fmt: skip
+
+
+MODEL_HYDRAULICS = ("pump.max_flow_m3s",)  # what of a unit's hydraulics the learned model applies (the rest: fixed)
+
+
+def model_hydraulics(directory: str | os.PathLike[str] | None):
+    """A fitted model's unit hydraulics (its ``provenance.json``'s ``hydraulics``, in the hydraulics file's format,
+    :mod:`hexgym.hydraulics.overrides`): HydraulicsOverrides, or None for packaged tables or a model without any.
+    Only :data:`MODEL_HYDRAULICS` may be set (the learned valve is the unit's own); ValueError naming the key."""
+    from hexgym.hydraulics.overrides import parse_hydraulics
+
+    path = Path(directory) / MODEL_PROVENANCE if directory is not None else None
+    if path is None or not path.is_file():
+        return None
+    try:
+        data = json.loads(path.read_text(encoding="utf-8")).get("hydraulics")
+    except (ValueError, OSError, AttributeError) as exc:
+        raise TableFileError(f"{path}: not a model's provenance (a JSON object): {exc}") from None
+    if not data:
+        return None
+    overrides = parse_hydraulics(data, f"{path} hydraulics")
+    given = {f"{section}.{key}" for section, body in data.items() for key in (body or {})}
+    other = sorted(given - set(MODEL_HYDRAULICS))
+    if other:
+        raise TableFileError(f"{path}: hydraulics.{other[0]}: the learned model applies only {MODEL_HYDRAULICS}")
+    return overrides
+
+
+def check_model_table_set(directory: str | os.PathLike[str], table_set: str) -> None:
+    """TableFileError where ``directory`` is a fitted model of another table set than ``table_set``."""
+    held = model_table_set(directory)
+    if held is not None and held != table_set:
+        raise TableFileError(f"{directory}: a model of the {held} table set ({MODEL_PROVENANCE}); the {table_set} "
+                             "tables are needed here")  # fmt: skip
+
+
 def packaged_tables_dir(table_set: str = DEFAULT_TABLE_SET) -> Path:
     """Where the fitted tables of ``table_set`` ship inside the package (``hexgym/mbl_tables/<set>``)."""
     if table_set not in TABLE_SETS:
@@ -412,14 +459,35 @@ def table_path(name: str, directory: str | Path | None = None, table_set: str = 
     return Path(directory or packaged_tables_dir(table_set)) / f"{name}.npz"
 
 
+MODEL_PROVENANCE = "provenance.json"  # a fitted model's directory (``hexgym fit --logs``) holds this beside its tables
+
+
+def model_table_set(directory: str | os.PathLike[str]) -> str | None:
+    """The table set a fitted model's directory holds (its ``provenance.json``), or None for a directory without
+    one; TableFileError naming the file where it cannot be read or names no known set."""
+    path = Path(directory) / MODEL_PROVENANCE
+    if not path.is_file():
+        return None
+    try:
+        table_set = json.loads(path.read_text(encoding="utf-8")).get("table_set")
+    except (ValueError, OSError, AttributeError) as exc:
+        raise TableFileError(f"{path}: not a model's provenance (a JSON object with 'table_set'): {exc}") from None
+    if table_set not in TABLE_SETS:
+        raise TableFileError(f"{path}: table_set {table_set!r} is none of {tuple(TABLE_SETS)}")
+    return table_set
+
+
 def load_tables(directory: str | Path | None = None, table_set: str = DEFAULT_TABLE_SET) -> dict[str, MBLTable]:
     """The tables of ``table_set`` (from ``directory``, default the packaged ones), each checked by
     :func:`load_table` and against :mod:`hexgym.mbl.schema`: a file whose inputs or output differ fails
-    naming the file and what differs (e.g. a table fitted to another schema's inputs)."""
+    naming the file and what differs (e.g. a table fitted to another schema's inputs). A fitted model's directory
+    (with ``provenance.json``) of another set is refused naming both."""
     if table_set not in TABLE_SETS:
         raise ValueError(f"table set must be one of {tuple(TABLE_SETS)}, got {table_set!r}")
     if directory is None:
         require_packaged(table_set)
+    else:
+        check_model_table_set(directory, table_set)
     tables = {}
     for name in TABLE_SETS[table_set]:
         path = table_path(name, directory, table_set)

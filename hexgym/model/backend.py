@@ -80,14 +80,16 @@ def python_learned_model(
     (:class:`hexgym.model.circuit_model.CircuitModel`) for "circuit", the table model
     (:class:`hexgym.model.python_backend.LearnedModel`) for "paper"."""
     from hexgym.mbl.schema import CIRCUIT_TABLE_SETS
-    from hexgym.mbl.table import load_tables
+    from hexgym.mbl.table import load_tables, model_hydraulics
     from hexgym.model.python_backend import LearnedModel
 
     tables = load_tables(tables_dir, table_set)
     if table_set in CIRCUIT_TABLE_SETS:
         from hexgym.model.circuit_model import CircuitModel
 
-        return CircuitModel(tables, model=model, control_period=control_period, table_set=table_set)
+        hydraulics = model_hydraulics(tables_dir)
+        return CircuitModel(tables, model=model, control_period=control_period, table_set=table_set,
+                            hydraulics=hydraulics)  # fmt: skip
     return LearnedModel(tables, model=model, control_period=control_period)
 
 

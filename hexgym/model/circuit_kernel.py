@@ -68,6 +68,13 @@ _STICK = FUNCTIONS.index("stick")
 STOP_SPLIT_SPEED = 0.02
 
 
+def pump_max_flow(circuit: HydraulicCircuit) -> float:
+    """Each pump's maximum flow (m^3/s) in ``circuit``: a unit's (its overrides') or the data sheet's."""
+    overrides = getattr(circuit, "overrides", None)
+    flow = getattr(overrides, "max_flow_m3s", None)
+    return p.PUMP_MAX_FLOW if flow is None else float(flow)
+
+
 def circuit_laws(circuit: HydraulicCircuit, stop_clearance: float) -> dict[str, float]:
     """The circuit's scalar laws by :data:`~hexgym.model.plugin.CIRCUIT_LAWS` name (machine parameters and what
     :mod:`hexgym.hydraulics.circuit` derives from them)."""
@@ -87,7 +94,7 @@ def circuit_laws(circuit: HydraulicCircuit, stop_clearance: float) -> dict[str, 
         "nfc_min_flow": p.NFC_PRESSURE_MIN_FLOW,
         "idle_fraction": p.PUMP_IDLE_FLOW_FRACTION,
         "power_limit": p.PUMP_POWER_LIMIT,
-        "max_flow": p.PUMP_MAX_FLOW,
+        "max_flow": pump_max_flow(circuit),
         "regulator_time": p.PUMP_REGULATOR_TIME_CONSTANT,
         "max_splits": circuit.MAX_SPLITS,
         "trust_floor": TRUST_FLOOR_PA,

@@ -41,6 +41,7 @@ import mujoco
 import numpy as np
 
 from hexgym.hydraulics.circuit import STATE_NAMES, STATE_SIZE, HydraulicCircuit, fuel_rate, valve_layout
+from hexgym.hydraulics.overrides import HydraulicsOverrides, OverriddenCircuit
 from hexgym.machine import parameters as p
 from hexgym.machine import trajectory
 from hexgym.mbl.schema import CIRCUIT_TABLE_SETS, VALVE_OF_TABLE_SET
@@ -68,6 +69,8 @@ class CircuitModel(LearnedModel):
         substeps: circuit steps per control period.
         table_set: which valve the tables are of (:data:`hexgym.mbl.schema.CIRCUIT_TABLE_SETS`): ``circuit``, the
             reference machine's Cat two-pump valve.
+        hydraulics: a unit's pumps (:func:`hexgym.mbl.table.model_hydraulics`, a model fitted to its logs); default
+            the data sheet's.
     """
 
     def __init__(
@@ -77,6 +80,7 @@ class CircuitModel(LearnedModel):
         control_period: float | None = None,
         substeps: int = SUBSTEPS,
         table_set: str = "circuit",
+        hydraulics: HydraulicsOverrides | None = None,
     ) -> None:
         if table_set not in CIRCUIT_TABLE_SETS:
             raise ValueError(f"the circuit model runs the table sets {CIRCUIT_TABLE_SETS}, not {table_set!r}")
@@ -92,7 +96,12 @@ class CircuitModel(LearnedModel):
         self.physics.model.actuator_ctrlrange[:] = (-MAX_RATE, MAX_RATE)
         self.tables, self.table_set = tables, table_set
         layout = valve_layout(VALVE_OF_TABLE_SET[table_set])
-        self.circuit = HydraulicCircuit(valve=LearnedValve(tables, layout), layout=layout)
+        valve = LearnedValve(tables, layout)
+        self.circuit = (
+            HydraulicCircuit(valve=valve, layout=layout)
+            if hydraulics is None
+            else OverriddenCircuit(hydraulics, layout, valve=valve)
+        )
         self._kernel = _native_kernel(self.circuit, tables)
         self._fault_pressure = circuit_kernel.fault_pressure(self.circuit)
         if self._kernel is None:

@@ -32,10 +32,12 @@ import numpy as np
 
 from hexgym.files import atomic_path
 from hexgym.hydraulics.circuit import HydraulicCircuit, valve_layout
+from hexgym.hydraulics.overrides import OverriddenCircuit
 from hexgym.machine import kinematics, mjcf
 from hexgym.machine import parameters as p
 from hexgym.machine.assets import assets_dir
 from hexgym.mbl.schema import CIRCUIT_TABLE_SETS, DEFAULT_TABLE_SET, VALVE_OF_TABLE_SET
+from hexgym.mbl.table import model_hydraulics
 from hexgym.model.base import END_MARGIN, PULL_LIMIT, PUSH_LIMIT, STROKES, SWING_REST_RATE
 from hexgym.model.circuit_kernel import circuit_numbers
 from hexgym.model.circuit_model import MAX_RATE, STOP_CLEARANCE, SUBSTEPS
@@ -130,12 +132,15 @@ def _actuators(lean: bool = True) -> str:
     return "\n".join([*lines, "  </actuator>"])
 
 
-def circuit_config(table_set: str = DEFAULT_TABLE_SET) -> dict[str, str]:
+def circuit_config(table_set: str = DEFAULT_TABLE_SET, tables_dir: str | Path | None = None) -> dict[str, str]:
     """The config keys of the circuit model (a table set of :data:`~hexgym.mbl.schema.CIRCUIT_TABLE_SETS`): the
     circuit's numbers with the set's valve layout (:func:`hexgym.model.circuit_kernel.circuit_numbers`), its steps
     per period, and the servos' rate range (wide: the circuit, not the table models' limits, sets the joints'
-    rates)."""
-    circuit = HydraulicCircuit(layout=valve_layout(VALVE_OF_TABLE_SET[table_set]))
+    rates). ``tables_dir``: a model fitted to a unit's logs brings the unit's pumps
+    (:func:`hexgym.mbl.table.model_hydraulics`)."""
+    layout = valve_layout(VALVE_OF_TABLE_SET[table_set])
+    hydraulics = model_hydraulics(tables_dir)
+    circuit = HydraulicCircuit(layout=layout) if hydraulics is None else OverriddenCircuit(hydraulics, layout)
     numbers = circuit_numbers(circuit, STOP_CLEARANCE)
     return {
         "circuit": _numbers(*numbers),
@@ -147,7 +152,7 @@ def circuit_config(table_set: str = DEFAULT_TABLE_SET) -> dict[str, str]:
 def _extension(tables_dir: str | Path | None, control_period: float | None, lean: bool, table_set: str) -> str:
     config = plugin_config(lean) | {"table_set": table_set}
     if table_set in CIRCUIT_TABLE_SETS:
-        config |= circuit_config(table_set)
+        config |= circuit_config(table_set, tables_dir)
     if tables_dir is not None:
         config = {"tables": str(Path(tables_dir).resolve()), **config}
     if control_period is not None:

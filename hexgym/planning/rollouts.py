@@ -48,6 +48,7 @@ from hexgym.machine.assets import asset_path
 from hexgym.machine.bucket import BUCKET
 from hexgym.machine.names import BUCKET_BODY, GROUND_GEOM, PLANNING_MOUTH_SITE, STICK_BODY, TIP_SITE, TRUCK_BODY
 from hexgym.mbl.schema import DEFAULT_TABLE_SET
+from hexgym.mbl.table import resolve_tables
 from hexgym.model.native_backend import NativeLearnedModel
 from hexgym.model.plugin import CLEARANCE_PLUGIN_NAME, CTRL_PER_SPOOL_M
 
@@ -205,7 +206,8 @@ class RolloutModel:
     """The native learned model on the loading site, for batched predictions (see the module docstring).
 
     Args:
-        table_set: the learned model's tables (as ``HexLoading-v0``'s ``tables``).
+        table_set: the learned model's tables (as ``HexLoading-v0``'s ``tables``: a set, or a fitted model's
+            directory).
         nthread: threads of ``mujoco.rollout`` (1: in this thread).
         detection_m: how far apart contacts are reported (m, > 0).
         contacts: simulate contacts (False: tool and obstacles pass through each other, see the module docstring).
@@ -220,7 +222,9 @@ class RolloutModel:
         if not (math.isfinite(detection_m) and detection_m > 0):
             raise ValueError(f"detection_m must be finite and > 0, got {detection_m!r}")
         self.table_set, self.nthread, self.detection_m = table_set, nthread, float(detection_m)
-        self.machine = NativeLearnedModel(model=native_world_model(table_set=table_set, customise=self._customise))
+        name, tables_dir = resolve_tables(table_set, "table_set")
+        world = native_world_model(table_set=name, customise=self._customise, tables_dir=tables_dir)
+        self.machine = NativeLearnedModel(model=world)
         self.physics = self.machine.physics
         m = self.model = self.physics.model
         if not contacts:

@@ -2,7 +2,10 @@
 
 :mod:`.signals` (the format: names, units, signs, the pilot and stroke maps), :mod:`.csv_log` and :mod:`.mcap_log`
 (the readers; MCAP through the optional extra ``hexgym[logs]``), :mod:`.checks` (what a log can be trusted with),
-:mod:`.synthetic` (a reference run written as a machine log) and :func:`read_machine_log`, which picks the reader.
+:mod:`.synthetic` (a reference run written as a machine log), :func:`read_machine_log`, which picks the reader, and
+the fitting of a model to a machine's logs: :mod:`.derive` (a log's rows for the valve's identification, the pumps'
+maximum flow), :mod:`.fit` (``hexgym fit --logs``), :mod:`.validate_logs` (``hexgym validate --model --logs``),
+:mod:`.excitation` (``hexgym excitation``) and :mod:`.unit_logs` (logs of a reference unit, for tests and figures).
 """
 
 from __future__ import annotations

@@ -75,12 +75,19 @@ def episode_split(episode: np.ndarray, fraction: float, seed: int) -> tuple[np.n
     return np.flatnonzero(~test), np.flatnonzero(test)
 
 
-def fit_table(name: str, data: TableData, seed: int = 0, table_set: str = DEFAULT_TABLE_SET) -> MBLTable:
+def fit_table(
+    name: str,
+    data: TableData,
+    seed: int = 0,
+    table_set: str = DEFAULT_TABLE_SET,
+    split: tuple[np.ndarray, np.ndarray] | None = None,
+) -> MBLTable:
     """Select parameters by LOO within the training episodes, build the table from all rows, measure it
-    on the held-out episodes."""
+    on the held-out episodes (``split``: the (train, test) row indices, default a seeded
+    :data:`HOLDOUT_FRACTION` of the episodes)."""
     spec = TABLE_SETS[table_set][name]
     X, y = data.X, data.y
-    split = episode_split(data.episode, HOLDOUT_FRACTION, seed)
+    split = episode_split(data.episode, HOLDOUT_FRACTION, seed) if split is None else split
     params, _ = select_params(X[split[0]], y[split[0]], seed=seed)
     if len(spec.inputs) == 1:
         axes = suggest_axes(X, params, nodes_per_bandwidth=ONE_INPUT_NODES_PER_WIDTH, max_nodes=ONE_INPUT_NODES)
