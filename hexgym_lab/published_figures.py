@@ -72,8 +72,9 @@ def boom_on_ground(sim: ReferenceModel) -> float:
     return low if height(low) >= 0.0 else brentq(height, low, high, xtol=1e-6)
 
 
-def _start_pose(cylinder: str, extend: bool, boom_ground: float) -> np.ndarray:
-    """Joint angles (swing, boom, stick, bucket) where ``cylinder``'s test starts."""
+def _start_pose(cylinder: str, extend: bool, boom_ground: float | None) -> np.ndarray:
+    """Joint angles (swing, boom, stick, bucket) where ``cylinder``'s test starts (``boom_ground``: the boom test's
+    :func:`boom_on_ground`)."""
     if cylinder == "boom":
         boom = boom_ground if extend else _end("boom", _EXTENDED)
         return np.array([0.0, boom, _end("stick", _RETRACTED), _end("bucket", _RETRACTED)])
@@ -87,7 +88,7 @@ def cylinder_time(sim: ReferenceModel, cylinder: str, extend: bool) -> float:
     """Seconds from full spool until ``cylinder``'s test ends (NaN: not by :data:`TIME_LIMIT_S`): its far end
     within ``STROKE_END_MARGIN``, or, lowering the boom, the bucket on the ground."""
     j = kinematics.FRONT_CYLINDERS.index(cylinder)
-    boom_ground = boom_on_ground(sim)
+    boom_ground = boom_on_ground(sim) if cylinder == "boom" else None  # only the boom's test has the ground in it
     q0 = _start_pose(cylinder, extend, boom_ground)
     spools = np.zeros(4)
     spools[j + 1] = _SPOOL if extend else -_SPOOL

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hexgym.hydraulics.circuit import FUNCTIONS, PAPER_VALVE
+from hexgym.hydraulics.circuit import DEFAULT_LAYOUT, FUNCTIONS
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.machine.physics import MAX_PAYLOAD_KG
@@ -298,11 +298,10 @@ def _constant_runs(log: s.MachineLog, name: str, v: np.ndarray, active: np.ndarr
 def check_signs(log: s.MachineLog) -> list[Finding]:
     """A joint that moves against its open spool on more than :data:`SIGN_FLIP_SHARE` of the samples where both
     are clear of zero: the angle's (or the spool's) sign convention is flipped."""
-    q, u = log.angles(), log.spools_mm()
-    if q is None or u is None:
+    moving = _spools_and_rates(log)
+    if moving is None:
         return []
-    rates = smoothed_rates(log.t, q)
-    period = _period(log)
+    u, rates, period = moving
     found = []
     for j, name in enumerate(s.JOINT_ANGLES):
         both = (np.abs(u[:, j]) > OPEN_SPOOL_MM) & (np.abs(rates[:, j]) > MOVING_RADPS)
@@ -317,6 +316,15 @@ def check_signs(log: s.MachineLog) -> list[Finding]:
     return found
 
 
+def _spools_and_rates(log: s.MachineLog) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """(spools in mm, the joints' smoothed rates, the median sample period) of a log, or None without spools or
+    angles."""
+    q, u = log.angles(), log.spools_mm()
+    if q is None or u is None:
+        return None
+    return u, smoothed_rates(log.t, q), _period(log)
+
+
 def _period(log: s.MachineLog) -> float:
     dt = np.diff(log.t)
     dt = dt[np.isfinite(dt) & (dt > 0)]
@@ -325,14 +333,13 @@ def _period(log: s.MachineLog) -> float:
 
 def check_motion(log: s.MachineLog) -> list[Finding]:
     """Each spool side's passages need :data:`MIN_MOTION_S` of metering with the joint moving its way."""
-    q, u = log.angles(), log.spools_mm()
-    if q is None or u is None:
+    moving = _spools_and_rates(log)
+    if moving is None:
         return []
-    rates = smoothed_rates(log.t, q)
-    period = _period(log)
+    u, rates, period = moving
     found = []
     for j in range(len(FUNCTIONS)):
-        section = PAPER_VALVE.sections[j].name  # the function's own section
+        section = DEFAULT_LAYOUT.sections[j].name  # the function's own section
         for side, passages in ((1.0, ("pa", "bt")), (-1.0, ("pb", "at"))):
             seconds = period * np.sum((side * u[:, j] > OPEN_SPOOL_MM) & (side * rates[:, j] > MOVING_RADPS))
             if seconds < MIN_MOTION_S:
