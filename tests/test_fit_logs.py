@@ -24,6 +24,7 @@ from hexgym_lab.machine_logs.excitation import excitation_log, functions_with_ga
 from hexgym_lab.machine_logs.fit import fit_logs
 from hexgym_lab.machine_logs.signals import MachineLog
 from hexgym_lab.machine_logs.synthetic import machine_log_of
+from hexgym_lab.machine_logs.unit_logs import drawn_unit
 
 # the boom raising and the bucket curling, then the stick and the swing, a few seconds each (s, mm)
 COMMANDS = CommandLog(
@@ -191,30 +192,12 @@ def test_a_fitted_model_carries_its_pumps_on_both_backends_and_every_tables_opti
         reach.close()
 
 
-def drawn_unit(seed: int) -> dict:
-    """A unit drawn within the documented ranges (docs/machine-logs.md): every metering passage's area x0.8-1.2, the
-    pumps' maximum flow -15 % to +5 % (the bypasses, reliefs and leakage as packaged: the fit identifies none of
-    them)."""
-    from hexgym.hydraulics.circuit import DEFAULT_LAYOUT
-    from hexgym.hydraulics.overrides import passage_names
-    from hexgym.mbl.schema import TABLE_SETS
-
-    rng = np.random.default_rng(seed)
-    learned = set(TABLE_SETS["circuit"])  # the unloading valve is the machine's data, not a learned passage
-    passages = [n for n in passage_names(DEFAULT_LAYOUT) if n in learned and not n.endswith("_bypass")]
-    scales = {n: round(float(rng.uniform(0.8, 1.2)), 3) for n in passages}
-    return {
-        "valve": {"passage_area_scale": scales},
-        "pump": {"max_flow_scale": round(float(rng.uniform(0.85, 1.05)), 3)},
-    }
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("unit_of", [lambda: UNIT, lambda: drawn_unit(7)], ids=["fixed", "drawn"])
 def test_a_fit_to_another_unit_is_closer_to_it_than_the_packaged_model(tmp_path, unit_of):
     """Logs of a unit that is not the packaged one (boom and stick passages x0.8 / x1.2, pumps -10 %; or one drawn
-    within the documented ranges): the fitted model replays held-out logs of that unit closer than the packaged
-    model does (both numbers reported), and finds its pumps' flow."""
+    within the documented ranges, reliefs included): the fitted model replays held-out logs of that unit closer than
+    the packaged model does (both numbers reported), and finds its pumps' flow and its main and swing reliefs."""
     from hexgym_lab.machine_logs.unit_logs import write_unit_logs
     from hexgym_lab.machine_logs.validate_logs import summary_text, validate_on_logs
 
@@ -230,6 +213,11 @@ def test_a_fit_to_another_unit_is_closer_to_it_than_the_packaged_model(tmp_path,
     pump = unit_hydraulics["pump"]["max_flow_scale"]
     assert provenance["scalars"]["pump_max_flow"]["relative_to_packaged"] == pytest.approx(pump, abs=0.05)
     assert "boom_bypass" in provenance["kept_from_package"]
+    reliefs = provenance["scalars"]["relief_settings"]
+    for name, key in (("main", "main_pa"), ("swing", "swing_pa")):
+        true = unit_hydraulics.get("relief", {}).get(key, getattr(p, f"{name.upper()}_RELIEF"))
+        assert reliefs[name]["identified"] and reliefs[name]["value_pa"] == pytest.approx(true, rel=0.01), name
+    assert provenance["hydraulics"]["relief"]["main_pa"] == reliefs["main"]["value_pa"]
     gaps = functions_with_gaps(tmp_path / "model")
     assert set(gaps) <= {"swing", "boom", "stick", "bucket"}
     assert excitation_log(gaps).duration <= excitation_log().duration
@@ -237,3 +225,36 @@ def test_a_fit_to_another_unit_is_closer_to_it_than_the_packaged_model(tmp_path,
     print(summary_text(result))
     fitted, packaged = (result["summary"][m]["tip_error_mean_median_m"] for m in ("fitted", "packaged"))
     assert fitted < packaged
+
+
+def test_a_relief_setting_from_its_flow_inverts_the_circuits_relief_law():
+    from hexgym.hydraulics.circuit import orifice_law, relief_area, smoothstep
+    from hexgym_lab.machine_logs.reliefs import setting_from_flow
+
+    setting = np.array([28e6, 33e6, 36e6])
+    dp = setting + np.array([0.2, 0.7, 0.95]) * p.RELIEF_OVERRIDE  # partly open: the flow tells the setting
+    law = p.DISCHARGE_COEFFICIENT * relief_area(setting, p.PUMP_MAX_FLOW) * orifice_law(dp)[0]
+    q = law * smoothstep((dp - setting) / p.RELIEF_OVERRIDE)[0]
+    np.testing.assert_allclose(setting_from_flow(dp, q, p.PUMP_MAX_FLOW), setting, rtol=1e-6)
+
+
+def test_the_swing_and_main_relief_settings_are_found_in_a_units_logs():
+    """A unit with its swing relief 6 % and its main relief 5 % below the data sheet's: two short logs of the swing
+    started and stopped at full spool and the boom raised into its stroke end give both settings within 1 %; the
+    port reliefs, never reached, are not identified and say why."""
+    from hexgym_lab.machine_logs.reliefs import identify_reliefs
+
+    unit = {"relief": {"swing_pa": 0.94 * p.SWING_RELIEF, "main_pa": 0.95 * p.MAIN_RELIEF}}
+    commands = CommandLog(
+        np.array([0.0, 0.3, 2.5, 2.6, 5.0, 5.3, 9.5]),
+        np.array(
+            [[0, 0, 0, 0], [11, 0, 0, 0], [11, 0, 0, 0], [0, 0, 0, 0], [0, 0, 0, 0], [0, 11, 0, 0], [0, 11, 0, 0]],
+            float,
+        ),
+    )
+    run = replay(ReferenceModel(hydraulics=unit), commands, dt_out=0.002)
+    rows = [derive.log_rows(MachineLog(f"log{s}", *machine_log_of(run, rate_hz=100.0, seed=s))) for s in (1, 2)]
+    found = identify_reliefs(rows, p.PUMP_MAX_FLOW)
+    assert found["swing"]["value_pa"] == pytest.approx(unit["relief"]["swing_pa"], rel=0.01)
+    assert found["main"]["value_pa"] == pytest.approx(unit["relief"]["main_pa"], rel=0.01)
+    assert not found["line_bucket"]["identified"] and "rows" in found["line_bucket"]["why"]

@@ -400,7 +400,8 @@ def resolve_tables(tables: str | os.PathLike[str], option: str = "tables") -> tu
                      f"one with {MODEL_PROVENANCE}, from `hexgym fit --logs`)")  # fmt: skip
 
 
-MODEL_HYDRAULICS = ("pump.max_flow_m3s",)  # what of a unit's hydraulics the learned model applies (the rest: fixed)
+# what of a unit's hydraulics the learned model applies (the rest is the data sheet's)
+MODEL_HYDRAULICS = ("pump.max_flow_m3s", "relief.main_pa", "relief.swing_pa", "relief.line_pa")
 
 
 def model_hydraulics(directory: str | os.PathLike[str] | None):

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -68,6 +68,19 @@ def _area(q: float, dp: float, min_drop: float = MIN_DROP_PA) -> float:
     return q / (p.DISCHARGE_COEFFICIENT * float(orifice_law(np.array(dp))[0]))
 
 
+@dataclass(frozen=True)
+class ReliefSettings:
+    """The relief settings (Pa) the identification keeps its samples clear of: a unit's (identified from its
+    logs, :mod:`hexgym_lab.machine_logs.reliefs`) or the data sheet's."""
+
+    main: float = p.MAIN_RELIEF
+    swing: float = p.SWING_RELIEF
+    line: dict[str, float] = field(default_factory=lambda: dict(p.LINE_RELIEF))
+
+
+PACKAGED_RELIEFS = ReliefSettings()
+
+
 @dataclass
 class _Function:
     """What one function's continuity gives at an instant: which way its spool meters, the oil that must enter its
@@ -94,8 +107,11 @@ class _Function:
         return "bt" if self.positive else "at"
 
 
-def _cylinder(f: str, u: float, v: float, ext: float, p_head: float, p_rod: float, c_head: float, c_rod: float):
-    """The :class:`_Function` of a cylinder (``c_*``: its chambers' compression flows)."""
+def _cylinder(f: str, u: float, v: float, ext: float, pressures: tuple, compression: tuple, line_relief: float):
+    """The :class:`_Function` of a cylinder (``pressures``, ``compression``: its head's and rod's pressures and
+    compression flows; ``line_relief``: its port reliefs' setting)."""
+    p_head, p_rod = pressures
+    c_head, c_rod = compression
     cyl = p.CYLINDERS[f]
     extending = u > 0.0
     speed = v if extending else -v
@@ -104,19 +120,19 @@ def _cylinder(f: str, u: float, v: float, ext: float, p_head: float, p_rod: floa
     c_in, c_out = (c_head, c_rod) if extending else (c_rod, c_head)
     # The inlet's continuity gives the meter-in flow at any speed (a held cylinder's closed load check
     # passes none) unless make-up oil from tank or the port relief takes part.
-    fed = MIN_PORT_PA < p_in < p.LINE_RELIEF[f] - RELIEF_MARGIN_PA
+    fed = MIN_PORT_PA < p_in < line_relief - RELIEF_MARGIN_PA
     to_end = cyl.stroke - ext if extending else ext
-    clear = to_end > _CUSHION_CLEAR and p_out < p.LINE_RELIEF[f] - RELIEF_MARGIN_PA
+    clear = to_end > _CUSHION_CLEAR and p_out < line_relief - RELIEF_MARGIN_PA
     q_in = a_in * speed + c_in if fed else math.nan
     moving = speed >= MIN_SPEED_MPS  # below: stalled, held or overrun backwards: no clear metering
     port = cyl.count * p.CUSHION_PORT_AREA
     return _Function(f, u, extending, q_in, a_out * speed - c_out, p_in, p_out, moving, clear, port)
 
 
-def _swing(u: float, rate: float, pa: float, pb: float, compression: np.ndarray) -> _Function | None:
+def _swing(u: float, rate: float, pa: float, pb: float, compression: np.ndarray, relief: float) -> _Function | None:
     """The :class:`_Function` of the swing motor (``compression``: its ports'), or None while its crossover reliefs
-    may pass oil."""
-    if abs(pa - pb) > p.SWING_RELIEF - RELIEF_MARGIN_PA:
+    (set at ``relief``) may pass oil."""
+    if abs(pa - pb) > relief - RELIEF_MARGIN_PA:
         return None
     positive = u > 0.0
     cross = (1.0 - _SHARE) * p.SWING_MOTOR_LEAKAGE * (pa - pb)
@@ -130,18 +146,17 @@ def _swing(u: float, rate: float, pa: float, pb: float, compression: np.ndarray)
     return _Function("swing", u, positive, q_in, q_out, p_in, p_out, moving, True, math.inf)
 
 
-def _functions(pressures, compression, spools_m, ext_m, vel_mps, swing_rate) -> dict[str, _Function | None]:
+def _functions(pressures, compression, spools_m, ext_m, vel_mps, swing_rate, reliefs) -> dict[str, _Function | None]:
     """Each function whose spool meters (outside its dead band): its continuity, or None where it gives none."""
     out: dict[str, _Function | None] = {}
     for j, f in enumerate(("boom", "stick", "bucket")):
         u = spools_m[j + 1]
         if abs(u) >= p.SPOOL_DEAD_BAND:
             head, rod = 4 + 2 * j, 5 + 2 * j
-            out[f] = _cylinder(
-                f, u, vel_mps[j], ext_m[j], pressures[head], pressures[rod], compression[head], compression[rod]
-            )
+            out[f] = _cylinder(f, u, vel_mps[j], ext_m[j], (pressures[head], pressures[rod]),
+                               (compression[head], compression[rod]), reliefs.line[f])  # fmt: skip
     if abs(spools_m[0]) >= p.SPOOL_DEAD_BAND:
-        out["swing"] = _swing(spools_m[0], swing_rate, pressures[10], pressures[11], compression[10:12])
+        out["swing"] = _swing(spools_m[0], swing_rate, pressures[10], pressures[11], compression[10:12], reliefs.swing)
     return out
 
 
@@ -155,6 +170,7 @@ def identify_areas(
     vel_mps: np.ndarray,
     swing_rate: float,
     layout: ValveLayout = DEFAULT_LAYOUT,
+    reliefs: ReliefSettings = PACKAGED_RELIEFS,
 ) -> dict[str, float]:
     """One sample (m^2, or NaN) of every table of ``layout``'s valve (:func:`~hexgym.mbl.schema.valve_tables`) from one
     instant's measurements.
@@ -163,7 +179,8 @@ def identify_areas(
     (:data:`hexgym.hydraulics.circuit.NODES`: pumps, NFC signals, boom/stick/bucket head and rod,
     swing ports a and b): the oil a node's compression takes, ``V / beta dp/dt``, is part of the
     flows; ``pump_flows`` m^3/s; ``spools_m`` (swing, boom, stick, bucket); cylinder extensions and
-    velocities (boom, stick, bucket); ``swing_rate`` rad/s.
+    velocities (boom, stick, bucket); ``swing_rate`` rad/s; ``reliefs``: the settings near which a pressure may be
+    a relief's (no sample there).
 
     Where two sections on different pumps feed one function (a two-pump valve's boom raise, stick), each pump's
     balance splits the function's flow: what the pump delivers less its centre bypass's flow (the NFC orifice's at
@@ -172,8 +189,9 @@ def identify_areas(
     """
     compression = volumes * compliance(pressures)[0] * pressure_rates  # m^3/s into each node's oil
     out = {spec.output: math.nan for spec in valve_tables(layout).values()}
-    functions = _functions(pressures, compression, spools_m, ext_m, vel_mps, swing_rate)
-    flows, regen = _section_flows(layout, functions, pressures, compression, pump_flows)
+    functions = _functions(pressures, compression, spools_m, ext_m, vel_mps, swing_rate, reliefs)
+    near_main = pressures[:2] > reliefs.main - RELIEF_MARGIN_PA
+    flows, regen = _section_flows(layout, functions, pressures, compression, pump_flows, near_main)
     stick2, swing_share, boom_share = priority_shares(layout, spools_m)
     shares = {_STICK: swing_share} | dict.fromkeys(stick2, boom_share)
     for i, section in enumerate(layout.sections):
@@ -181,20 +199,20 @@ def identify_areas(
         if fn is None or not fn.moving or fn.inlet not in section.areas:
             continue
         pump, share = pressures[section.pump], shares.get(i, 1.0)
-        if fn.p_in > MIN_PORT_PA and pump - fn.p_in > _CHECK_OPEN and pump < p.MAIN_RELIEF - RELIEF_MARGIN_PA:
+        if fn.p_in > MIN_PORT_PA and pump - fn.p_in > _CHECK_OPEN and not near_main[section.pump]:
             if share >= MIN_PRIORITY_SHARE:
                 out[f"{section.name}_{fn.inlet}_area_m2"] = _area(flows.get(i, math.nan), pump - fn.p_in) / share
     for f, fn in functions.items():
         if fn is not None and fn.moving:
             out |= _outlet_and_regeneration(layout, fn, regen.get(f), pressures)
-    out |= _bypass_samples(layout, functions, flows, spools_m, pressures, compression, pump_flows)
+    out |= _bypass_samples(layout, functions, flows, spools_m, pressures, compression, pump_flows, near_main)
     return out
 
 
 MIN_PRIORITY_SHARE = 0.5  # a meter-in passage throttled below this share by a priority valve gives no sample
 
 
-def _section_flows(layout: ValveLayout, functions: dict, pressures, compression, pump_flows) -> tuple[dict, dict]:
+def _section_flows(layout: ValveLayout, functions: dict, pressures, compression, pump_flows, near_main) -> tuple:
     """({section index: meter-in flow}, {function: regeneration flow into its inlet}) as far as the functions'
     continuity and the pumps' balances give them (NaN or absent where not)."""
     feeders = {f: [i for i, s in enumerate(layout.sections) if s.function == f and fn and fn.inlet in s.areas]
@@ -211,7 +229,7 @@ def _section_flows(layout: ValveLayout, functions: dict, pressures, compression,
         unknown = [i for i in active if i not in flows]
         if len(unknown) == 1:
             known = sum(flows[i] for i in active if i in flows)
-            flows[unknown[0]] = _pump_meter_in(k, pressures, compression, pump_flows) - known
+            flows[unknown[0]] = _pump_meter_in(k, pressures, compression, pump_flows, near_main[k]) - known
     regen = {}
     for f, fn in functions.items():
         if fn is None or not feeders[f]:
@@ -234,11 +252,11 @@ def _regeneration_passage(layout: ValveLayout, fn: _Function) -> str | None:
     return None
 
 
-def _pump_meter_in(k: int, pressures: np.ndarray, compression: np.ndarray, pump_flows: np.ndarray) -> float:
+def _pump_meter_in(k: int, pressures: np.ndarray, compression: np.ndarray, pump_flows: np.ndarray, near_main: bool):
     """Pump ``k``'s flow into its sections: its delivery less its line's compression and its centre bypass's flow,
     the NFC orifice's at the signal pressure (NaN near the main relief or with the NFC relief open)."""
     signal = pressures[2 + k]
-    if pressures[k] > p.MAIN_RELIEF - RELIEF_MARGIN_PA or signal > p.NFC_RELIEF:
+    if near_main or signal > p.NFC_RELIEF:
         return math.nan
     bypass = p.DISCHARGE_COEFFICIENT * p.NFC_ORIFICE_AREA * float(orifice_law(np.array(signal))[0])
     return pump_flows[k] - compression[k] - bypass - compression[2 + k]
@@ -284,7 +302,7 @@ def _section_meter_in(i: int, section, functions: dict, flows: dict) -> float:
     return flows.get(i, math.nan) if fn.inlet in section.areas else 0.0
 
 
-def _bypass_samples(layout, functions, flows, spools_m, pressures, compression, pump_flows) -> dict[str, float]:
+def _bypass_samples(layout, functions, flows, spools_m, pressures, compression, pump_flows, near_main) -> dict:
     """Each section's bypass table: its pump's bypass area while the pump's other sections are at neutral."""
     out: dict[str, float] = {}
     moved = section_spools(layout, spools_m)
@@ -293,7 +311,7 @@ def _bypass_samples(layout, functions, flows, spools_m, pressures, compression, 
         others = [j for j, s in enumerate(layout.sections) if s.pump == k and j != i]
         if np.any(np.abs(moved[others]) >= p.SPOOL_DEAD_BAND):
             continue
-        if pressures[k] > p.MAIN_RELIEF - RELIEF_MARGIN_PA:
+        if near_main[k]:
             continue
         q = pump_flows[k] - _section_meter_in(i, section, functions, flows) - compression[k]
         out[f"{section.name}_bypass_area_m2"] = _area(q, pressures[k] - pressures[2 + k], MIN_BYPASS_DROP_PA)

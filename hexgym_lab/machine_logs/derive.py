@@ -36,7 +36,7 @@ from hexgym.hydraulics.circuit import DEFAULT_LAYOUT, NODES, HydraulicCircuit, c
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.mbl.table import load_tables
-from hexgym.mbl.valve import LearnedValve, identify_areas
+from hexgym.mbl.valve import PACKAGED_RELIEFS, LearnedValve, ReliefSettings, identify_areas
 from hexgym_lab.machine_logs import signals as s
 
 SMOOTH_S = 0.15  # s: the Savitzky-Golay window (quadratic); wider rounds off the ~2 Hz modes (tests)
@@ -171,10 +171,11 @@ def estimated_pump_flows(t: np.ndarray, pressures: np.ndarray, max_flow: float) 
     return np.array([HydraulicCircuit.pump_flows(pr, dk, max_flow)[0] for pr, dk in zip(pumps, d, strict=True)])
 
 
-def area_samples(rows: LogRows, max_flow: float) -> list[dict[str, float]]:
+def area_samples(rows: LogRows, max_flow: float, reliefs: ReliefSettings = PACKAGED_RELIEFS) -> list[dict[str, float]]:
     """Every :data:`SAMPLE_EVERY_S` of ``rows``' usable rows: the spools (``<joint>_spool_m``) and each passage's
     area sample (:func:`hexgym.mbl.valve.identify_areas`; NaN where the passage does not meter clearly). Rows with
-    the stick driven into its stroke end give none (its relief, not the valve, sets the pressure)."""
+    the stick driven into its stroke end give none (its relief, not the valve, sets the pressure); ``reliefs``: the
+    unit's settings (no samples near them)."""
     period = float(np.median(np.diff(rows.t)))
     every = max(1, int(round(SAMPLE_EVERY_S / period)))
     flows = rows.pump_flows(max_flow)
@@ -188,7 +189,7 @@ def area_samples(rows: LogRows, max_flow: float) -> list[dict[str, float]]:
             continue
         volumes = circuit.volumes(ext)
         sample = identify_areas(rows.pressures[k], rows.rates[k], volumes, flows[k], u, ext, rows.vel[k],
-                                float(rows.swing_rate[k]), DEFAULT_LAYOUT)  # fmt: skip
+                                float(rows.swing_rate[k]), DEFAULT_LAYOUT, reliefs)  # fmt: skip
         out.append({f"{j}_spool_m": float(u[i]) for i, j in enumerate(kinematics.JOINTS)} | sample)
     return out
 

@@ -29,8 +29,10 @@ from hexgym.files import staged_dir
 from hexgym.machine import parameters as p
 from hexgym.mbl.schema import TABLE_SETS
 from hexgym.mbl.table import MBLTable, load_tables, packaged_tables_dir
+from hexgym.mbl.valve import ReliefSettings
 from hexgym_lab.machine_logs import derive
 from hexgym_lab.machine_logs.checks import check_log, trusted
+from hexgym_lab.machine_logs.reliefs import identify_reliefs, relief_hydraulics
 from hexgym_lab.mbl.fit import HOLDOUT_FRACTION, MAX_POINTS, TableData, fit_table
 from hexgym_lab.progress import track
 
@@ -43,6 +45,15 @@ MIN_BIN_SAMPLES = 3  # a bin with fewer measured samples is a gap (the packaged 
 PRIOR_PER_BIN = 3  # the packaged table's points per gap bin
 POOR_HOLDOUT = 0.10  # a table whose held-out error exceeds this share of its range is warned of
 LOG_SUFFIXES = (".csv",)
+TOE_MM = 1.0  # mm of spool past the dead band where the packaged table's shape stands in (see _past_toe)
+LEAKAGE_NOT_IDENTIFIED = "not determined by the logs: the packaged leaks stand"
+
+
+def _relief_settings(unit_reliefs: dict) -> ReliefSettings:
+    """The settings the identification keeps clear of: the identified ones, the data sheet's for the rest."""
+    line = dict(p.LINE_RELIEF) | unit_reliefs.get("line_pa", {})
+    main, swing = unit_reliefs.get("main_pa", p.MAIN_RELIEF), unit_reliefs.get("swing_pa", p.SWING_RELIEF)
+    return ReliefSettings(main, swing, line)
 
 
 def log_files(directory: str | Path) -> list[Path]:
@@ -89,11 +100,11 @@ def _held_out_logs(n_logs: int, seed: int) -> np.ndarray:
     return np.sort(np.random.default_rng(seed).permutation(n_logs)[:n_test])
 
 
-def _samples(rows: list[derive.LogRows], max_flow: float) -> dict[str, TableData]:
+def _samples(rows: list[derive.LogRows], max_flow: float, reliefs: ReliefSettings) -> dict[str, TableData]:
     """Each table's measured samples (spool, area) with each sample's log index."""
     per_table: dict[str, list] = {name: [] for name in TABLE_SETS[TABLE_SET]}
     for i, r in enumerate(track(rows, "fit: identify", "log")):
-        for q in derive.area_samples(r, max_flow):
+        for q in derive.area_samples(r, max_flow, reliefs):
             for name, spec in TABLE_SETS[TABLE_SET].items():
                 if np.isfinite(q[spec.output]):
                     per_table[name].append((q[spec.inputs[0]], q[spec.output], i))
@@ -153,6 +164,14 @@ def _with_prior(data: TableData, packaged: MBLTable) -> TableData:
                      np.concatenate([data.episode, np.full(len(x), -1)]))  # fmt: skip
 
 
+def _past_toe(data: TableData) -> TableData:
+    """The samples past the metering toe (:data:`TOE_MM` beyond the dead band): nearer it the passage passes so
+    little that the logs' speed noise, of which only the positive flows give samples, biases the areas up
+    (x1.5-3 at 0.5-1 mm past the dead band on a drawn unit); the packaged table's shape stands in there."""
+    keep = np.abs(data.X[:, 0]) >= p.SPOOL_DEAD_BAND + TOE_MM * 1e-3
+    return TableData(data.X[keep], data.y[keep], data.episode[keep])
+
+
 def _subsample(data: TableData, seed: int) -> TableData:
     if len(data.y) <= MAX_POINTS:
         return data
@@ -175,7 +194,7 @@ def fit_passage(name: str, data: TableData, packaged: MBLTable, held: np.ndarray
         why = f"{report['samples']} samples from {logs} logs; {MIN_SAMPLES} from {MIN_LOGS} needed"
         return packaged, report | {"kept": why}
     report["ratio_to_packaged"] = packaged_ratio(data, packaged)
-    data = _subsample(_with_prior(data, packaged), seed)
+    data = _subsample(_with_prior(_past_toe(data), packaged), seed)
     test = np.isin(data.episode, held)
     if not test.any():  # the held-out logs do not meter this passage: hold out a share of those that do
         measured = np.unique(data.episode[data.episode >= 0])
@@ -201,7 +220,9 @@ def fit_logs(log_dir: str | Path, out_dir: str | Path, seed: int = 0, say: Calla
         raise ValueError(f"--logs {log_dir}: none of the {len(paths)} logs can be used (see above)")
     pump = derive.identify_pump_max_flow(rows)
     max_flow = pump["value_m3s"] if pump["identified"] else p.PUMP_MAX_FLOW
-    samples = _samples(rows, max_flow)
+    relief_settings = identify_reliefs(rows, max_flow)
+    unit_reliefs = relief_hydraulics(relief_settings)
+    samples = _samples(rows, max_flow, _relief_settings(unit_reliefs))
     held = _held_out_logs(len(rows), seed)
     packaged = load_tables(None, TABLE_SET)
     tables, reports = {}, {}
@@ -229,11 +250,12 @@ def fit_logs(log_dir: str | Path, out_dir: str | Path, seed: int = 0, say: Calla
         },  # fmt: skip
         "tables": reports,
         "kept_from_package": {n: r["kept"] for n, r in reports.items() if "kept" in r},
-        "hydraulics": {"pump": {"max_flow_m3s": max_flow}} if pump["identified"] else {},
+        "hydraulics": ({"pump": {"max_flow_m3s": max_flow}} if pump["identified"] else {})
+        | ({"relief": unit_reliefs} if unit_reliefs else {}),
         "scalars": {
             "pump_max_flow": pump | {"applied_by_model": bool(pump["identified"])},
-            "relief_settings": {"identified": False, "why": "not done: the packaged settings stand"},
-            "leakage": {"identified": False, "why": "not done: the packaged leaks stand"},
+            "relief_settings": {k: v | {"applied_by_model": v["identified"]} for k, v in relief_settings.items()},
+            "leakage": {"identified": False, "why": LEAKAGE_NOT_IDENTIFIED},
         },  # fmt: skip
         "fit_seconds": round(time.perf_counter() - t0, 1),
     }
@@ -282,4 +304,12 @@ def coverage_report(provenance: dict) -> str:
                      f"{pump['logs']} logs): the model's pumps")  # fmt: skip
     else:
         lines.append(f"pump max flow: not identified: {pump['why']}")
+    for name, r in provenance["scalars"]["relief_settings"].items():
+        if r["identified"]:
+            lines.append(f"relief {name}: {r['value_pa'] / 1e6:.2f} MPa ({r['relative_to_packaged']:.3f} x packaged, "
+                         f"standard error {r['standard_error_pa'] / 1e6:.2f} MPa, {r['rows']} rows of {r['logs']} "
+                         "logs): the model's")  # fmt: skip
+        else:
+            lines.append(f"relief {name}: not identified ({r['why']}): the packaged {r['packaged_pa'] / 1e6:.1f} MPa")
+    lines.append(f"leakage: {provenance['scalars']['leakage']['why']}")
     return "\n".join(lines + warnings)

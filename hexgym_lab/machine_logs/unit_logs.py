@@ -7,11 +7,44 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from hexgym.model.commandlog import CommandLog, write_command_log
 from hexgym_lab.mbl.operator_logs import suite_log
 
 RATE_HZ = 100.0
 JITTER = 0.2
+# How far a drawn unit differs from the packaged one (docs/machine-logs.md): each learned metering passage's area,
+# the pumps' maximum flow, each relief's setting (main, swing crossover, each cylinder's port reliefs)
+AREA_SCALE_RANGE = (0.8, 1.2)
+PUMP_FLOW_SCALE_RANGE = (0.85, 1.05)
+RELIEF_SCALE_RANGE = (0.93, 1.07)
+
+
+def drawn_unit(seed: int) -> dict:
+    """A unit drawn within the documented ranges, as a hydraulics file's content: every learned metering passage's
+    area (the unloading valve and the bypasses as packaged), the pumps' maximum flow and every relief setting, each
+    uniform in its range; leakage as packaged."""
+    from hexgym.hydraulics.circuit import DEFAULT_LAYOUT
+    from hexgym.hydraulics.overrides import passage_names
+    from hexgym.machine import parameters as p
+    from hexgym.mbl.schema import TABLE_SETS
+
+    rng = np.random.default_rng(seed)
+    learned = set(TABLE_SETS["circuit"])
+    passages = [n for n in passage_names(DEFAULT_LAYOUT) if n in learned and not n.endswith("_bypass")]
+    scales = {n: round(float(rng.uniform(*AREA_SCALE_RANGE)), 3) for n in passages}
+    pump = round(float(rng.uniform(*PUMP_FLOW_SCALE_RANGE)), 3)
+
+    def relief(setting: float) -> float:
+        return round(setting * float(rng.uniform(*RELIEF_SCALE_RANGE)), -4)
+
+    return {
+        "valve": {"passage_area_scale": scales},
+        "pump": {"max_flow_scale": pump},
+        "relief": {"main_pa": relief(p.MAIN_RELIEF), "swing_pa": relief(p.SWING_RELIEF),
+                   "line_pa": {k: relief(v) for k, v in p.LINE_RELIEF.items()}},
+    }  # fmt: skip
 
 
 def _one(task: tuple[str, str | None, int, int, str, float | None]) -> str:
@@ -62,13 +95,28 @@ def main(argv: list[str] | None = None) -> int:
 
     parser = argparse.ArgumentParser(description="machine logs of a reference unit on a suite's operator-like logs")
     parser.add_argument("out", metavar="DIR", help="output directory: <style>_<seed>_<i>.csv and commands/")
-    parser.add_argument("--hydraulics", default=None, metavar="FILE", help="the unit (default: the packaged one)")
+    unit = parser.add_mutually_exclusive_group()
+    unit.add_argument("--hydraulics", default=None, metavar="FILE", help="the unit (default: the packaged one)")
+    unit.add_argument(
+        "--drawn-unit",
+        type=int,
+        default=None,
+        metavar="SEED",
+        help="a unit drawn within the documented ranges (drawn_unit), written to DIR/unit.json",
+    )
     parser.add_argument("--suite-seed", type=int, default=0, help="the suite's seed (default: 0)")
     parser.add_argument("--count", type=int, default=1, help="logs (default: 1)")
     parser.add_argument("--style", default="operator", help="operator, bucket_stick or excitation (default: operator)")
     parser.add_argument("--workers", type=int, default=2, help="processes (default: 2)")
     args = parser.parse_args(argv)
-    for path in write_unit_logs(args.out, args.hydraulics, args.suite_seed, args.count, args.style, None, args.workers):
+    hydraulics = args.hydraulics
+    if args.drawn_unit is not None:
+        import json
+
+        Path(args.out).mkdir(parents=True, exist_ok=True)
+        hydraulics = str(Path(args.out) / "unit.json")
+        Path(hydraulics).write_text(json.dumps(drawn_unit(args.drawn_unit), indent=2))
+    for path in write_unit_logs(args.out, hydraulics, args.suite_seed, args.count, args.style, None, args.workers):
         print(path)
     return 0
 
