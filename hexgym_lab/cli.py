@@ -1097,7 +1097,7 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
     evaluate.add_argument("--material-density-scale", type=float, default=None, metavar="X",
                           help="the material's density times X, 0.5-1.5 (default: 1)")  # fmt: skip
     evaluate.add_argument("--engine-power-scale", type=float, default=None, metavar="X",
-                          help="the engine's power times X, 0.5-1 (the pumps' power limit follows; default: 1)")  # fmt: skip
+                          help="the engine's power times X, 0.5-1 (its pump power limit; default: 1)")  # fmt: skip
     add_ray_option(evaluate, "the episodes")
     evaluate.set_defaults(func=_cmd_evaluate)
 

@@ -339,6 +339,9 @@ class HexLoadingEnv(SiteEnv):
     | model | ``"learned"`` | ``"reference"``: the same task on the analytical circuit (the real machine's stand-in) |
     | dig_start_share | 0.0 | share of episodes starting with the open bucket over the pile (a curriculum) |
     | loaded_start_share | 0.0 | share starting loaded: curled between pile and truck, or reached out to the truck |
+    | site_ranges | ``"training"`` | ``"shifted"``: the pile and truck just outside those ranges (``sample_layout``) |
+    | material_density_scale | 1.0 | the material's density times this (0.5-1.5): heavier loads, harder digging |
+    | engine_power_scale | 1.0 | the engine's power times this (0.5-1): the pumps' power limit follows |
 
     ``model="reference"`` runs the whole task on the reference model (:mod:`hexgym.envs.reference_machine`):
     a few times real time, for checking what was learned on the fast model, not for training.
@@ -346,7 +349,8 @@ class HexLoadingEnv(SiteEnv):
     Metadata: ``render_fps`` = 10, the control rate.
 
     ## Version History
-    * v0: the loading task, its shaping terms and start curriculum (``dig_start_share``, ``loaded_start_share``).
+    * v0: the loading task, its shaping terms and start curriculum (``dig_start_share``, ``loaded_start_share``), and
+      its off-nominal conditions (``site_ranges``, ``material_density_scale``, ``engine_power_scale``).
     """
 
     env_id = ENV_ID

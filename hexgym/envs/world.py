@@ -145,12 +145,13 @@ def sample_layout(rng: np.random.Generator, ranges: str = "training") -> Layout:
 
 
 def _sample_shifted_layout(rng: np.random.Generator) -> Layout:
-    """:func:`sample_layout`'s ``"shifted"`` site: each band below or above its range by a fair coin."""
+    """:func:`sample_layout`'s ``"shifted"`` site: each band below or above its range by a fair coin (where it has
+    two)."""
     side = rng.choice((-1.0, 1.0))  # the truck's side; the pile turns to the other
     pile_angle = -side * rng.uniform(*p.SHIFTED_PILE_SWING_BAND)
     pile_distance = rng.uniform(*p.SHIFTED_PILE_DISTANCE_BANDS[rng.integers(2)])
     truck_angle = side * rng.uniform(*p.SHIFTED_TRUCK_SWING_BANDS[rng.integers(2)])
-    truck_distance = rng.uniform(*p.SHIFTED_TRUCK_DISTANCE_BANDS[rng.integers(2)])
+    truck_distance = rng.uniform(*p.SHIFTED_TRUCK_DISTANCE_BANDS[rng.integers(len(p.SHIFTED_TRUCK_DISTANCE_BANDS))])
     return _layout(rng, pile_angle, pile_distance, truck_angle, truck_distance)
 
 
