@@ -492,12 +492,30 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     env_kwargs = {"model": args.model} | ({"time_limit": args.seconds} if args.seconds is not None else {})
     if args.tables != DEFAULT_TABLE_SET:  # with --model reference, the environment refuses it in one line
         env_kwargs["tables"] = args.tables
+    env_kwargs |= _robustness_options(args, env_kwargs)
     result = evaluate(args.policy, episodes=args.episodes, seed=args.seed, env_kwargs=env_kwargs, json_out=args.json,
                       workers=args.workers, ray=args.ray, loader_settings=args.loader_settings)  # fmt: skip
     print(json.dumps({k: v for k, v in result.items() if k != "per_episode"}, indent=2))
     if args.json:
         wrote(args.json, "the figures, per episode too")
     return 0
+
+
+ROBUSTNESS_OPTIONS = ("site_ranges", "material_density_scale", "engine_power_scale")  # HexLoading-v0's, by flag
+
+
+def _robustness_options(args: argparse.Namespace, env_kwargs: dict) -> dict:
+    """The robustness options given (``--site-ranges``, ``--material-density-scale``, ``--engine-power-scale``) as
+    HexLoading-v0's keywords, checked here: ValueError naming the flag and the value."""
+    from hexgym.envs.loading import LoadingConfig
+
+    given = {name: getattr(args, name) for name in ROBUSTNESS_OPTIONS if getattr(args, name) is not None}
+    for name, value in given.items():
+        try:
+            LoadingConfig(**{k: v for k, v in env_kwargs.items() if k != "time_limit"}, **{name: value})
+        except ValueError as exc:
+            raise ValueError(f"--{name.replace('_', '-')} {value}: {exc}") from None
+    return given
 
 
 def _cmd_curves(args: argparse.Namespace) -> int:
@@ -1073,6 +1091,13 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
     evaluate.add_argument("--env", default="HexLoading-v0", help="environment id (default: HexLoading-v0; others, "
                           "e.g. HexReach-v0: success rate, mean return, time to success of a model .zip)")  # fmt: skip
     evaluate.add_argument("--loader-settings", **_LOADER_SETTINGS_OPTION)
+    evaluate.add_argument("--site-ranges", choices=("training", "shifted"), default=None,
+                          help="HexLoading-v0's site_ranges: 'shifted' places the pile and truck just outside their "
+                          "training ranges (default: training)")  # fmt: skip
+    evaluate.add_argument("--material-density-scale", type=float, default=None, metavar="X",
+                          help="the material's density times X, 0.5-1.5 (default: 1)")  # fmt: skip
+    evaluate.add_argument("--engine-power-scale", type=float, default=None, metavar="X",
+                          help="the engine's power times X, 0.5-1 (its pump power limit; default: 1)")  # fmt: skip
     add_ray_option(evaluate, "the episodes")
     evaluate.set_defaults(func=_cmd_evaluate)
 

@@ -1190,7 +1190,7 @@ def _(tmp):
     return lambda: HexLoadingVectorEnv(2, tables=["paper"])
 
 
-@case("API argument", "set_payload(1e9)", r"payload must be a finite mass from 0 to 2145 kg", error=ValueError)
+@case("API argument", "set_payload(1e9)", r"payload must be a finite mass from 0 to 3218 kg", error=ValueError)
 def _(tmp):
     from hexgym.hydraulics.reference import ReferenceModel
 

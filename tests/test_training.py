@@ -136,10 +136,10 @@ def _terminate() -> None:
 
 
 @pytest.mark.parametrize("stop", [_interrupt, _terminate], ids=["ctrl-c", "sigterm"])
-def test_a_stopped_run_leaves_a_usable_model(tmp_path, tiny_yaml, monkeypatch, stop):
+def test_a_stopped_run_leaves_a_usable_model(tmp_path, tiny_yaml, monkeypatch, capsys, stop):
     import signal
 
-    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 
     from hexgym_lab.agents import training
 
@@ -149,15 +149,23 @@ def test_a_stopped_run_leaves_a_usable_model(tmp_path, tiny_yaml, monkeypatch, s
                 stop()
             return True
 
-    monkeypatch.setattr(training, "_rollout_report_callback", lambda *_: StopAfter())
+    report = training._rollout_report_callback  # still writes the curve
+    monkeypatch.setattr(training, "_rollout_report_callback", lambda *args: CallbackList([report(*args), StopAfter()]))
     before = signal.getsignal(signal.SIGTERM)  # another test's library (Ray) may have set its own
     with pytest.raises(KeyboardInterrupt):
         train("ppo", timesteps=100_000, seed=0, log_dir=tmp_path, hyperparams=tiny_yaml, n_envs=2,
               checkpoint_every=128, progress_bar=False)  # fmt: skip
-    path = tmp_path / "ppo_HexLoading-v0" / "model.zip"
+    run_dir = tmp_path / "ppo_HexLoading-v0"
+    path = run_dir / "model.zip"
     policy = load_trained(path)
     assert 200 <= policy.model.num_timesteps < 300 and normalizer_path(path).is_file()
     assert signal.getsignal(signal.SIGTERM) is before  # the handler is put back
+    # it says where what it kept lies: the model and its normaliser, the last checkpoint and its, the curve
+    checkpoint = training.latest_checkpoint(run_dir)
+    assert checkpoint is not None and normalizer_path(checkpoint).is_file()
+    said = capsys.readouterr().out
+    for kept in (path, normalizer_path(path), checkpoint, normalizer_path(checkpoint), run_dir / "curve.csv"):
+        assert str(kept) in said
 
 
 @pytest.mark.slow  # ~40-75 s on 2 cores: two rounds of spawned recording workers

@@ -22,7 +22,7 @@ import numbers
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar, NamedTuple, TypeVar
+from typing import TYPE_CHECKING, Any, ClassVar, NamedTuple, TypeVar
 
 import gymnasium as gym
 import mujoco
@@ -53,6 +53,9 @@ from hexgym.machine.render import ModelMirror
 from hexgym.mbl.schema import DEFAULT_TABLE_SET
 from hexgym.mbl.table import resolve_tables
 from hexgym.model.backend import backend_for
+
+if TYPE_CHECKING:
+    from hexgym.hydraulics.overrides import HydraulicsOverrides
 
 MAX_TIME_LIMIT = 86_400.0  # s: an episode of at most a day (a longer one is a mistake that fills memory)
 MODELS = ("learned", "reference")
@@ -196,6 +199,21 @@ class SiteConfig:
         """The learned model's tables' directory: None for a set's packaged tables, else the fitted model's."""
         return resolve_tables(self.tables)[1]
 
+    @property
+    def material_density(self) -> float:
+        """The pile's material, kg/m^3 (``MATERIAL_DENSITY``; a task may make it heavier)."""
+        return float(p.MATERIAL_DENSITY)
+
+    @property
+    def engine_power_w(self) -> float:
+        """The engine's power, W (``ENGINE_POWER``; a task may make it weaker)."""
+        return float(p.ENGINE_POWER)
+
+    def hydraulics(self) -> HydraulicsOverrides | None:
+        """The machine's circuit where it differs from the data sheet's and a fitted model's own (a task's weaker
+        engine): None here."""
+        return None
+
     def _check_model(self) -> None:
         """Refuse an unknown ``model``, and learned-model options given with ``model="reference"``."""
         check_choice("model", self.model, MODELS)
@@ -251,15 +269,19 @@ class SiteEnv(gym.Env):
         if c.model == "reference":
             from hexgym.envs.reference_machine import ReferenceMachine, reference_world_model
 
-            self.machine = ReferenceMachine(reference_world_model(c.scene_path, tool_contact_slots=CONTACT_SLOTS))
+            world = reference_world_model(c.scene_path, tool_contact_slots=CONTACT_SLOTS)
+            self.machine = ReferenceMachine(world, hydraulics=c.hydraulics())
         else:
             self.machine = make_machine(
-                c.backend, c.scene_path, c.table_set, tool_contact_slots=CONTACT_SLOTS, tables_dir=c.tables_dir
-            )
+                c.backend, c.scene_path, c.table_set, tool_contact_slots=CONTACT_SLOTS, tables_dir=c.tables_dir,
+                hydraulics=c.hydraulics(),
+            )  # fmt: skip
         self.physics = self.machine.physics
         self.sites = MachineSites([self.machine])
         self.world = self.sites.worlds[0]
-        self.task = LoadingTask(1, self.sites, *c.site_rules(), c.earthwork_periods)
+        self.task = LoadingTask(
+            1, self.sites, *c.site_rules(), c.earthwork_periods, c.material_density, c.engine_power_w
+        )
         self._period, self._periods = self.task.period, self.task.periods
         self._bucket_body, self._tip_site = self.sites.bucket_body, self.sites.tip_site
         self._renderer: Any = None
@@ -359,7 +381,8 @@ class SiteEnv(gym.Env):
             return None
         if self.earth is None:
             raise RuntimeError("call reset() before render()")
-        self.world.show_loads(self.earth.truck_kg, self.earth.bucket_kg)
+        scale = p.MATERIAL_DENSITY / self.config.material_density  # drawn by volume: kg of the nominal material
+        self.world.show_loads(self.earth.truck_kg * scale, self.earth.bucket_kg * scale)
         self.world.aim_camera(self.layout, self.config.width / self.config.height)
         if self._pile_shown != self.task.revision[0]:
             self.world.show_pile(self.earth.pile.heights)

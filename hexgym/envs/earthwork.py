@@ -40,7 +40,7 @@ from hexgym.envs.compiled import jit
 from hexgym.machine import parameters as p
 from hexgym.machine.bucket import BUCKET
 
-_GAMMA = p.MATERIAL_DENSITY * p.GRAVITY  # unit weight, N/m^3
+_GRAVITY = float(p.GRAVITY)
 EDGE_SAMPLES = 5  # points along the cutting edge where the depth is measured
 RELAX_ITERATIONS = 3  # avalanche passes after each cut
 _RAKE_LIMITS = np.radians((5.0, 90.0))  # rake angles outside this are treated as at the limit
@@ -104,30 +104,32 @@ def table_at(values: np.ndarray, start: float, step: float, x: float) -> float:
 
 
 @jit
-def earthmoving_force(depth: float, n_gamma: float, surcharge_pa: float) -> float:
+def earthmoving_force(depth: float, n_gamma: float, surcharge_pa: float, density: float = _DENSITY) -> float:
     """The fundamental earthmoving equation without cohesion: ``w (gamma d^2 N_gamma + q d N_q)`` with
-    ``N_q = 2 N_gamma`` (McKyes' flat blade), N, for the bucket's edge."""
-    return _WIDTH * (_GAMMA * depth**2 * n_gamma + surcharge_pa * depth * 2.0 * n_gamma)
+    ``N_q = 2 N_gamma`` (McKyes' flat blade), N, for the bucket's edge in material of ``density`` (kg/m^3; its unit
+    weight ``gamma``)."""
+    return _WIDTH * (density * _GRAVITY * depth**2 * n_gamma + surcharge_pa * depth * 2.0 * n_gamma)
 
 
 @jit
-def surcharge_pressure(bucket_volume: float) -> float:
-    """Pressure (Pa) of the bucket's contents (m^3) spread over its mouth: the earthmoving equation's surcharge."""
-    return _GAMMA * bucket_volume / (_WIDTH * _MOUTH_LENGTH)
+def surcharge_pressure(bucket_volume: float, density: float = _DENSITY) -> float:
+    """Pressure (Pa) of the bucket's contents (m^3 of material of ``density``, kg/m^3) spread over its mouth: the
+    earthmoving equation's surcharge."""
+    return density * _GRAVITY * bucket_volume / (_WIDTH * _MOUTH_LENGTH)
 
 
 @jit
-def _magnitude(depth: float, rake: float, surcharge_pa: float) -> float:
+def _magnitude(depth: float, rake: float, surcharge_pa: float, density: float) -> float:
     """The earthmoving force's magnitude (N) at ``depth`` and ``rake``, from the tabulated N_gamma."""
     if depth <= 0.0:
         return 0.0
-    return earthmoving_force(depth, table_at(_N_GAMMA, _N_GAMMA_START, _N_GAMMA_STEP, rake), surcharge_pa)
+    return earthmoving_force(depth, table_at(_N_GAMMA, _N_GAMMA_START, _N_GAMMA_STEP, rake), surcharge_pa, density)
 
 
-def digging_resistance(depth: float, rake: float, surcharge_pa: float) -> float:
+def digging_resistance(depth: float, rake: float, surcharge_pa: float, density: float = p.MATERIAL_DENSITY) -> float:
     """Magnitude (N) of the earthmoving force on the bucket's edge cutting ``depth`` m deep at ``rake``
-    (rakes outside 5-90 degrees count as at the limit)."""
-    return float(_magnitude(float(depth), float(rake), float(surcharge_pa)))
+    (rakes outside 5-90 degrees count as at the limit) in material of ``density`` (kg/m^3)."""
+    return float(_magnitude(float(depth), float(rake), float(surcharge_pa), float(density)))
 
 
 @jit
@@ -144,12 +146,13 @@ def retained_volume(tilt: float) -> float:
 
 
 @jit
-def spill_out(bucket_kg: float, tilt: float, dt: float) -> float:
+def spill_out(bucket_kg: float, tilt: float, dt: float, density: float = _DENSITY) -> float:
     """Material (kg) that runs out of a bucket holding ``bucket_kg`` at ``tilt`` over ``dt`` s: the excess over
-    :func:`retained_volume` with a time constant; the last kilogram goes too (not asymptotically)."""
+    :func:`retained_volume` (of material of ``density``, kg/m^3) with a time constant; the last kilogram goes too
+    (not asymptotically)."""
     if bucket_kg <= 0.0:
         return 0.0
-    excess = bucket_kg - retained_volume(tilt) * _DENSITY
+    excess = bucket_kg - retained_volume(tilt) * density
     if excess <= 0.0:
         return 0.0
     out = excess * (1.0 - math.exp(-dt / _SPILL_TIME))
@@ -161,33 +164,35 @@ def spill_out(bucket_kg: float, tilt: float, dt: float) -> float:
 @jit
 def resistance(
     depth: float, bucket_kg: float, lx: float, ly: float, lz: float, tx: float, ty: float, tz: float,
-    vx: float, vy: float, vz: float,
+    vx: float, vy: float, vz: float, density: float = _DENSITY,
 ) -> tuple[float, float, float]:  # fmt: skip
     """The earthmoving force (N, world) on the bucket ``depth`` m deep in the pile with ``bucket_kg`` already in
     it, against its edge's velocity ``v`` (each part full above ``DIG_REFERENCE_SPEED``, in proportion below);
-    ``l`` the unit vector along the edge, ``t`` the teeth's direction. In the arm's plane the edge cuts (the
-    earthmoving equation); across it the leading side plate pushes the pile (:func:`side_plate_force`)."""
+    ``l`` the unit vector along the edge, ``t`` the teeth's direction; the material of ``density`` (kg/m^3). In the
+    arm's plane the edge cuts (the earthmoving equation); across it the leading side plate pushes the pile
+    (:func:`side_plate_force`)."""
     speed = math.sqrt(vx * vx + vy * vy + vz * vz)
     ux, uy = (vx / speed, vy / speed) if speed > 1e-9 else (tx, ty)  # direction of travel
     horizontal = math.hypot(ux, uy)
     forward = (tx * ux + ty * uy) / horizontal if horizontal > 1e-9 else 0.0
     rake = math.atan2(-tz, forward)
-    magnitude = _magnitude(depth, rake, surcharge_pressure(bucket_kg / _DENSITY))
+    magnitude = _magnitude(depth, rake, surcharge_pressure(bucket_kg / density, density), density)
     scale = -magnitude / max(speed, _REFERENCE_SPEED)
     fx, fy, fz = scale * vx, scale * vy, scale * vz
     sideways = fx * lx + fy * ly + fz * lz
     across = vx * lx + vy * ly + vz * lz  # the edge's speed along itself: the side plate's push
-    side = -side_plate_force(depth) * across / max(abs(across), _REFERENCE_SPEED)
+    side = -side_plate_force(depth, density) * across / max(abs(across), _REFERENCE_SPEED)
     return fx + (side - sideways) * lx, fy + (side - sideways) * ly, fz + (side - sideways) * lz
 
 
 @jit
-def side_plate_force(depth: float) -> float:
-    """Passive earth force (N) on a side plate pushed sideways ``depth`` m deep into the pile (Coulomb, with the
-    steel's wall friction, no cohesion): ``K_p gamma d^2 / 2`` over the plate's length, the mouth's strike line."""
+def side_plate_force(depth: float, density: float = _DENSITY) -> float:
+    """Passive earth force (N) on a side plate pushed sideways ``depth`` m deep into the pile of material of
+    ``density`` (kg/m^3; Coulomb, with the steel's wall friction, no cohesion): ``K_p gamma d^2 / 2`` over the
+    plate's length, the mouth's strike line."""
     if depth <= 0.0:
         return 0.0
-    return 0.5 * _PASSIVE * _GAMMA * depth * depth * _MOUTH_LENGTH
+    return 0.5 * _PASSIVE * density * _GRAVITY * depth * depth * _MOUTH_LENGTH
 
 
 # -- the pile: site i of a stack of heightmaps ----------------------------------------------------
@@ -330,10 +335,11 @@ def repose_limit(spacing: float) -> float:
 def dig(
     heights: np.ndarray, origin: np.ndarray, spacing: float, top: float, i: int, bucket_kg: float,
     x: float, y: float, z: float, lx: float, ly: float, lz: float, tx: float, ty: float, tz: float,
-    vx: float, vy: float, vz: float, dt: float, fx: float, fy: float, fz: float,
+    vx: float, vy: float, vz: float, dt: float, fx: float, fy: float, fz: float, density: float = _DENSITY,
 ) -> tuple[float, float, float, float, float]:  # fmt: skip
     """Cut pile ``i`` for ``dt`` s with the edge at (x, y, z) moving at ``v`` (m/s; the fill), the bucket holding
-    ``bucket_kg``; ``l`` along the edge, ``t`` along the teeth, ``f`` the velocity the resistance opposes.
+    ``bucket_kg``; ``l`` along the edge, ``t`` along the teeth, ``f`` the velocity the resistance opposes; the
+    material of ``density`` (kg/m^3).
 
     Returns the resistance (N, world), the material taken (kg) and the cutting depth (m: the mean over
     ``EDGE_SAMPLES`` points along the edge of the material above it; 0: not cutting, no force).
@@ -350,10 +356,10 @@ def dig(
     # fill: the edge slices a layer `depth` thick as it moves along the teeth; buried, the pile holds the
     # contents whatever the tilt, so the bucket fills to its heap
     cut_speed = max(vx * tx + vy * ty + vz * tz, 0.0)
-    room = max(_HEAPED - bucket_kg / _DENSITY, 0.0)
+    room = max(_HEAPED - bucket_kg / density, 0.0)
     wanted = min(_WIDTH * depth * cut_speed * dt, room)
-    taken_kg = take(heights, origin, spacing, i, x, y, lx, ly, _WIDTH, floor, wanted) * _DENSITY
-    rx, ry, rz = resistance(depth, bucket_kg + taken_kg, lx, ly, lz, tx, ty, tz, fx, fy, fz)
+    taken_kg = take(heights, origin, spacing, i, x, y, lx, ly, _WIDTH, floor, wanted) * density
+    rx, ry, rz = resistance(depth, bucket_kg + taken_kg, lx, ly, lz, tx, ty, tz, fx, fy, fz, density)
     return rx, ry, rz, taken_kg, depth
 
 
@@ -505,11 +511,13 @@ class Earthwork:
     Args:
         pile: the material heap.
         stores: the bucket, truck and spilled kilograms (default: a row of its own, empty).
+        density: the material's, kg/m^3.
     """
 
-    def __init__(self, pile: Pile, stores: np.ndarray | None = None) -> None:
+    def __init__(self, pile: Pile, stores: np.ndarray | None = None, density: float = p.MATERIAL_DENSITY) -> None:
         self.pile = pile
         self.stores = np.zeros(3) if stores is None else stores
+        self.density = float(density)
 
     @property
     def bucket_kg(self) -> float:
@@ -541,7 +549,7 @@ class Earthwork:
     @property
     def pile_kg(self) -> float:
         """Material in the pile, kg."""
-        return self.pile.volume() * p.MATERIAL_DENSITY
+        return self.pile.volume() * self.density
 
     def total_kg(self) -> float:
         """Pile + bucket + truck + spilled, kg: constant."""
@@ -562,14 +570,14 @@ class Earthwork:
         pile = self.pile
         values = [float(v) for v in (*edge, *lateral, *teeth, *velocity, dt, *f)]
         fx, fy, fz, taken_kg, depth = dig(
-            pile.stack, pile.origins, pile.spacing, pile.top, pile.index, self.bucket_kg, *values
+            pile.stack, pile.origins, pile.spacing, pile.top, pile.index, self.bucket_kg, *values, self.density
         )
         self.bucket_kg += taken_kg
         return DigResult(np.array([fx, fy, fz]), taken_kg, depth)
 
     def spill(self, tilt: float, into_truck: bool, dt: float) -> SpillResult:
         """Let what the bucket cannot hold at ``tilt`` run out for ``dt`` s, into the truck or onto the ground."""
-        out = float(spill_out(self.bucket_kg, float(tilt), float(dt)))
+        out = float(spill_out(self.bucket_kg, float(tilt), float(dt), self.density))
         self.bucket_kg -= out
         if into_truck:
             self.truck_kg += out

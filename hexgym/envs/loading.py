@@ -9,19 +9,25 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from hexgym.checks import check_positive
+from hexgym.checks import check_choice, check_positive, check_range
 from hexgym.envs import ENV_ID
 from hexgym.envs.base import SiteConfig, SiteEnv, SiteRules, is_number, task_spaces
 from hexgym.envs.earthwork import mouth_normal, retained_volume
 from hexgym.envs.sites import make_machine, native_world_model
 from hexgym.envs.task import REWARD_TERMS, STEP_PERIOD, SiteStart, wrap
-from hexgym.envs.world import BED_RIM_HEIGHT, Layout, entry_radius, heap_for, sample_layout
+from hexgym.envs.world import BED_RIM_HEIGHT, SITE_RANGES, Layout, entry_radius, heap_for, sample_layout
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.machine.bucket import BUCKET
+from hexgym.mbl.schema import CIRCUIT_TABLE_SETS
+from hexgym.mbl.table import model_hydraulics
+
+if TYPE_CHECKING:
+    from hexgym.hydraulics.overrides import HydraulicsOverrides
 
 # what other modules take from here, defined in the modules the environment is built of
 __all__ = [
@@ -30,6 +36,7 @@ __all__ = [
     "sample_start", "task_spaces",
 ]  # fmt: skip
 
+ENGINE_POWER_SCALE_RANGE = (0.5, 1.0)  # engine_power_scale: from half the rated power to all of it
 START_NOISE = 0.1  # rad, uniform noise on the start pose's boom, stick and bucket angles
 _HOME = np.array([0.0, 0.35, 0.85, 0.75])  # the machine's keyframe `home`: bucket curled near the ground
 OBSERVATION_NAMES = (
@@ -42,9 +49,10 @@ OBSERVATION_NAMES = (
 )  # fmt: skip
 
 
-def sample_start(rng: np.random.Generator) -> tuple[Layout, np.ndarray]:
-    """An episode's random site and the machine's start angles (rad), drawn from ``rng`` in a fixed order."""
-    layout = sample_layout(rng)
+def sample_start(rng: np.random.Generator, site_ranges: str = "training") -> tuple[Layout, np.ndarray]:
+    """An episode's random site (:func:`hexgym.envs.world.sample_layout` from ``site_ranges``) and the machine's
+    start angles (rad), drawn from ``rng`` in a fixed order."""
+    layout = sample_layout(rng, site_ranges)
     between = wrap(float(layout.truck_direction - layout.pile_direction))
     q = _HOME.copy()
     q[0] = layout.pile_direction + rng.uniform(0.0, 1.0) * between
@@ -98,11 +106,13 @@ def bucket_angle_for(teeth_world_angle: float | None = None, mouth_world_angle: 
     return float((angle + 3.5) % (2 * math.pi) - 3.5)
 
 
-def loaded_start_pose(rng: np.random.Generator, layout: Layout) -> tuple[np.ndarray, float]:
+def loaded_start_pose(
+    rng: np.random.Generator, layout: Layout, density: float = p.MATERIAL_DENSITY
+) -> tuple[np.ndarray, float]:
     """Joint angles and payload (kg) with a loaded bucket lifted clear (``HexLoading-v0``'s start with
     ``loaded_start_share``): half the starts curled mouth up, close in, anywhere on the swing from ``layout``'s
     pile to its truck (the carry to learn); half reached out to the bed's near wall, tilted, about to pour
-    (the dump to learn: where opening the bucket pays at once)."""
+    (the dump to learn: where opening the bucket pays at once). ``density``: the material's, kg/m^3."""
     at_truck = rng.uniform() < 0.5
     radii, heights, tilts = (AT_TRUCK_RADIUS, AT_TRUCK_HEIGHT, AT_TRUCK_TILT) if at_truck else (
         LOADED_START_RADIUS, LOADED_START_HEIGHT, LOADED_START_TILT)  # fmt: skip
@@ -116,7 +126,7 @@ def loaded_start_pose(rng: np.random.Generator, layout: Layout) -> tuple[np.ndar
         raise RuntimeError(f"no reachable loaded start pose in {LOADED_START_TRIES} draws")
     if at_truck:
         swing = layout.truck_direction + rng.uniform(-AT_TRUCK_SWING, AT_TRUCK_SWING)
-        payload = rng.uniform(*AT_TRUCK_FILL) * retained_volume(tilt) * p.MATERIAL_DENSITY
+        payload = rng.uniform(*AT_TRUCK_FILL) * retained_volume(tilt) * density
     else:
         swing = layout.pile_direction + rng.uniform(0.0, 1.0) * wrap(
             float(layout.truck_direction - layout.pile_direction)
@@ -144,9 +154,22 @@ class LoadingConfig(SiteConfig):
     carry_weight: float = 0.0
     dig_start_share: float = 0.0
     loaded_start_share: float = 0.0
+    site_ranges: str = "training"
+    material_density_scale: float = 1.0
+    engine_power_scale: float = 1.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        check_choice("site_ranges", self.site_ranges, SITE_RANGES)
+        lo, hi = p.MATERIAL_DENSITY_SCALE_RANGE
+        self._set("material_density_scale", check_range("material_density_scale", self.material_density_scale, lo, hi))
+        lo, hi = ENGINE_POWER_SCALE_RANGE
+        self._set("engine_power_scale", check_range("engine_power_scale", self.engine_power_scale, lo, hi))
+        if self.engine_power_scale != 1.0 and self.model == "learned" and self.table_set not in CIRCUIT_TABLE_SETS:
+            raise ValueError(
+                f"engine_power_scale={self.engine_power_scale!r} does not apply to tables={self.tables!r}: the "
+                "paper's tables hold the pumps' power limit in their data (use the circuit model)"
+            )
         for name in ("dig_start_share", "loaded_start_share"):
             share = getattr(self, name)
             if not is_number(share) or not 0.0 <= share <= 1.0:
@@ -164,6 +187,26 @@ class LoadingConfig(SiteConfig):
                 raise ValueError(f"{term}_weight must be a finite number, got {weight!r}")
 
     @property
+    def material_density(self) -> float:
+        """The pile's material, kg/m^3: ``MATERIAL_DENSITY`` times ``material_density_scale``."""
+        return float(p.MATERIAL_DENSITY) * self.material_density_scale
+
+    @property
+    def engine_power_w(self) -> float:
+        """The engine's power, W: ``ENGINE_POWER`` times ``engine_power_scale``."""
+        return float(p.ENGINE_POWER) * self.engine_power_scale
+
+    def hydraulics(self) -> HydraulicsOverrides | None:
+        """With ``engine_power_scale`` below 1, the circuit with the weaker engine's pump power limit
+        (:func:`hexgym.hydraulics.overrides.with_engine_power`, over a fitted model's own pumps); else None."""
+        if self.engine_power_scale == 1.0:
+            return None
+        from hexgym.hydraulics.overrides import with_engine_power
+
+        own = model_hydraulics(self.tables_dir) if self.model == "learned" else None
+        return with_engine_power(own, self.engine_power_scale)
+
+    @property
     def weights(self) -> dict[str, float]:
         """The reward terms' weights by term (``REWARD_TERMS``)."""
         return {term: getattr(self, f"{term}_weight") for term in REWARD_TERMS}
@@ -177,14 +220,14 @@ def draw_loading_start(rng: np.random.Generator, config: LoadingConfig) -> SiteS
     """A ``HexLoading-v0`` episode's start: :func:`sample_start` with an empty bucket, or with probability
     ``dig_start_share`` :func:`dig_start_pose`, with ``loaded_start_share`` :func:`loaded_start_pose` on its site;
     drawn from ``rng`` in a fixed order."""
-    layout, q = sample_start(rng)
+    layout, q = sample_start(rng, config.site_ranges)
     dig, loaded = config.dig_start_share, config.loaded_start_share
     if dig + loaded > 0.0:  # no draw at the defaults
         draw = rng.uniform()
         if draw < dig:
             return SiteStart(layout, dig_start_pose(rng, layout), 0.0)
         if draw < dig + loaded:
-            return SiteStart(layout, *loaded_start_pose(rng, layout))
+            return SiteStart(layout, *loaded_start_pose(rng, layout, config.material_density))
     return SiteStart(layout, q, 0.0)
 
 
@@ -296,6 +339,9 @@ class HexLoadingEnv(SiteEnv):
     | model | ``"learned"`` | ``"reference"``: the same task on the analytical circuit (the real machine's stand-in) |
     | dig_start_share | 0.0 | share of episodes starting with the open bucket over the pile (a curriculum) |
     | loaded_start_share | 0.0 | share starting loaded: curled between pile and truck, or reached out to the truck |
+    | site_ranges | ``"training"`` | ``"shifted"``: the pile and truck just outside those ranges (``sample_layout``) |
+    | material_density_scale | 1.0 | the material's density times this (0.5-1.5): heavier loads, harder digging |
+    | engine_power_scale | 1.0 | the engine's power times this (0.5-1): the pumps' power limit follows |
 
     ``model="reference"`` runs the whole task on the reference model (:mod:`hexgym.envs.reference_machine`):
     a few times real time, for checking what was learned on the fast model, not for training.
@@ -303,7 +349,8 @@ class HexLoadingEnv(SiteEnv):
     Metadata: ``render_fps`` = 10, the control rate.
 
     ## Version History
-    * v0: the loading task, its shaping terms and start curriculum (``dig_start_share``, ``loaded_start_share``).
+    * v0: the loading task, its shaping terms and start curriculum (``dig_start_share``, ``loaded_start_share``), and
+      its off-nominal conditions (``site_ranges``, ``material_density_scale``, ``engine_power_scale``).
     """
 
     env_id = ENV_ID

@@ -23,6 +23,7 @@ import mujoco
 import numpy as np
 
 from hexgym.envs.world import build_world_model
+from hexgym.hydraulics.overrides import HydraulicsOverrides
 from hexgym.hydraulics.reference import ReferenceModel
 from hexgym.machine.physics import to_force_inputs
 from hexgym.model.base import LearnedModelBase
@@ -41,10 +42,12 @@ class ReferenceMachine(LearnedModelBase):
 
     Args:
         model: a site model with force inputs (:func:`reference_world_model`).
+        hydraulics: a unit's circuit (:class:`hexgym.hydraulics.overrides.HydraulicsOverrides`, e.g. a weaker
+            engine's power limit); default the data sheet's.
     """
 
-    def __init__(self, model: mujoco.MjModel) -> None:
-        self.reference = ReferenceModel(model, timestep=CONTROL_PERIOD / STEPS_PER_PERIOD)
+    def __init__(self, model: mujoco.MjModel, hydraulics: HydraulicsOverrides | None = None) -> None:
+        self.reference = ReferenceModel(model, timestep=CONTROL_PERIOD / STEPS_PER_PERIOD, hydraulics=hydraulics)
         self.physics = self.reference.physics
         self.physics.tracks_constraint_load = True  # joint_loads reads it
         self.spools_m = self.reference.spools_m

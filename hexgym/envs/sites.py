@@ -19,6 +19,7 @@ import time
 from collections.abc import Callable, Sequence
 from copy import copy as copied
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
@@ -37,6 +38,9 @@ from hexgym.model.base import LearnedModelBase
 from hexgym.model.plugin import CTRL_PER_SPOOL_M
 from hexgym.model.plugin import STATE as PLUGIN_STATE
 
+if TYPE_CHECKING:
+    from hexgym.hydraulics.overrides import HydraulicsOverrides
+
 VEL_STAGE = int(mujoco.mjtStage.mjSTAGE_VEL)  # after a step: positions and velocities current, as mj_step1 leaves them
 ACC_STAGE = int(mujoco.mjtStage.mjSTAGE_ACC)
 _ARRAYS = ("site_xpos", "xpos", "xmat", "qpos", "qvel", "sensordata")  # what the task reads
@@ -53,6 +57,7 @@ def make_machine(
     table_set: str = DEFAULT_TABLE_SET,
     tool_contact_slots: int = 0,
     tables_dir: str | Path | None = None,
+    hydraulics: HydraulicsOverrides | None = None,
 ) -> LearnedModelBase:
     """The machine model that drives the environment, on the loading site.
 
@@ -62,19 +67,21 @@ def make_machine(
     the scene (e.g. the full ``scene.xml``). ``"auto"``: :func:`hexgym.model.backend.backend_for`.
     ``table_set``: the learned model's tables, "circuit" or "paper" (:mod:`hexgym.mbl.schema`).
     ``tool_contact_slots``: see :func:`hexgym.envs.world.build_world_model`. ``tables_dir``: other tables of that
-    set than the packaged ones (a fitted model's directory).
+    set than the packaged ones (a fitted model's directory). ``hydraulics``: the circuit model's pumps (default: the
+    fitted model's or the data sheet's; see :func:`hexgym.model.plugin_mjcf.circuit_config`).
     """
     if backend_for(table_set, backend) == "native":
         from hexgym.model.native_backend import NativeLearnedModel
 
-        world = native_world_model(scene_path, table_set, tool_contact_slots, tables_dir=tables_dir)
+        world = native_world_model(scene_path, table_set, tool_contact_slots, tables_dir=tables_dir,
+                                   hydraulics=hydraulics)  # fmt: skip
         return NativeLearnedModel(model=world)
     model = build_world_model(
         scene_path if scene_path is not None else asset_path(PYTHON_SCENE), tool_contact_slots=tool_contact_slots
     )
     step = model.opt.timestep  # on a finer model than the lean machine's, the tables are asked every 10 ms
     period = step * max(1, round(PYTHON_CONTROL_PERIOD / step))
-    return python_learned_model(table_set, tables_dir, model=model, control_period=period)
+    return python_learned_model(table_set, tables_dir, model=model, control_period=period, hydraulics=hydraulics)
 
 
 def native_world_model(
@@ -83,14 +90,16 @@ def native_world_model(
     tool_contact_slots: int = 0,
     customise: Callable[[mujoco.MjSpec], None] | None = None,
     tables_dir: str | Path | None = None,
+    hydraulics: HydraulicsOverrides | None = None,
 ) -> mujoco.MjModel:
     """The loading site around the lean machine driven by the native plugin with ``table_set``'s tables (from
-    ``tables_dir``, default the packaged ones; ``customise``: see :func:`hexgym.envs.world.build_world_model`)."""
+    ``tables_dir``, default the packaged ones; ``customise``: see :func:`hexgym.envs.world.build_world_model`;
+    ``hydraulics``: the circuit model's pumps, see :func:`make_machine`)."""
     from hexgym.model.plugin import require_plugin
     from hexgym.model.plugin_mjcf import MBL_MODEL_FILE, mbl_model_xml
 
     require_plugin()
-    if table_set == DEFAULT_TABLE_SET and tables_dir is None:  # the packaged machine file
+    if table_set == DEFAULT_TABLE_SET and tables_dir is None and hydraulics is None:  # the packaged machine file
         return build_world_model(
             scene_path, machine_file=MBL_MODEL_FILE, tool_contact_slots=tool_contact_slots, customise=customise
         )
@@ -98,7 +107,7 @@ def native_world_model(
         from hexgym.mbl.table import check_model_table_set
 
         check_model_table_set(tables_dir, table_set)
-    xml = mbl_model_xml(tables_dir, table_set=table_set)
+    xml = mbl_model_xml(tables_dir, table_set=table_set, hydraulics=hydraulics)
     return build_world_model(scene_path, machine_xml=xml, tool_contact_slots=tool_contact_slots, customise=customise)
 
 

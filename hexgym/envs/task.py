@@ -79,11 +79,9 @@ _MOUTH_NORMAL_X, _MOUTH_NORMAL_Z = (float(v) for v in ew.mouth_normal())
 _MOUTH_X, _MOUTH_Z = BUCKET.mouth_centre[0], BUCKET.mouth_centre[2]  # bucket frame
 # the site's own functions, compiled for floats: the bed's frame, whether a point is over the bed
 _bed_frame, _over_bed = jit(world.bed_frame), jit(world.over_bed)
-_DENSITY = float(p.MATERIAL_DENSITY)
 _HALF_WIDTH = p.BUCKET_WIDTH / 2.0
 _FILTER = float(p.DIG_VELOCITY_FILTER)
 _RIM = float(BED_RIM_HEIGHT)
-_ENGINE_POWER = float(p.ENGINE_POWER)
 _brake_power = jit(fuel._uncapped_brake_power)  # the engine's brake power for an actuator power, compiled
 _HARD, _CAP, _STIFFNESS = float(p.HARD_CONTACT_FORCE), float(p.HARD_CONTACT_FORCE_CAP), float(p.CONTACT_STIFFNESS)
 # Bounds (observations are clipped to them): angles, rates (rad/s) well beyond the servos' ranges,
@@ -178,8 +176,8 @@ SITE = np.dtype([
     # stale, revision (for a renderer's copy)
     ("pile_top", float), ("cut_direction", float), ("pile_volume", float),
     ("cut_line_stale", np.int64), ("volume_stale", np.int64), ("revision", np.int64),
-    # the material: kg held in BUCKET, TRUCK, SPILLED; the payload the machine is massed with
-    ("stores", float, 3), ("payload_kg", float),
+    # the material: its density (kg/m^3); kg held in BUCKET, TRUCK, SPILLED; the payload the machine is massed with
+    ("density", float), ("stores", float, 3), ("payload_kg", float),
     # the teeth: where last sampled (world m), their low-passed velocity (m/s), s since the sample (inf: none yet,
     # velocity 0); whether the edge cuts (the digging force on) and the last dig's depth (m)
     ("tip_before", float, 3), ("tip_velocity", float, 3), ("tip_interval", float), ("cutting", np.bool_),
@@ -217,7 +215,8 @@ class Rules(NamedTuple):
 
 class Curves(NamedTuple):
     """The machine's curves the task looks up: the boom, stick and bucket cylinders' moment arms (rows, over their
-    joint angles from ``arm_start`` by ``arm_step``) and the engine's fuel rate over its brake power."""
+    joint angles from ``arm_start`` by ``arm_step``), the engine's fuel rate over its brake power and its power (W,
+    the most brake power it gives)."""
 
     arms: np.ndarray
     arm_start: np.ndarray
@@ -225,6 +224,7 @@ class Curves(NamedTuple):
     fuel_rates: np.ndarray
     fuel_start: float
     fuel_step: float
+    engine_power_w: float
 
 
 class Piles(NamedTuple):
@@ -314,7 +314,7 @@ def _sample_tip(site: np.void, tip: tuple, period: float, blend_one: float) -> t
 def _spill(site: np.void, flows: np.ndarray, tilt: float, dt: float, tool: tuple, i: int) -> None:
     """Let what the bucket of ``site`` (site ``i`` of ``tool``) cannot hold at ``tilt`` run out over ``dt`` s,
     into the bed if its mouth is over it; the step's ``flows`` count it."""
-    out = ew.spill_out(site.stores[BUCKET], tilt, dt)
+    out = ew.spill_out(site.stores[BUCKET], tilt, dt, site.density)
     if out <= 0.0:
         return
     t = Tool(*tool)
@@ -462,6 +462,7 @@ def begin_dig(
             velocity[0],
             velocity[1],
             velocity[2],
+            site.density,
         )
         site.dig_depth = depth
         site.stores[BUCKET] += taken_kg
@@ -505,6 +506,7 @@ def follow_resistance(ids: np.ndarray, schedule: tuple, tool: tuple, sites: np.n
             velocity[0],
             velocity[1],
             velocity[2],
+            site.density,
         )
         force[k, 0], force[k, 1], force[k, 2] = fx, fy, fz
 
@@ -571,7 +573,7 @@ def account(
         if measured == measured:  # not NaN: the machine's own
             step.fuel_l += measured
         else:
-            brake = min(_brake_power(power), _ENGINE_POWER)
+            brake = min(_brake_power(power), c.engine_power_w)
             step.fuel_l += ew.table_at(c.fuel_rates, c.fuel_start, c.fuel_step, brake) * step.seconds / 3600.0
         force = hard_contact_force(i, contacts)
         if force < 0.0:
@@ -720,7 +722,7 @@ def info_stores(ids: np.ndarray, piles: tuple, sites: np.ndarray, out: np.ndarra
         if site.volume_stale:
             site.pile_volume = pl.heights[i].sum() * pl.cell_area
             site.volume_stale = 0
-        out[k, 0] = site.pile_volume * _DENSITY
+        out[k, 0] = site.pile_volume * site.density
         out[k, 1], out[k, 2], out[k, 3] = site.stores[BUCKET], site.stores[TRUCK], site.stores[SPILLED]
         out[k, 4], out[k, 5] = site.fuel_l, site.elapsed
 
@@ -738,6 +740,9 @@ class LoadingTask:
         count: number of sites.
         physics: the sites' machines (:class:`SitePhysics`; a whole number of their control periods make a step).
         time_limit, truck_capacity_kg, weights, earthwork_periods: as :class:`hexgym.envs.loading.LoadingConfig`'s.
+        material_density: the pile's material, kg/m^3 (a heavier material: the same bucket holds more kilograms and
+            digs harder).
+        engine_power_w: the engine's power, W: the most brake power the fuel estimate counts.
     """
 
     def __init__(
@@ -748,8 +753,11 @@ class LoadingTask:
         truck_capacity_kg: float,
         weights: dict[str, float],
         earthwork_periods: int = EARTHWORK_PERIODS,
+        material_density: float = p.MATERIAL_DENSITY,
+        engine_power_w: float = p.ENGINE_POWER,
     ) -> None:
         period = float(physics.control_period)
+        self.material_density = float(material_density)
         self.count, self.physics, self.period = int(count), physics, period
         self.periods = int(round(STEP_PERIOD / period))
         if abs(self.periods * period - STEP_PERIOD) > 1e-9:
@@ -796,6 +804,7 @@ class LoadingTask:
                 fuel_rates=np.array(rates.values),
                 fuel_start=rates.start,
                 fuel_step=rates.step,
+                engine_power_w=float(engine_power_w),
             )
         )
         self._piles = tuple(Piles(self.heights, self.origin, self.spacing, self.spacing**2))
@@ -851,6 +860,7 @@ class LoadingTask:
         site["pile_direction"], site["truck_direction"] = layout.pile_direction, layout.truck_direction
         site["pile_cos"], site["pile_sin"] = math.cos(layout.pile_direction), math.sin(layout.pile_direction)
         site["truck_cos"], site["truck_sin"] = math.cos(layout.truck_yaw), math.sin(layout.truck_yaw)
+        site["density"] = self.material_density
         site["stores"] = 0.0
         site["stores"][:, BUCKET] = site["payload_kg"] = payload_kg
         site["tip_interval"] = math.inf
@@ -875,7 +885,7 @@ class LoadingTask:
     def earthwork(self, i: int) -> ew.Earthwork:
         """Site ``i``'s material stores: its :meth:`pile` and a view of its bucket, truck and spilled kilograms
         (setting them sets the task's)."""
-        return ew.Earthwork(self.pile(i), self.stores[i])
+        return ew.Earthwork(self.pile(i), self.stores[i], self.material_density)
 
     # -- a step -----------------------------------------------------------------------------------
     def step(self, ids: np.ndarray, spools_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -118,8 +118,9 @@ class HexLoadingVectorEnv(VectorEnv):
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         if backend == "native":
             model = native_world_model(
-                scene_path, config.table_set, tool_contact_slots=CONTACT_SLOTS, tables_dir=config.tables_dir
-            )
+                scene_path, config.table_set, tool_contact_slots=CONTACT_SLOTS, tables_dir=config.tables_dir,
+                hydraulics=config.hydraulics(),
+            )  # fmt: skip
             if nthread is None:
                 nthread = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
             self.nthread = max(1, min(int(nthread), self.num_envs))
@@ -127,11 +128,15 @@ class HexLoadingVectorEnv(VectorEnv):
         else:
             self.nthread = 1
             machines = [
-                make_machine("python", scene_path, config.table_set, CONTACT_SLOTS, config.tables_dir)
+                make_machine("python", scene_path, config.table_set, CONTACT_SLOTS, config.tables_dir,
+                             config.hydraulics())
                 for _ in range(self.num_envs)
             ]  # fmt: skip
             self.sites = MachineSites(machines)
-        self.task = LoadingTask(self.num_envs, self.sites, *config.site_rules(), config.earthwork_periods)
+        self.task = LoadingTask(
+            self.num_envs, self.sites, *config.site_rules(), config.earthwork_periods, config.material_density,
+            config.engine_power_w,
+        )  # fmt: skip
         self._rngs: list[np.random.Generator | None] = [None] * self.num_envs
         self._autoreset = np.zeros(self.num_envs, bool)
         self._obs = np.zeros((self.num_envs, *self.single_observation_space.shape), np.float32)

@@ -122,12 +122,43 @@ def heap_for(layout: Layout) -> Pile:
     )
 
 
-def sample_layout(rng: np.random.Generator) -> Layout:
-    """A random site: pile ahead, truck alongside on either side, both within reach."""
+SITE_RANGES = ("training", "shifted")  # what sample_layout draws from (HexLoading-v0's site_ranges)
+
+
+def sample_layout(rng: np.random.Generator, ranges: str = "training") -> Layout:
+    """A random site: pile ahead, truck alongside on either side, both within reach.
+
+    ``ranges``: ``"training"`` draws from the parameters' ranges (``PILE_DISTANCE_RANGE``, ``PILE_SWING_RANGE``,
+    ``TRUCK_DISTANCE_RANGE``, ``TRUCK_SWING_RANGE``); ``"shifted"`` draws every one of those four quantities from a
+    band just outside its range (``SHIFTED_*`` in :mod:`hexgym.machine.parameters`), the pile turned away from the
+    truck's side, for testing a policy on sites it never saw. The pile's height and top are drawn as in training.
+    """
+    if ranges == "shifted":
+        return _sample_shifted_layout(rng)
+    if ranges != "training":
+        raise ValueError(f"site ranges must be one of {SITE_RANGES}, got {ranges!r}")
     pile_angle = rng.uniform(*p.PILE_SWING_RANGE)
     pile_distance = rng.uniform(*p.PILE_DISTANCE_RANGE)
     truck_angle = rng.uniform(*p.TRUCK_SWING_RANGE) * rng.choice((-1.0, 1.0))
     truck_distance = rng.uniform(*p.TRUCK_DISTANCE_RANGE)
+    return _layout(rng, pile_angle, pile_distance, truck_angle, truck_distance)
+
+
+def _sample_shifted_layout(rng: np.random.Generator) -> Layout:
+    """:func:`sample_layout`'s ``"shifted"`` site: each band below or above its range by a fair coin (where it has
+    two)."""
+    side = rng.choice((-1.0, 1.0))  # the truck's side; the pile turns to the other
+    pile_angle = -side * rng.uniform(*p.SHIFTED_PILE_SWING_BAND)
+    pile_distance = rng.uniform(*p.SHIFTED_PILE_DISTANCE_BANDS[rng.integers(2)])
+    truck_angle = side * rng.uniform(*p.SHIFTED_TRUCK_SWING_BANDS[rng.integers(2)])
+    truck_distance = rng.uniform(*p.SHIFTED_TRUCK_DISTANCE_BANDS[rng.integers(len(p.SHIFTED_TRUCK_DISTANCE_BANDS))])
+    return _layout(rng, pile_angle, pile_distance, truck_angle, truck_distance)
+
+
+def _layout(
+    rng: np.random.Generator, pile_angle: float, pile_distance: float, truck_angle: float, truck_distance: float
+) -> Layout:
+    """The layout with the pile and truck where given, the pile's height and flat top drawn from ``rng``."""
     return Layout(
         pile_centre=(pile_distance * np.cos(pile_angle), pile_distance * np.sin(pile_angle)),
         pile_height=float(rng.uniform(*p.PILE_HEIGHT_RANGE)),

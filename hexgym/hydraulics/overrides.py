@@ -207,6 +207,23 @@ def _number(value: Any, source: str, key: str, shown: str | None = None) -> floa
     return float(value)
 
 
+def engine_power_limit_w(engine_power_scale: float) -> float:
+    """The pumps' power limit (W, p1 Q1 + p2 Q2) of an engine giving ``engine_power_scale`` times ``ENGINE_POWER``:
+    ``PUMP_POWER_LIMIT``'s derivation with the weaker engine (the accessories take the same)."""
+    return (engine_power_scale * p.ENGINE_POWER - p.ACCESSORY_POWER) * p.PUMP_OVERALL_EFFICIENCY
+
+
+def with_engine_power(overrides: HydraulicsOverrides | None, engine_power_scale: float) -> HydraulicsOverrides | None:
+    """``overrides`` (None: the packaged circuit) with the pumps' power limit of an engine giving
+    ``engine_power_scale`` times ``ENGINE_POWER`` (:func:`engine_power_limit_w`); unchanged at a scale of 1."""
+    if engine_power_scale == 1.0:
+        return overrides
+    limit = engine_power_limit_w(engine_power_scale)
+    if overrides is None:
+        return HydraulicsOverrides(source="engine_power_scale", power_limit_w=limit)
+    return dataclasses.replace(overrides, power_limit_w=limit)
+
+
 def as_overrides(hydraulics: HydraulicsOverrides | Mapping | str | Path) -> HydraulicsOverrides:
     """Overrides from what a caller gives: the object itself, a file's path or a file's content (a mapping)."""
     if isinstance(hydraulics, HydraulicsOverrides):

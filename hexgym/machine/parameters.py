@@ -166,6 +166,9 @@ PUBLISHED_FIGURE_TOLERANCE = 0.2  # a model's time within +-20 % of the publishe
 # --------------------------------------------------------------------------------------------
 # Material
 MATERIAL_DENSITY = 1650.0  # kg/m^3, sand and gravel, dry, loose
+# the lightest and heaviest material a site task takes (its material_density_scale), times MATERIAL_DENSITY:
+# 825-2475 kg/m^3, from dry loose soil to wet gravel and blasted rock [textbook 1.2-2.5 t/m^3, loose]
+MATERIAL_DENSITY_SCALE_RANGE = (0.5, 1.5)
 PAYLOAD_EMPTY_HALF_FULL = (0.0, 1000.0, 2000.0)  # kg, the paper's load cases
 
 # --------------------------------------------------------------------------------------------
@@ -329,6 +332,15 @@ TRUCK_BED_WALL_HEIGHT = 1.05  # m above the floor: rim at 2.6 m [est]
 TRUCK_CAPACITY = 13000.0  # kg payload [est: tandem dump truck, 12-15 t]
 TRUCK_DISTANCE_RANGE = (6.6, 7.4)  # m from the swing axis to the bed's centre [est: within dump reach]
 TRUCK_SWING_RANGE = np.radians((70.0, 110.0))  # |angle| of the truck from the machine's x axis, either side [est]
+# Layouts outside those ranges (HexLoading-v0's site_ranges="shifted": a robustness test, never trained on): each
+# quantity drawn from a band just below or just above its range (a fair coin each; the truck only farther: nearer,
+# the arm's start pose, swung towards it, stands in its bed's wall), the pile turned away from the truck's side.
+# Within reach (a cut's entry at 9.0 m at most; the bed's near wall 6.2-6.6 m out) and the truck no nearer the
+# pile's toe than the closest training layout's (its cab reaches 1.1 m over the toe) [est]
+SHIFTED_PILE_DISTANCE_BANDS = ((6.6, 7.0), (7.8, 8.2))  # m: 0.4 m either side of PILE_DISTANCE_RANGE
+SHIFTED_PILE_SWING_BAND = np.radians((10.0, 15.0))  # |direction|, on the side away from the truck
+SHIFTED_TRUCK_DISTANCE_BANDS = ((7.4, 7.8),)  # m: 0.4 m beyond TRUCK_DISTANCE_RANGE
+SHIFTED_TRUCK_SWING_BANDS = (np.radians((60.0, 70.0)), np.radians((110.0, 120.0)))  # |angle|: 10 deg either side
 # Fuel of the learned model: mechanical power at the actuators through the open-centre valves
 # and the pumps, plus the standby (bypass) flow's power, then BSFC (hexgym.hydraulics.circuit.fuel_rate)
 HYDRAULIC_VALVE_EFFICIENCY = 0.7  # actuator power / pump power: metering and line losses [est 0.6-0.8]

@@ -23,6 +23,7 @@ from hexgym.machine.names import BUCKET_BODY, PAYLOAD_BODY, TIP_SITE
 
 _FD_STEP = 1e-6  # rad, central differences for the passive joints' velocities
 MAX_PAYLOAD_KG = p.BUCKET_HEAPED_CAPACITY * p.MATERIAL_DENSITY  # kg: a heaped bucket (2145 kg)
+HEAVIEST_PAYLOAD_KG = MAX_PAYLOAD_KG * p.MATERIAL_DENSITY_SCALE_RANGE[1]  # kg: of the heaviest material (3218 kg)
 _RETRACTED = np.array([p.CYLINDERS[n].retracted_length for n in kinematics.FRONT_CYLINDERS])
 
 
@@ -288,13 +289,15 @@ class ExcavatorPhysics:
     def set_payload(self, mass_kg: float) -> None:
         """Put ``mass_kg`` of material in the bucket (a box of loose material at its centroid).
 
-        At most :data:`MAX_PAYLOAD_KG`, a heaped bucket of the material: the machine was built and its
-        tables fitted for that (their data hold 0 to 2 t), and far more makes the simulation unstable.
+        At most :data:`HEAVIEST_PAYLOAD_KG`, a heaped bucket of the heaviest material a site task takes
+        (``MATERIAL_DENSITY_SCALE_RANGE``): the machine was built and its tables fitted for a heaped bucket of the
+        nominal material (their data hold 0 to 2 t), and far more makes the simulation unstable.
         """
-        if not np.isfinite(mass_kg) or not 0 <= mass_kg <= MAX_PAYLOAD_KG * (1 + 1e-9):
+        if not np.isfinite(mass_kg) or not 0 <= mass_kg <= HEAVIEST_PAYLOAD_KG * (1 + 1e-9):
             raise ValueError(
-                f"payload must be a finite mass from 0 to {MAX_PAYLOAD_KG:.0f} kg (a heaped bucket of "
-                f"{p.BUCKET_HEAPED_CAPACITY} m^3 at {p.MATERIAL_DENSITY:.0f} kg/m^3), got {mass_kg} kg"
+                f"payload must be a finite mass from 0 to {HEAVIEST_PAYLOAD_KG:.0f} kg (a heaped bucket of "
+                f"{p.BUCKET_HEAPED_CAPACITY} m^3 at {p.MATERIAL_DENSITY_SCALE_RANGE[1] * p.MATERIAL_DENSITY:.0f} "
+                f"kg/m^3), got {mass_kg} kg"
             )
         self.payload_kg = float(mass_kg)
         self.model.body_mass[self._payload] = mass_kg

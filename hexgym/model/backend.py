@@ -20,6 +20,7 @@ from hexgym.model.base import LearnedModelBase
 if TYPE_CHECKING:  # the CLI's parser imports this module: MuJoCo loads only with a model
     import mujoco
 
+    from hexgym.hydraulics.overrides import HydraulicsOverrides
     from hexgym.model.python_backend import LearnedModel
 
 BACKENDS = ("auto", "python", "native")
@@ -75,10 +76,13 @@ def python_learned_model(
     tables_dir: str | Path | None = None,
     model: mujoco.MjModel | None = None,
     control_period: float | None = None,
+    hydraulics: HydraulicsOverrides | None = None,
 ) -> LearnedModel:
     """The Python learned model of ``table_set`` on ``model`` (default: the lean machine): the circuit model
     (:class:`hexgym.model.circuit_model.CircuitModel`) for "circuit", the table model
-    (:class:`hexgym.model.python_backend.LearnedModel`) for "paper"."""
+    (:class:`hexgym.model.python_backend.LearnedModel`) for "paper". ``hydraulics``: the circuit model's pumps
+    (default: a fitted model's, :func:`hexgym.mbl.table.model_hydraulics`, else the data sheet's); the paper's
+    tables hold theirs in their data (ValueError)."""
     from hexgym.mbl.schema import CIRCUIT_TABLE_SETS
     from hexgym.mbl.table import load_tables, model_hydraulics
     from hexgym.model.python_backend import LearnedModel
@@ -87,9 +91,12 @@ def python_learned_model(
     if table_set in CIRCUIT_TABLE_SETS:
         from hexgym.model.circuit_model import CircuitModel
 
-        hydraulics = model_hydraulics(tables_dir)
+        if hydraulics is None:
+            hydraulics = model_hydraulics(tables_dir)
         return CircuitModel(tables, model=model, control_period=control_period, table_set=table_set,
                             hydraulics=hydraulics)  # fmt: skip
+    if hydraulics is not None:
+        raise ValueError(f"the {table_set!r} tables hold their pumps in their data: hydraulics cannot be overridden")
     return LearnedModel(tables, model=model, control_period=control_period)
 
 

@@ -75,6 +75,13 @@ def pump_max_flow(circuit: HydraulicCircuit) -> float:
     return p.PUMP_MAX_FLOW if flow is None else float(flow)
 
 
+def pump_power_limit(circuit: HydraulicCircuit) -> float:
+    """The pumps' power limit (W, p1 Q1 + p2 Q2) in ``circuit``: a unit's (its overrides') or the data sheet's."""
+    overrides = getattr(circuit, "overrides", None)
+    limit = getattr(overrides, "power_limit_w", None)
+    return p.PUMP_POWER_LIMIT if limit is None else float(limit)
+
+
 def circuit_laws(circuit: HydraulicCircuit, stop_clearance: float) -> dict[str, float]:
     """The circuit's scalar laws by :data:`~hexgym.model.plugin.CIRCUIT_LAWS` name (machine parameters and what
     :mod:`hexgym.hydraulics.circuit` derives from them)."""
@@ -93,7 +100,7 @@ def circuit_laws(circuit: HydraulicCircuit, stop_clearance: float) -> dict[str, 
         "nfc_full_flow": p.NFC_PRESSURE_FULL_FLOW,
         "nfc_min_flow": p.NFC_PRESSURE_MIN_FLOW,
         "idle_fraction": p.PUMP_IDLE_FLOW_FRACTION,
-        "power_limit": p.PUMP_POWER_LIMIT,
+        "power_limit": pump_power_limit(circuit),
         "max_flow": pump_max_flow(circuit),
         "regulator_time": p.PUMP_REGULATOR_TIME_CONSTANT,
         "max_splits": circuit.MAX_SPLITS,

@@ -32,7 +32,7 @@ import numpy as np
 
 from hexgym.files import atomic_path
 from hexgym.hydraulics.circuit import HydraulicCircuit, valve_layout
-from hexgym.hydraulics.overrides import OverriddenCircuit
+from hexgym.hydraulics.overrides import HydraulicsOverrides, OverriddenCircuit
 from hexgym.machine import kinematics, mjcf
 from hexgym.machine import parameters as p
 from hexgym.machine.assets import assets_dir
@@ -132,14 +132,20 @@ def _actuators(lean: bool = True) -> str:
     return "\n".join([*lines, "  </actuator>"])
 
 
-def circuit_config(table_set: str = DEFAULT_TABLE_SET, tables_dir: str | Path | None = None) -> dict[str, str]:
+def circuit_config(
+    table_set: str = DEFAULT_TABLE_SET,
+    tables_dir: str | Path | None = None,
+    hydraulics: HydraulicsOverrides | None = None,
+) -> dict[str, str]:
     """The config keys of the circuit model (a table set of :data:`~hexgym.mbl.schema.CIRCUIT_TABLE_SETS`): the
     circuit's numbers with the set's valve layout (:func:`hexgym.model.circuit_kernel.circuit_numbers`), its steps
     per period, and the servos' rate range (wide: the circuit, not the table models' limits, sets the joints'
     rates). ``tables_dir``: a model fitted to a unit's logs brings the unit's pumps
-    (:func:`hexgym.mbl.table.model_hydraulics`)."""
+    (:func:`hexgym.mbl.table.model_hydraulics`); ``hydraulics``: the pumps given instead (e.g. a weaker engine's
+    power limit, :func:`hexgym.hydraulics.overrides.with_engine_power`)."""
     layout = valve_layout(VALVE_OF_TABLE_SET[table_set])
-    hydraulics = model_hydraulics(tables_dir)
+    if hydraulics is None:
+        hydraulics = model_hydraulics(tables_dir)
     circuit = HydraulicCircuit(layout=layout) if hydraulics is None else OverriddenCircuit(hydraulics, layout)
     numbers = circuit_numbers(circuit, STOP_CLEARANCE)
     return {
@@ -149,10 +155,18 @@ def circuit_config(table_set: str = DEFAULT_TABLE_SET, tables_dir: str | Path | 
     }
 
 
-def _extension(tables_dir: str | Path | None, control_period: float | None, lean: bool, table_set: str) -> str:
+def _extension(
+    tables_dir: str | Path | None,
+    control_period: float | None,
+    lean: bool,
+    table_set: str,
+    hydraulics: HydraulicsOverrides | None = None,
+) -> str:
     config = plugin_config(lean) | {"table_set": table_set}
     if table_set in CIRCUIT_TABLE_SETS:
-        config |= circuit_config(table_set, tables_dir)
+        config |= circuit_config(table_set, tables_dir, hydraulics)
+    elif hydraulics is not None:
+        raise ValueError(f"the {table_set!r} tables hold their pumps in their data: hydraulics cannot be overridden")
     if tables_dir is not None:
         config = {"tables": str(Path(tables_dir).resolve()), **config}
     if control_period is not None:
@@ -172,12 +186,13 @@ def mbl_model_xml(
     control_period: float | None = None,
     full: bool = False,
     table_set: str = DEFAULT_TABLE_SET,
+    hydraulics: HydraulicsOverrides | None = None,
 ) -> str:
     """The text of ``cat325_mbl.xml`` (``full``: ``cat325_mbl_full.xml``).
 
     ``tables_dir``: other tables than the packaged ones; ``control_period``: seconds between
     table queries, at least one step (default: every step of the lean machine; the lean machine's
-    25 ms on the full one).
+    25 ms on the full one); ``hydraulics``: the circuit model's pumps (see :func:`circuit_config`).
     """
     lean = not full
     source, name = ("cat325_lean", "cat325_mbl") if lean else ("cat325", "cat325_mbl_full")
@@ -191,7 +206,8 @@ def mbl_model_xml(
         f"       The {which} machine driven by the native hexgym.mbl plugin (hexgym/model/plugin_mjcf.py). -->",
         1,
     )
-    text = text.replace("  <default>\n", _extension(tables_dir, control_period, lean, table_set) + "  <default>\n", 1)
+    extension = _extension(tables_dir, control_period, lean, table_set, hydraulics)
+    text = text.replace("  <default>\n", extension + "  <default>\n", 1)
     defaults = _defaults(_servos(lean))
     text = re.sub(r"^  </default>$", lambda _: defaults + "\n  </default>", text, count=1, flags=re.M)
     text, count = re.subn(r"  <actuator>.*?</actuator>", lambda _: _actuators(lean), text, count=1, flags=re.S)

@@ -129,6 +129,10 @@ def tonnes_per_hour_interval(delivered_t: np.ndarray, seconds: np.ndarray) -> li
     return [float(result.confidence_interval.low), float(result.confidence_interval.high)]
 
 
+# HexLoading-v0's robustness options and their defaults: a result names those given
+ROBUSTNESS_DEFAULTS = {"site_ranges": "training", "material_density_scale": 1.0, "engine_power_scale": 1.0}
+
+
 def aggregate(episodes: list[Episode]) -> dict[str, Any]:
     """The figures over all episodes (totals pooled: t/h is total tonnes over total hours)."""
     summaries = [e.summary() for e in episodes]
@@ -189,6 +193,7 @@ def evaluate(
     model = (env_kwargs or {}).get("model", "learned")
     tables = (env_kwargs or {}).get("tables", DEFAULT_TABLE_SET) if model == "learned" else None
     result = {"policy": policy_spec, "env_id": ENV_ID, "model": model, "tables": tables, "seed": seed}
+    result |= {name: value for name, value in (env_kwargs or {}).items() if name in ROBUSTNESS_DEFAULTS}
     result |= aggregate(runs)
     if loader_settings is not None:
         result["loader_settings"] = str(loader_settings)

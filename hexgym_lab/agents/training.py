@@ -381,11 +381,25 @@ def train(
         except KeyboardInterrupt:
             # a stopped run leaves its newest state as a usable model (with its normaliser), then stops
             path = save_model(model, run_dir / "model.zip")
-            print(f"stopped at {model.num_timesteps} steps; saved {path}")
+            print(stopped_run_message(run_dir, path, model.num_timesteps))
             raise
         finally:
             venv.close()
         return save_model(model, run_dir / "model.zip")
+
+
+def stopped_run_message(run_dir: Path, model_path: Path, steps: int) -> str:
+    """What a stopped run kept, where: the model saved at the stop with its normaliser, the last checkpoint (model
+    and normaliser, what running the command again resumes from) and the learning curve."""
+    kept = [f"the model {model_path} with its normaliser {normalizer_path(model_path)}"]
+    last = latest_checkpoint(run_dir)
+    if last is not None:
+        kept.append(f"the last checkpoint {last} with its normaliser {normalizer_path(last)} (the same command "
+                    "resumes from it)")  # fmt: skip
+    curve = run_dir / "curve.csv"
+    if curve.is_file():
+        kept.append(f"the learning curve {curve}")
+    return f"stopped at {steps} steps; kept " + "; ".join(kept)
 
 
 @contextlib.contextmanager
