@@ -294,7 +294,7 @@ def _fit_logs(args: argparse.Namespace) -> int:
     for option in ("data", "only"):
         if option in given:
             raise ValueError(f"--{option} does not apply with --logs (the logs are the data; every table is fitted)")
-    provenance = fit_logs(args.logs, args.out, seed=args.seed)
+    provenance = fit_logs(args.logs, args.out, seed=args.seed, mapping=args.mapping)
     print(coverage_report(provenance))
     print(f"fitted in {provenance['fit_seconds']:.0f} s from {len(provenance['logs'])} logs "
           f"({len(provenance['logs_not_used'])} not used)")  # fmt: skip
@@ -378,7 +378,7 @@ def _validate_logs(args: argparse.Namespace) -> int:
 
     if args.logs is None or args.model is None:
         raise ValueError("--model and --logs go together: the fitted model's directory and the logs to replay")
-    result = validate_on_logs(args.model, args.logs)
+    result = validate_on_logs(args.model, args.logs, mapping=args.mapping)
     print(summary_text(result))
     with staged_dir(args.out, keep=False) as staging:
         (staging / "summary.json").write_text(json.dumps(result, indent=2))
@@ -857,8 +857,10 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--tables", **_TABLES_OPTION)
     fit.add_argument("--only", default="", help="comma-separated subset, e.g. boom,stick (default: all)")
     fit.add_argument("--logs", default=None, metavar="DIR", help="instead of --data: a directory of machine logs "
-                     "(CSV) of your machine; fits the circuit tables to them, --out MODEL_DIR gets the tables and "
-                     "provenance.json (docs/machine-logs.md, Fitting your machine)")  # fmt: skip
+                     "(CSV, or MCAP with --mapping) of your machine; fits the circuit tables to them, --out "
+                     "MODEL_DIR gets the tables and provenance.json (docs/machine-logs.md)")  # fmt: skip
+    fit.add_argument("--mapping", default=None, metavar="FILE.yaml", help="--logs with MCAP logs: their topics and "
+                     "fields to signals (docs/machine-logs.md)")  # fmt: skip
     fit.set_defaults(func=_cmd_fit)
 
     excitation = sub.add_parser("excitation", help="a command log of slow spool sweeps (each function, both ways) "
@@ -903,8 +905,10 @@ def build_parser() -> argparse.ArgumentParser:
     validate.add_argument("--model", default=None, metavar="MODEL_DIR", help="with --logs: a model fitted by "
                           "`hexgym fit --logs`, replayed on each log from its first pose beside the packaged "
                           "one")  # fmt: skip
-    validate.add_argument("--logs", default=None, metavar="DIR", help="with --model: machine logs (CSV) to replay "
-                          "and score against (held out of the fit)")  # fmt: skip
+    validate.add_argument("--logs", default=None, metavar="DIR", help="with --model: machine logs (CSV, or MCAP "
+                          "with --mapping) to replay and score against (held out of the fit)")  # fmt: skip
+    validate.add_argument("--mapping", default=None, metavar="FILE.yaml", help="--logs with MCAP logs: their topics "
+                          "and fields to signals")  # fmt: skip
     validate.add_argument(
         "--payload-kg",
         type=float,
@@ -1149,7 +1153,7 @@ _INPUT_FILES = {("simulate", "commands"), ("train", "hyperparams"), ("train", "i
                 ("convert-normalizer", "pkl"), ("scripted", "loader_settings"), ("evaluate", "loader_settings"),
                 ("clone", "loader_settings"), ("simulate", "hydraulics"), ("simulate", "start_from"),
                 ("simulate", "mapping"), ("check-log", "mapping"), ("compare", "mapping"), ("compare", "a"),
-                ("compare", "b")}  # fmt: skip
+                ("compare", "b"), ("fit", "mapping"), ("validate", "mapping")}  # fmt: skip
 # Options that apply only in one mode: (command, option) -> (the mode's option, its value, what the option is for).
 # Given in another mode they are refused, not ignored.
 _ONLY_WITH = {

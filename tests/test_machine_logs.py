@@ -334,3 +334,21 @@ def test_compare_plot_without_matplotlib_is_one_line_before_any_work(tmp_path, m
     assert main(["compare", str(tmp_path / "a.csv"), str(tmp_path / "a.csv"), "--out", str(tmp_path / "p.png")]) == 2
     captured = capsys.readouterr()
     assert captured.out == "" and "--out: plotting needs matplotlib: pip install 'hexgym[plots]'" in captured.err
+
+
+def test_fit_reads_mcap_logs_through_the_mapping_and_names_one_without_it(clean, tmp_path, capsys):
+    """``fit --logs`` takes MCAP logs beside CSV ones: without ``--mapping`` each is left out in one line; with it the
+    log is read (this one maps no spools, which the fit then names)."""
+    from hexgym_lab.cli import main
+
+    t, signals = clean
+    (tmp_path / "map.yaml").write_text(MAPPING)
+    (tmp_path / "logs").mkdir()
+    _write_mcap(tmp_path / "logs" / "run.mcap", t, signals)
+    argv = ["fit", "--logs", str(tmp_path / "logs"), "--out", str(tmp_path / "model")]
+    assert main(argv) == 2
+    assert "run.mcap: not used: an MCAP log needs a mapping file" in capsys.readouterr().out
+    assert main([*argv, "--mapping", str(tmp_path / "map.yaml")]) == 2
+    out = capsys.readouterr().out
+    assert "run.mcap: error: spools" in out and "run.mcap: not used: cannot be trusted" in out
+    assert not (tmp_path / "model").exists()

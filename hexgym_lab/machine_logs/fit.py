@@ -44,7 +44,7 @@ BIN_MM = 0.5  # spool bins of the coverage and of the packaged stand-in points
 MIN_BIN_SAMPLES = 3  # a bin with fewer measured samples is a gap (the packaged table's points fill it)
 PRIOR_PER_BIN = 3  # the packaged table's points per gap bin
 POOR_HOLDOUT = 0.10  # a table whose held-out error exceeds this share of its range is warned of
-LOG_SUFFIXES = (".csv",)
+LOG_SUFFIXES = (".csv", ".mcap")
 TOE_MM = 1.0  # mm of spool past the dead band where the packaged table's shape stands in (see _past_toe)
 LEAKAGE_NOT_IDENTIFIED = "not determined by the logs: the packaged leaks stand"
 
@@ -57,21 +57,26 @@ def _relief_settings(unit_reliefs: dict) -> ReliefSettings:
 
 
 def log_files(directory: str | Path) -> list[Path]:
-    """The machine logs in ``directory`` (CSV, by name); ValueError naming it where there are none."""
+    """The machine logs in ``directory`` (CSV and MCAP, by name); ValueError naming it where there are none."""
+    if not Path(directory).is_dir():
+        raise ValueError(f"--logs {directory}: not a directory of machine logs")
     paths = sorted(q for q in Path(directory).iterdir() if q.suffix.lower() in LOG_SUFFIXES and q.is_file())
     if not paths:
-        raise ValueError(f"--logs {directory}: no machine logs (*.csv) in the directory")
+        raise ValueError(f"--logs {directory}: no machine logs (*.csv, *.mcap) in the directory")
     return paths
 
 
-def read_logs(paths: list[Path], say: Callable[[str], object] = print) -> tuple[list[derive.LogRows], list[dict]]:
-    """The trusted logs' rows, and per log left out its name and why (each error is said in one line)."""
+def read_logs(
+    paths: list[Path], say: Callable[[str], object] = print, mapping: str | Path | None = None
+) -> tuple[list[derive.LogRows], list[dict]]:
+    """The trusted logs' rows, and per log left out its name and why (each error is said in one line); ``mapping``:
+    the MCAP logs' topics and fields (:mod:`.mcap_log`)."""
     from hexgym_lab.machine_logs import read_machine_log
 
     used, left = [], []
     for path in track(paths, "fit: read and check", "log"):
         try:
-            log = read_machine_log(path)
+            log = read_machine_log(path, mapping)
             findings = check_log(log)
             if not trusted(findings):
                 for f in findings:
@@ -210,12 +215,18 @@ def fit_passage(name: str, data: TableData, packaged: MBLTable, held: np.ndarray
     return table, report
 
 
-def fit_logs(log_dir: str | Path, out_dir: str | Path, seed: int = 0, say: Callable[[str], object] = print) -> dict:
-    """Fit the ``circuit`` tables to the logs in ``log_dir`` and write ``out_dir`` (tables + provenance.json);
-    returns the provenance. ValueError where no log can be used."""
+def fit_logs(
+    log_dir: str | Path,
+    out_dir: str | Path,
+    seed: int = 0,
+    say: Callable[[str], object] = print,
+    mapping: str | Path | None = None,
+) -> dict:
+    """Fit the ``circuit`` tables to the logs in ``log_dir`` (CSV; MCAP through ``mapping``) and write ``out_dir``
+    (tables + provenance.json); returns the provenance. ValueError where no log can be used."""
     t0 = time.perf_counter()
     paths = log_files(log_dir)
-    rows, left = read_logs(paths, say)
+    rows, left = read_logs(paths, say, mapping)
     if not rows:
         raise ValueError(f"--logs {log_dir}: none of the {len(paths)} logs can be used (see above)")
     pump = derive.identify_pump_max_flow(rows)

@@ -55,17 +55,19 @@ def _run_log(model, log: s.MachineLog, what: str) -> dict:
     return {k: v for k, v in result.items() if k not in ("series", "a", "b")}
 
 
-def validate_on_logs(model_dir: str | Path, log_dir: str | Path, backend: str = "auto") -> dict:
-    """Per log in ``log_dir``: the fitted model's (``model_dir``) and the packaged model's tip and joint errors
-    against the log; and over the logs the median and worst of the per-log mean tip errors, and the worst tip
-    error anywhere."""
+def validate_on_logs(
+    model_dir: str | Path, log_dir: str | Path, backend: str = "auto", mapping: str | Path | None = None
+) -> dict:
+    """Per log in ``log_dir`` (CSV; MCAP through ``mapping``): the fitted model's (``model_dir``) and the packaged
+    model's tip and joint errors against the log; and over the logs the median and worst of the per-log mean tip
+    errors, and the worst tip error anywhere."""
     from hexgym.model.backend import make_learned_model
 
     models = {"fitted": make_learned_model(backend, tables_dir=model_dir), "packaged": make_learned_model(backend)}
     t0 = time.perf_counter()
     per_log = []
     for path in track(log_files(log_dir), "validate: logs", "log"):
-        log = read_machine_log(path)
+        log = read_machine_log(path, mapping)
         per_log.append({"log": str(path)} | {name: _run_log(m, log, name) for name, m in models.items()})
     summary = {name: _suite(per_log, name) for name in MODELS}
     return {"model": str(model_dir), "logs": str(log_dir), "summary": summary, "per_log": per_log,
