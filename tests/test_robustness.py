@@ -964,6 +964,99 @@ def _(tmp):
     return _evaluate(path)
 
 
+# -- policies: what they were trained on (the normaliser's trained_on) ----------------------------------
+def _trained_on(tmp: Path, env_id: str = "HexLoading-v0", tables: str | None = "circuit", **more: Any) -> Path:
+    """The shipped agent's copy, its normaliser recording that it was trained on ``env_id`` and ``tables``."""
+    from hexgym.agents.policy_files import normalizer_path
+    from hexgym.envs.loading import OBSERVATION_NAMES
+
+    path = _policy(tmp)
+    stats = normalizer_path(path)
+    data = json.loads(stats.read_text())
+    data["trained_on"] = {"env_id": env_id, "obs_names": list(OBSERVATION_NAMES)} | more
+    if tables is not None:
+        data["trained_on"]["tables"] = tables
+    stats.write_text(json.dumps(data))
+    return path
+
+
+def _short(path: Path, *extra: str) -> list[str]:
+    return [*_evaluate(path), "--seconds", "0.5", *extra]
+
+
+@case("policy", "a HexDig-v0 policy on HexLoading-v0", r"policy.zip: trained on HexDig-v0, used on HexLoading-v0$")
+def _(tmp):
+    return _evaluate(_trained_on(tmp, "HexDig-v0"))
+
+
+@case("policy", "a HexLoading-v0 policy on HexDig-v0", r"policy.zip: trained on HexLoading-v0, used on HexDig-v0$")
+def _(tmp):
+    return [*_evaluate(_trained_on(tmp)), "--env", "HexDig-v0"]
+
+
+@case("policy", "a paper-tables policy on circuit", r"policy.zip: trained on the paper tables, used on the circuit")
+def _(tmp):
+    return _evaluate(_trained_on(tmp, tables="paper"))
+
+
+@case("policy", "a fitted model's policy on circuit", r"trained on the fitted model 'unit5', used on the circuit")
+def _(tmp):
+    return _evaluate(_trained_on(tmp, tables="model:unit5"))
+
+
+@case("policy", "trained on circuit, used on paper", r"trained on the circuit tables, used on the paper tables")
+def _(tmp):
+    return [*_evaluate(_trained_on(tmp)), "--tables", "paper"]
+
+
+@case("policy", "another observation layout", r"observation 0 is 'stick_angle' in the policy, 'boom_angle' here")
+def _(tmp):
+    from hexgym.envs.loading import OBSERVATION_NAMES
+
+    names = list(OBSERVATION_NAMES)
+    names[0], names[1] = names[1], names[0]
+    return _evaluate(_trained_on(tmp, obs_names=names))
+
+
+@case("policy", "video of a policy trained on HexDig-v0", r"policy.zip: trained on HexDig-v0, used on HexLoading-v0")
+def _(tmp):
+    return ["video", "--policy", str(_trained_on(tmp, "HexDig-v0")), "--out", str(tmp / "v.mp4")]
+
+
+@case("policy", "train --init-from a policy trained on paper", r"trained on the paper tables, used on the circuit")
+def _(tmp):
+    write(tmp / "h.yml", TINY_YAML)
+    init = _trained_on(tmp, tables="paper")
+    return ["train", "--hyperparams", str(tmp / "h.yml"), "--init-from", str(init), "-f", str(tmp / "logs")]
+
+
+@case("policy", "trained on its task and tables: accepted", exit_code=0)
+def _(tmp):
+    return _short(_trained_on(tmp))
+
+
+@case("policy", "trained on paper, on the reference model: accepted", exit_code=0)
+def _(tmp):
+    return _short(_trained_on(tmp, tables="paper"), "--model", "reference")
+
+
+@case("policy", "nothing recorded (an older file): accepted", exit_code=0)
+def _(tmp):
+    return _short(_policy(tmp))
+
+
+for _name, _value, _match in (
+    ("not an object", "HexDig-v0", r"'trained_on' must be an object with 'env_id'"),
+    ("no env_id", {"tables": "circuit"}, r"'trained_on' must be an object with 'env_id'"),
+    ("an unknown key", {"env_id": "HexLoading-v0", "seed": 1}, r"'trained_on' must be an object with 'env_id'"),
+    ("tables a number", {"env_id": "HexLoading-v0", "tables": 3}, r"'trained_on.tables' must be a non-empty string"),
+    ("obs_names not names", {"env_id": "HexLoading-v0", "obs_names": [1]}, r"'trained_on.obs_names' must be a non"),
+):
+    case("normaliser", "trained_on " + _name, _match)(
+        lambda tmp, value=_value: _normalizer(tmp, lambda d: d.update(trained_on=value))
+    )
+
+
 @case(
     "normaliser", "convert-normalizer of a crafted pickle", r"refers to posix.mkdir, which a VecNormalize", marker=True
 )

@@ -1,5 +1,7 @@
 """hexgym train and clone: rl-zoo3 hyperparameters, short runs that save, reload and resume."""
 
+import json
+
 import numpy as np
 import pytest
 import yaml
@@ -70,6 +72,10 @@ def test_short_ppo_run_saves_reloads_and_resumes(tmp_path, tiny_yaml, capsys, mo
     checkpoint = latest_checkpoint(path.parent)
     assert checkpoint is not None and checkpoint.name == "rl_model_256_steps.zip"
     assert normalizer_path(checkpoint).is_file()
+    for saved in (path, checkpoint):  # what it was trained on, for loading to check
+        recorded = json.loads(normalizer_path(saved).read_text())["trained_on"]
+        assert recorded["env_id"] == "HexLoading-v0" and recorded["tables"] == "circuit"
+        assert len(recorded["obs_names"]) == 23 and recorded["obs_names"][0] == "boom_angle"
     policy = load_trained(path)
     assert policy.normalizer is not None and policy.normalizer.obs_count > 256  # it saw the rollouts
     action = policy.act(np.zeros(23, np.float32), None)

@@ -6,11 +6,18 @@ agent packaged in ``hexgym/policies``), the path of a Stable-Baselines3 ``.zip``
 ``hexgym train --framework rllib`` (run from its weights alone, :func:`load_rllib_policy`: plain numpy, no Ray
 or RLlib). :func:`load_policy` turns any of these into an object with ``reset()`` and ``act(obs, env)``;
 policy files are read without unpickling anything (:mod:`hexgym.agents.policy_files`).
+
+A trained model's normaliser file records what it was trained on (:func:`trained_on`); :func:`load_trained`
+refuses it on another task, another observation layout or, on the learned model, other tables
+(:func:`check_trained_on`). On the reference model (``model="reference"``, the real machine's stand-in) a policy of
+any table set is accepted: measuring it there is the point. A file that records nothing is accepted silently.
 """
 
 from __future__ import annotations
 
+import os
 import re
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -20,6 +27,7 @@ import numpy as np
 from hexgym.agents.policy_files import (
     ObsNormalizer,
     PolicyFileError,
+    TrainedOn,
     load_normalizer,
     load_sb3_model,
     normalizer_path,
@@ -27,7 +35,9 @@ from hexgym.agents.policy_files import (
     read_module_weights,
     rllib_module_path,
 )
-from hexgym.envs import ENV_ID  # importing hexgym registers it
+from hexgym.envs import DIG_ENV_ID, ENV_ID  # importing hexgym registers it
+from hexgym.mbl.schema import DEFAULT_TABLE_SET
+from hexgym.mbl.table import resolve_tables
 
 POLICY_DIR = Path(__file__).resolve().parents[1] / "policies"
 SHIPPED_POLICY = POLICY_DIR / "ppo_loading.zip"
@@ -101,12 +111,90 @@ def _spaces_for(model_path: Path) -> tuple[Any, Any]:
     return observation, action
 
 
-def load_trained(model_path: str | Path, env_id: str = ENV_ID) -> TrainedPolicy:
-    """Load a model saved by ``hexgym train`` with its observation normaliser, unpickling nothing.
+# -- what a policy was trained on --------------------------------------------------------------------
+REFERENCE_TABLES = "reference"  # ``TrainedOn.tables`` of a policy trained on the reference model
+FITTED_PREFIX = "model:"  # ``TrainedOn.tables`` of a fitted model directory: "model:<its name>"
+
+
+def tables_label(tables: str | os.PathLike[str] = DEFAULT_TABLE_SET, model: str = "learned") -> str:
+    """The machine model an env runs, as :class:`~hexgym.agents.policy_files.TrainedOn` records it: the table set
+    (``"circuit"``, ``"paper"``), ``"model:<name>"`` for a fitted model's directory (its name: the path differs
+    between machines), ``"reference"`` for the reference model. ValueError for a ``tables`` the envs refuse."""
+    if model == "reference":
+        return REFERENCE_TABLES
+    table_set, directory = resolve_tables(tables)
+    return table_set if directory is None else FITTED_PREFIX + directory.resolve().name
+
+
+def observation_names(env_id: str) -> tuple[str, ...] | None:
+    """The observation entries of ``env_id`` by name (the loading site's tasks), or None where they are not named."""
+    if env_id in (ENV_ID, DIG_ENV_ID):
+        from hexgym.envs.loading import OBSERVATION_NAMES
+
+        return tuple(OBSERVATION_NAMES)
+    return None
+
+
+def trained_on(env_id: str, env_kwargs: Mapping[str, Any] | None = None) -> TrainedOn:
+    """What a policy trained on ``gymnasium.make(env_id, **env_kwargs)`` records: the task, the machine model
+    (:func:`tables_label`) and the observations' names (:func:`observation_names`)."""
+    kwargs = env_kwargs or {}
+    if not isinstance(kwargs, Mapping):
+        raise ValueError(f"env_kwargs must be a mapping, got {kwargs!r}")
+    label = tables_label(kwargs.get("tables", DEFAULT_TABLE_SET), kwargs.get("model", "learned"))
+    return TrainedOn(env_id, label, observation_names(env_id))
+
+
+def _model_words(label: str) -> str:
+    if label == REFERENCE_TABLES:
+        return "the reference model"
+    if label.startswith(FITTED_PREFIX):
+        return f"the fitted model {label.removeprefix(FITTED_PREFIX)!r}"
+    return f"the {label} tables"
+
+
+def check_trained_on(
+    model_path: str | Path,
+    recorded: TrainedOn | None,
+    env_id: str = ENV_ID,
+    env_kwargs: Mapping[str, Any] | None = None,
+) -> None:
+    """Refuse a policy used on another task, observation layout or learned model than it was trained on.
+
+    ``recorded``: what its normaliser file says (None: nothing recorded, accepted). ``env_id``/``env_kwargs``: the
+    environment it is about to act in. On the reference model any table set is accepted. PolicyFileError in one
+    line naming the policy and what differs, e.g. ``p.zip: trained on HexDig-v0, used on HexLoading-v0``.
+    """
+    if recorded is None:
+        return
+    used = trained_on(env_id, env_kwargs)
+    if recorded.env_id != used.env_id:
+        raise PolicyFileError(f"{model_path}: trained on {recorded.env_id}, used on {used.env_id}")
+    if recorded.obs_names is not None and used.obs_names is not None and recorded.obs_names != used.obs_names:
+        raise PolicyFileError(f"{model_path}: trained on another observation layout than {used.env_id}'s: "
+                              f"{_layout_difference(recorded.obs_names, used.obs_names)}")  # fmt: skip
+    if recorded.tables is not None and used.tables != REFERENCE_TABLES and recorded.tables != used.tables:
+        raise PolicyFileError(f"{model_path}: trained on {_model_words(recorded.tables)}, used on "
+                              f"{_model_words(used.tables)}")  # fmt: skip
+
+
+def _layout_difference(trained: tuple[str, ...], used: tuple[str, ...]) -> str:
+    for i, (a, b) in enumerate(zip(trained, used, strict=False)):
+        if a != b:
+            return f"observation {i} is {a!r} in the policy, {b!r} here"
+    return f"the policy's has {len(trained)} entries, the environment's {len(used)}"
+
+
+def load_trained(
+    model_path: str | Path, env_id: str = ENV_ID, env_kwargs: Mapping[str, Any] | None = None
+) -> TrainedPolicy:
+    """Load a model saved by ``hexgym train`` with its observation normaliser, unpickling nothing, to act in
+    ``gymnasium.make(env_id, **env_kwargs)``.
 
     Refused with :class:`~hexgym.agents.policy_files.PolicyFileError` (a ValueError naming the file):
     a file that is no PPO/SAC model zip, a model for other observations or actions, a missing,
-    pickled or malformed normaliser, a normaliser of another size than the observations.
+    pickled or malformed normaliser, a normaliser of another size than the observations, a model recorded
+    as trained on another task, observation layout or learned model (:func:`check_trained_on`).
     """
     model_path = Path(model_path)
     if not model_path.exists():
@@ -118,6 +206,7 @@ def load_trained(model_path: str | Path, env_id: str = ENV_ID) -> TrainedPolicy:
         observation_space, action_space = env.observation_space, env.action_space
         env.close()
     normalizer = load_normalizer(model_path)
+    check_trained_on(model_path, normalizer.trained_on, env_id, env_kwargs)
     model = load_sb3_model(model_path, observation_space, action_space)
     if normalizer.size is not None and normalizer.size != model.observation_space.shape[0]:
         raise PolicyFileError(
@@ -127,23 +216,29 @@ def load_trained(model_path: str | Path, env_id: str = ENV_ID) -> TrainedPolicy:
     return TrainedPolicy(model, normalizer if normalizer.norm_obs else None)
 
 
-def load_policy(spec: str | Path, env_id: str = ENV_ID, loader_settings: str | Path | None = None) -> Policy:
+def load_policy(
+    spec: str | Path,
+    env_id: str = ENV_ID,
+    loader_settings: str | Path | None = None,
+    env_kwargs: Mapping[str, Any] | None = None,
+) -> Policy:
     """``"scripted"``, ``"shipped"``, a model path or an RLlib checkpoint directory -> a policy for ``env_id``
     (another task than HexLoading-v0: ``"scripted"`` or a model trained on it). ``loader_settings``: a JSON
-    file of the scripted loader's settings (``"scripted"`` only)."""
+    file of the scripted loader's settings (``"scripted"`` only). ``env_kwargs``: those the environment is made
+    with (its ``tables`` and ``model``: a trained model is checked against them, :func:`check_trained_on`)."""
     if spec == "scripted":
         return ScriptedPolicy(loader_settings)
     if loader_settings is not None:
         raise ValueError(f"--loader-settings {loader_settings}: only for the scripted policy, not {spec}")
     if env_id != ENV_ID:
-        return load_trained(spec, env_id)
+        return load_trained(spec, env_id, env_kwargs)
     if spec == "shipped":
         if not SHIPPED_POLICY.is_file():
             raise FileNotFoundError(f"no shipped policy at {SHIPPED_POLICY}: see README, Training agents")
-        return load_trained(SHIPPED_POLICY)
+        return load_trained(SHIPPED_POLICY, env_kwargs=env_kwargs)
     if Path(spec).is_dir():  # `hexgym train --framework rllib` checkpoints are directories
         return load_rllib_policy(spec)
-    return load_trained(spec)
+    return load_trained(spec, env_kwargs=env_kwargs)
 
 
 _ACTOR = re.compile(r"encoder\.actor_encoder\.net\.mlp\.(\d+)\.(weight|bias)")

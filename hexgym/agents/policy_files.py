@@ -11,6 +11,12 @@ old pickled normaliser (``<stem>_vecnormalize.pkl``) is refused with the command
 arrays and records the other objects' fields (:func:`convert_pickled_normalizer`): no class of the
 file's choosing is instantiated and no function of its choosing is called.
 
+**What a policy was trained on.** The normaliser file also records the task, the machine model and the
+observation layout the policy was trained on (``trained_on``, :class:`TrainedOn`): ``hexgym train`` and
+``hexgym clone`` write it, and :func:`hexgym.agents.policies.load_trained` refuses a policy used on another
+task, another model or another observation layout in one line. A file without it (an older one, or one
+written by hand) is checked by its observation and action shapes alone, without a message.
+
 **Model zip.** ``PPO.load``/``SAC.load`` read the zip's ``data`` (JSON) and its ``*.pth`` tensors.
 The tensors are read by ``torch.load(..., weights_only=True)`` (Stable-Baselines3 >= 2.3), which
 builds only tensors and plain containers. But ``data`` holds some entries as base64 cloudpickles
@@ -52,6 +58,44 @@ MAX_DATA_BYTES = 64 * 2**20  # the zip's "data" record (JSON, a few kB in practi
 
 class PolicyFileError(ValueError):
     """A policy or normaliser file that cannot be used; the message names the file and the problem."""
+
+
+@dataclass(frozen=True)
+class TrainedOn:
+    """What a policy was trained on, as its normaliser file records it (the ``trained_on`` object).
+
+    Attributes:
+        env_id: the task's Gymnasium id, e.g. ``"HexLoading-v0"``.
+        tables: the machine model: the learned model's table set (``"circuit"``, ``"paper"``), ``"model:<name>"``
+            for a model directory fitted to a machine's logs (the directory's name), ``"reference"`` for the
+            reference model; None: not recorded.
+        obs_names: the environment's observation entries by name, in order (a wrapper's additions, such as the
+            previous action, not included); None: not recorded (a task without named observations).
+    """
+
+    env_id: str
+    tables: str | None = None
+    obs_names: tuple[str, ...] | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.env_id, str) or not self.env_id:
+            raise ValueError(f"TrainedOn: env_id must be a non-empty string, got {self.env_id!r}")
+        if self.tables is not None and (not isinstance(self.tables, str) or not self.tables):
+            raise ValueError(f"TrainedOn: tables must be a non-empty string or None, got {self.tables!r}")
+        if self.obs_names is not None:
+            names = tuple(self.obs_names)
+            if not names or not all(isinstance(n, str) and n for n in names):
+                raise ValueError("TrainedOn: obs_names must be a non-empty list of non-empty strings")
+            object.__setattr__(self, "obs_names", names)
+
+    def to_json(self) -> dict[str, Any]:
+        """The ``trained_on`` object of the file (fields not recorded left out)."""
+        data: dict[str, Any] = {"env_id": self.env_id}
+        if self.tables is not None:
+            data["tables"] = self.tables
+        if self.obs_names is not None:
+            data["obs_names"] = list(self.obs_names)
+        return data
 
 
 # -- names --------------------------------------------------------------------------------------
@@ -96,6 +140,7 @@ class ObsNormalizer:
     ret_mean: float = 0.0
     ret_var: float = 1.0
     ret_count: float = 1e-4
+    trained_on: TrainedOn | None = None  # what the policy was trained on (None: not recorded)
 
     def __post_init__(self) -> None:
         for key in ("clip_obs", "clip_reward", "gamma", "epsilon", "obs_count", "ret_mean", "ret_var", "ret_count"):
@@ -104,6 +149,8 @@ class ObsNormalizer:
                 raise TypeError(f"ObsNormalizer: {key} must be a number, got {value!r}")
             if not math.isfinite(value):
                 raise ValueError(f"ObsNormalizer: {key} must be finite, got {value!r}")
+        if self.trained_on is not None and not isinstance(self.trained_on, TrainedOn):
+            raise TypeError(f"ObsNormalizer: trained_on must be a TrainedOn or None, got {self.trained_on!r}")
         if self.obs_dtype not in _DTYPES:
             raise ValueError(f"ObsNormalizer: obs_dtype must be one of {_DTYPES}, got {self.obs_dtype!r}")
         _check_normalizer("ObsNormalizer", self)
@@ -123,10 +170,10 @@ class ObsNormalizer:
         return np.clip((obs - mean) / np.sqrt(var + self.epsilon), -self.clip_obs, self.clip_obs).astype(np.float32)
 
     @classmethod
-    def from_vec_normalize(cls, venv: Any | None) -> ObsNormalizer:
-        """The statistics of a ``VecNormalize`` (None: an identity)."""
+    def from_vec_normalize(cls, venv: Any | None, trained_on: TrainedOn | None = None) -> ObsNormalizer:
+        """The statistics of a ``VecNormalize`` (None: an identity), recording ``trained_on`` when given."""
         if venv is None:
-            return cls()
+            return cls(trained_on=trained_on)
         if isinstance(venv.obs_rms, dict):
             raise ValueError("dictionary observation spaces are not supported by hexgym's normaliser files")
         rms = venv.obs_rms
@@ -135,7 +182,7 @@ class ObsNormalizer:
             clip_reward=float(venv.clip_reward), gamma=float(venv.gamma), epsilon=float(venv.epsilon),
             obs_mean=tuple(float(x) for x in np.ravel(rms.mean)), obs_var=tuple(float(x) for x in np.ravel(rms.var)),
             obs_count=float(rms.count), obs_dtype=_dtype_name(rms.mean), ret_mean=float(np.ravel(venv.ret_rms.mean)[0]),
-            ret_var=float(np.ravel(venv.ret_rms.var)[0]), ret_count=float(venv.ret_rms.count),
+            ret_var=float(np.ravel(venv.ret_rms.var)[0]), ret_count=float(venv.ret_rms.count), trained_on=trained_on,
         )  # fmt: skip
 
     def vec_normalize(self, venv: Any, training: bool = True) -> Any:
@@ -158,13 +205,15 @@ class ObsNormalizer:
         return wrapper
 
     def to_json(self) -> dict[str, Any]:
-        """The file's content: numbers, booleans and the format tag only."""
+        """The file's content: numbers, booleans, the format tag and what the policy was trained on."""
         data: dict[str, Any] = {"format": NORMALIZER_FORMAT, "version": NORMALIZER_VERSION}
         data |= {k: getattr(self, k) for k in ("norm_obs", "norm_reward", "clip_obs", "clip_reward", "gamma",
                                                "epsilon")}  # fmt: skip
         data["obs"] = {"mean": list(self.obs_mean), "var": list(self.obs_var), "count": self.obs_count,
                        "dtype": self.obs_dtype}  # fmt: skip
         data["ret"] = {"mean": self.ret_mean, "var": self.ret_var, "count": self.ret_count}
+        if self.trained_on is not None:
+            data["trained_on"] = self.trained_on.to_json()
         return data
 
 
@@ -219,7 +268,7 @@ def _normalizer_from_json(path: Path, data: Any) -> ObsNormalizer:
         raise PolicyFileError(f"{where}: format {data.get('format')!r}, expected {NORMALIZER_FORMAT!r}")
     if data.get("version") != NORMALIZER_VERSION or isinstance(data.get("version"), bool):
         raise PolicyFileError(f"{where}: version {data.get('version')!r}; this hexgym reads {NORMALIZER_VERSION}")
-    unknown = set(data) - {"format", "version", *_FIELDS, *_STATS}
+    unknown = set(data) - {"format", "version", "trained_on", *_FIELDS, *_STATS}
     if unknown:
         raise PolicyFileError(f"{where}: unknown key(s) {sorted(unknown)}")
     kwargs: dict[str, Any] = {}
@@ -245,10 +294,28 @@ def _normalizer_from_json(path: Path, data: Any) -> ObsNormalizer:
                                                  for i, v in enumerate(value))  # fmt: skip
             else:
                 kwargs[f"{group}_{key}"] = _typed(where, f"{group}.{key}", value, float)
+    if "trained_on" in data:
+        kwargs["trained_on"] = _trained_on_from_json(where, data["trained_on"])
     try:
         return ObsNormalizer(**kwargs)  # checks its numbers (clip_obs > 0, ...)
     except (ValueError, TypeError) as exc:
         raise PolicyFileError(f"{where}: {str(exc).removeprefix('ObsNormalizer: ')}") from None
+
+
+def _trained_on_from_json(where: str, data: Any) -> TrainedOn:
+    """The ``trained_on`` object: ``env_id`` (a string), optional ``tables`` (a string), ``obs_names`` (strings)."""
+    if not isinstance(data, dict) or set(data) - {"env_id", "tables", "obs_names"} or "env_id" not in data:
+        raise PolicyFileError(f"{where}: 'trained_on' must be an object with 'env_id' and optionally 'tables' and "
+                              "'obs_names'")  # fmt: skip
+    for key in ("env_id", "tables"):
+        if key in data and (not isinstance(data[key], str) or not data[key]):
+            raise PolicyFileError(f"{where}: 'trained_on.{key}' must be a non-empty string, got {data[key]!r}")
+    names = data.get("obs_names")
+    if names is not None and (
+        not isinstance(names, list) or not names or not all(isinstance(n, str) and n for n in names)
+    ):
+        raise PolicyFileError(f"{where}: 'trained_on.obs_names' must be a non-empty list of names")
+    return TrainedOn(data["env_id"], data.get("tables"), tuple(names) if names is not None else None)
 
 
 def _typed(where: str, key: str, value: Any, kind: type) -> Any:

@@ -182,7 +182,7 @@ def evaluate(
     check_count("workers", workers)
     if json_out:
         check_output_file(json_out, "JSON output", inputs=(policy_spec,))
-    policy = load_policy(policy_spec, loader_settings=loader_settings)
+    policy = load_policy(policy_spec, loader_settings=loader_settings, env_kwargs=env_kwargs)
     seeds = [seed + i for i in range(int(episodes))]
     with executor(min(workers, len(seeds)), ray, initializer=_init_worker, initargs=(policy, env_kwargs)) as pool:
         try:  # as they finish (the progress), then in seed order (the figures)
@@ -230,7 +230,7 @@ def evaluate_success(
     check_seed("seed", seed)
     if model_path == "scripted" and env_id != DIG_ENV_ID:
         raise ValueError(f"the scripted loader acts on the loading site: HexLoading-v0 or {DIG_ENV_ID}, not {env_id}")
-    policy = load_policy(model_path, env_id)
+    policy = load_policy(model_path, env_id, env_kwargs=env_kwargs)
     env = gym.make(env_id, **(env_kwargs or {}))
     try:
         seeds = range(seed, seed + int(episodes))

@@ -3,7 +3,8 @@
 Hyperparameters are rl-zoo3 YAML keyed by env id (``hexgym_lab/hyperparams/<algo>.yml``). A run lives
 in ``<logdir>/<algo>_<env id>/``: ``checkpoints/`` (model + VecNormalize statistics, saved atomically),
 ``tb/`` (TensorBoard, when installed) and the final ``model.zip`` + ``model_vecnormalize.json`` (the
-observation statistics as numbers, :mod:`hexgym.agents.policy_files`: nothing is pickled or unpickled).
+observation statistics as numbers, :mod:`hexgym.agents.policy_files`: nothing is pickled or unpickled; with what
+the model was trained on, the task, the machine model and the observations' names, that loading checks).
 Running the same command again resumes from the newest checkpoint.
 
 Reinforcement learning from scratch on a 180 s, 10 Hz loading task is slow on a laptop CPU (the
@@ -32,10 +33,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from hexgym.agents.policies import load_trained
+from hexgym.agents.policies import check_trained_on, load_trained, trained_on
 from hexgym.agents.policy_files import (
     ObsNormalizer,
     PolicyFileError,
+    TrainedOn,
     algorithm_of,
     load_normalizer,
     load_sb3_model,
@@ -164,22 +166,23 @@ def make_vec_env(
 
 
 # -- saving -----------------------------------------------------------------------------------------
-def save_model(model: Any, path: str | Path) -> Path:
+def save_model(model: Any, path: str | Path, task: TrainedOn | None = None) -> Path:
     """Save an SB3 model and its observation normaliser (``<stem>_vecnormalize.json``), replaced as a pair.
 
     The normaliser is always written (an identity for a model trained without one), so a model
-    without it is known to be incomplete. Both are written to temporary files first: a failure leaves the old
-    pair, never a new model beside an old normaliser.
+    without it is known to be incomplete; it records ``task``, what the model was trained on
+    (:func:`hexgym.agents.policies.trained_on`), when given. Both are written to temporary files first: a
+    failure leaves the old pair, never a new model beside an old normaliser.
     """
     path = Path(path)
-    normalizer = ObsNormalizer.from_vec_normalize(model.get_vec_normalize_env())
+    normalizer = ObsNormalizer.from_vec_normalize(model.get_vec_normalize_env(), task)
     with atomic_paths(path, normalizer_path(path)) as (model_tmp, normalizer_tmp):
         model.save(model_tmp)
         write_normalizer(normalizer, normalizer_tmp)
     return path
 
 
-def _checkpoint_callback(directory: Path, every: int) -> Any:
+def _checkpoint_callback(directory: Path, every: int, task: TrainedOn | None = None) -> Any:
     from stable_baselines3.common.callbacks import BaseCallback
 
     class AtomicCheckpoint(BaseCallback):
@@ -187,7 +190,7 @@ def _checkpoint_callback(directory: Path, every: int) -> Any:
 
         def _on_step(self) -> bool:
             if self.n_calls % max(every // self.training_env.num_envs, 1) == 0:
-                save_model(self.model, directory / f"rl_model_{self.num_timesteps}_steps.zip")
+                save_model(self.model, directory / f"rl_model_{self.num_timesteps}_steps.zip", task)
             return True
 
     return AtomicCheckpoint()
@@ -279,15 +282,18 @@ def _load_into(path: Path, algo_class: type, venv: Any, update_statistics: bool 
     return load_sb3_model(path, venv.observation_space, venv.action_space, env=venv, **kwargs)
 
 
-def check_start_model(path: str | Path, algo: str = "ppo") -> Path:
-    """``path`` if it is a model ``train`` can start from: a PPO/SAC zip of ``algo`` with its normaliser."""
+def check_start_model(
+    path: str | Path, algo: str = "ppo", env_id: str = ENV_ID, env_kwargs: dict[str, Any] | None = None
+) -> Path:
+    """``path`` if it is a model ``train`` can start from: a PPO/SAC zip of ``algo`` with its normaliser, not
+    recorded as trained on another task or model than ``gymnasium.make(env_id, **env_kwargs)``."""
     from stable_baselines3 import PPO, SAC
 
     path = check_input_file(path, "model to start from")
     found = algorithm_of(path, read_model_data(path))
     if found is not {"ppo": PPO, "sac": SAC}[algo]:
         raise PolicyFileError(f"{path} is a {found.__name__} model; this run trains {algo.upper()}")
-    load_normalizer(path)
+    check_trained_on(path, load_normalizer(path).trained_on, env_id, env_kwargs)
     return path
 
 
@@ -345,8 +351,9 @@ def train(
     resume = latest_checkpoint(run_dir)
     start = resume or (Path(init_from) if init_from is not None else None)
     if start is not None:
-        check_start_model(start, algo)
+        check_start_model(start, algo, env_id, hp.get("env_kwargs"))
     check_hyperparams(algo, hp, env_id)
+    task = trained_on(env_id, hp.get("env_kwargs"))
     with run_lock(run_dir):  # a second run into this directory is refused, not interleaved with this one
         tensorboard = str(run_dir / "tb") if importlib.util.find_spec("tensorboard") else None
         venv = make_vec_env(env_id, n_envs, seed, hp.get("env_kwargs"), hp.get("env_wrapper"), batch=batch)
@@ -370,7 +377,7 @@ def train(
         done = model.num_timesteps if resume else 0
         progress = Progress(done + remaining, "train", "step", initial=done, count=progress_bar)
         callbacks = [
-            _checkpoint_callback(run_dir / "checkpoints", checkpoint_every),
+            _checkpoint_callback(run_dir / "checkpoints", checkpoint_every, task),
             _rollout_report_callback(progress.note if report else None, run_dir / "curve.csv"),
             _progress_callback(progress),
         ]
@@ -380,12 +387,12 @@ def train(
                     model.learn(remaining, callback=callbacks, reset_num_timesteps=resume is None, tb_log_name=algo)
         except KeyboardInterrupt:
             # a stopped run leaves its newest state as a usable model (with its normaliser), then stops
-            path = save_model(model, run_dir / "model.zip")
+            path = save_model(model, run_dir / "model.zip", task)
             print(stopped_run_message(run_dir, path, model.num_timesteps))
             raise
         finally:
             venv.close()
-        return save_model(model, run_dir / "model.zip")
+        return save_model(model, run_dir / "model.zip", task)
 
 
 def stopped_run_message(run_dir: Path, model_path: Path, steps: int) -> str:
@@ -472,7 +479,7 @@ def record_episode(
 
     torch.set_num_threads(1)
     env = make_env(ENV_ID, wrapper, **(env_kwargs or {}))
-    learner = load_trained(learner_path) if learner_path else None
+    learner = load_trained(learner_path, env_kwargs=env_kwargs) if learner_path else None
     rng = np.random.default_rng(seed + 7919)  # the mixing and noise draws: reproducible per seed
     obs, _ = env.reset(seed=seed)
     if learner is not None:
@@ -547,7 +554,7 @@ def score_episode(model_path: str, seed: int, env_kwargs: dict | None = None) ->
 
     torch.set_num_threads(1)
     env = gym.make(ENV_ID, **(env_kwargs or {}))
-    summary = run_episode(env, load_trained(model_path), seed).summary()
+    summary = run_episode(env, load_trained(model_path, env_kwargs=env_kwargs), seed).summary()
     env.close()
     return {"delivered_t": summary["delivered_t"], "full_dumps": summary["full_dumps"]}
 
@@ -688,6 +695,7 @@ def _clone_rounds(
     gamma = float(hp.get("gamma", 0.99))
     model = _new_ppo(hp, seed)
     env_kwargs, wrapper = hp.get("env_kwargs"), hp.get("env_wrapper")
+    task = trained_on(ENV_ID, env_kwargs)
     next_seed = seed + episodes
     demos = record_demonstrations(list(range(seed, next_seed)), gamma, env_kwargs=env_kwargs, wrapper=wrapper,
                                   noise=noise, pool=pool, loader_settings=teacher)  # fmt: skip
@@ -697,7 +705,7 @@ def _clone_rounds(
         stats = model.get_vec_normalize_env().obs_rms
         stats.mean, stats.var, stats.count = demos.obs.mean(0), demos.obs.var(0) + 1e-8, len(demos.obs)
         losses = fit_to_demonstrations(model, demos, epochs, seed + round_, loss=loss)
-        path = save_model(model, rounds / f"round{round_}.zip")  # each round's clone, to compare and select
+        path = save_model(model, rounds / f"round{round_}.zip", task)  # each round's clone, to compare and select
         message = (f"round {round_}: {len(demos.obs)} samples, action {loss} {losses['action_loss']:.4f}, "
                    f"value MSE {losses['value_mse']:.4f}")  # fmt: skip
         if select_seeds:
@@ -723,7 +731,7 @@ def _clone_rounds(
         )
         next_seed += dagger_episodes
     if best is None:
-        return save_model(model, out)
+        return save_model(model, out, task)
     log(f"selected {best[1].name} ({best[0]:.2f} t per selection episode)")
     with atomic_paths(out, normalizer_path(out)) as (model_tmp, normalizer_tmp):  # the pair, or neither
         shutil.copyfile(best[1], model_tmp)

@@ -85,7 +85,7 @@ def record_video(
     check_output_file(out, "video", inputs=(policy_file,))
     if snapshot is not None:
         check_output_file(snapshot, "snapshot", inputs=(policy_file, out))
-    policy = load_policy(policy_spec, env_id)
+    policy = load_policy(policy_spec, env_id, env_kwargs={"model": model})
     kwargs: dict[str, Any] = {"render_mode": "rgb_array", "camera": camera, "width": width, "height": height,
                               "model": model}  # fmt: skip
     if seconds is not None:
