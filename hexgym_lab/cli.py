@@ -1060,7 +1060,7 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
                        "clone, round<k>.zip")  # fmt: skip
     clone.add_argument("--hyperparams", default=None, help="PPO YAML giving the network (default: ppo.yml)")
     clone.add_argument("--tables", choices=tuple(TABLE_SETS), default=None,
-                       help="the learned model the episodes run on (default: the environment's, paper); the "
+                       help="the learned model the episodes run on (default: the environment's, circuit); the "
                        "shipped agent was cloned on circuit")  # fmt: skip
     clone.add_argument(
         "--loss",

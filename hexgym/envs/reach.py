@@ -118,7 +118,7 @@ class HexReachEnv(gym.Env):
     | time_weight | 0.01 | per step |
     | success_reward | 5.0 | on arrival |
     | backend | ``"auto"`` | the learned model's backend: ``"native"``, ``"python"``, ``"auto"`` |
-    | tables | ``"paper"`` | the learned model's table set (:mod:`hexgym.mbl.schema`) |
+    | tables | ``"circuit"`` | the learned model's table set (:mod:`hexgym.mbl.schema`) or a fitted model's directory |
 
     No rendering (``render_mode`` None only): render ``HexLoading-v0`` to watch the machine.
     """
