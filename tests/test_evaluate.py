@@ -127,7 +127,7 @@ def test_video_writes_an_mp4_with_overlay(tmp_path, monkeypatch):
             seen.append(float(obs[21]))
             return np.zeros(4, np.float32)
 
-    monkeypatch.setattr("hexgym_lab.agents.video.load_policy", lambda spec, env_id: BudgetSpy())
+    monkeypatch.setattr("hexgym_lab.agents.video.load_policy", lambda spec, env_id, env_kwargs=None: BudgetSpy())
     result = record_video("scripted", tmp_path / "v.mp4", seconds=1.0, width=160, height=96)
     assert result["frames"] == 11 and result["video"].stat().st_size > 1000
     # a 1 s film of an episode that keeps its 180 s budget: the policy acts as it would in evaluation

@@ -34,7 +34,7 @@ FULL = np.ones(2)  # both regulators asking for full displacement
 def test_every_experiment_has_its_readme_line():
     readme = (EXPERIMENTS / "README.md").read_text()
     scripts = sorted(path.name for path in EXPERIMENTS.glob("*.py"))
-    assert scripts == ["cluster_bench.py", "fuel_check.py", "swing_analysis.py"]
+    assert scripts == ["cluster_bench.py", "fuel_check.py", "robustness.py", "swing_analysis.py"]
     assert [name for name in scripts if f"- `{name}`:" not in readme] == []
 
 
