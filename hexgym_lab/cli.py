@@ -664,6 +664,12 @@ def add_ray_option(parser: argparse.ArgumentParser, what: str = "the tasks") -> 
     )
 
 
+def _add_mapping_option(parser: argparse.ArgumentParser, applies_to: str) -> None:
+    """Add ``--mapping FILE.yaml`` (an MCAP log's topics and fields to the machine-log signals) to a command."""
+    parser.add_argument("--mapping", default=None, metavar="FILE.yaml", help=f"{applies_to}: their topics and fields "
+                        "to signals (docs/machine-logs.md)")  # fmt: skip
+
+
 def _whole_number(text: str) -> int:
     """An integer option's value: digits and a sign only (``int`` also takes ``1_0``)."""
     from hexgym.checks import parse_int
@@ -763,8 +769,7 @@ def build_parser() -> argparse.ArgumentParser:
                           "(default: home)")  # fmt: skip
     simulate.add_argument("--start-from", default=None, metavar="LOG", help="start at a machine log's first "
                           "measured pose (CSV, or MCAP with --mapping; docs/machine-logs.md)")  # fmt: skip
-    simulate.add_argument("--mapping", default=None, metavar="FILE.yaml", help="--start-from an MCAP log: its "
-                          "topics and fields to signals")  # fmt: skip
+    _add_mapping_option(simulate, "--start-from an MCAP log")
     simulate.add_argument("--hydraulics", default=None, metavar="FILE", help="reference: a unit that is not the "
                           "packaged one, YAML or JSON (passage areas, pumps, reliefs, leakage; "
                           "docs/machine-logs.md)")  # fmt: skip
@@ -794,8 +799,7 @@ def build_parser() -> argparse.ArgumentParser:
     check_log = sub.add_parser("check-log", help="check machine logs: time, missing signals, NaN runs, units, stuck "
                                "sensors, signs, motion; exit 1 when one cannot be trusted")  # fmt: skip
     check_log.add_argument("logs", nargs="+", metavar="LOG", help="machine logs: CSV, or MCAP with --mapping")
-    check_log.add_argument("--mapping", default=None, metavar="FILE.yaml", help="MCAP logs: topics and fields to "
-                           "signals (docs/machine-logs.md)")  # fmt: skip
+    _add_mapping_option(check_log, "MCAP logs")
     check_log.add_argument("--json", action="store_true", help="print the findings as JSON")
     check_log.set_defaults(func=_cmd_check_log)
 
@@ -803,8 +807,7 @@ def build_parser() -> argparse.ArgumentParser:
                              "over their common time")  # fmt: skip
     compare.add_argument("a", metavar="A", help="a trajectory CSV or a machine log")
     compare.add_argument("b", metavar="B", help="another, compared with A")
-    compare.add_argument("--mapping", default=None, metavar="FILE.yaml", help="MCAP logs: topics and fields to "
-                         "signals")  # fmt: skip
+    _add_mapping_option(compare, "MCAP logs")
     compare.add_argument("--out", default=None, metavar="FILE.png", help="output file: a plot of the tip error and "
                          "the joints over time (needs matplotlib)")  # fmt: skip
     compare.add_argument("--json", action="store_true", help="print the figures as JSON")
@@ -859,8 +862,7 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--logs", default=None, metavar="DIR", help="instead of --data: a directory of machine logs "
                      "(CSV, or MCAP with --mapping) of your machine; fits the circuit tables to them, --out "
                      "MODEL_DIR gets the tables and provenance.json (docs/machine-logs.md)")  # fmt: skip
-    fit.add_argument("--mapping", default=None, metavar="FILE.yaml", help="--logs with MCAP logs: their topics and "
-                     "fields to signals (docs/machine-logs.md)")  # fmt: skip
+    _add_mapping_option(fit, "--logs with MCAP logs")
     fit.set_defaults(func=_cmd_fit)
 
     excitation = sub.add_parser("excitation", help="a command log of slow spool sweeps (each function, both ways) "
@@ -907,8 +909,7 @@ def build_parser() -> argparse.ArgumentParser:
                           "one")  # fmt: skip
     validate.add_argument("--logs", default=None, metavar="DIR", help="with --model: machine logs (CSV, or MCAP "
                           "with --mapping) to replay and score against (held out of the fit)")  # fmt: skip
-    validate.add_argument("--mapping", default=None, metavar="FILE.yaml", help="--logs with MCAP logs: their topics "
-                          "and fields to signals")  # fmt: skip
+    _add_mapping_option(validate, "--logs with MCAP logs")
     validate.add_argument(
         "--payload-kg",
         type=float,
