@@ -56,9 +56,25 @@ CLOSED_AREA = 1e-12  # m^2: a closed bypass section, in the series law (no divis
 RELIEF_MARGIN_PA = 2.0e6  # a pressure this close to its relief's setting may be relieving
 _CUSHION_CLEAR = p.CUSHION_LENGTH + 0.01  # m from a stroke end: the cushion is out of the outlet's way
 _CHECK_OPEN = p.LOAD_CHECK_CRACKING + p.LOAD_CHECK_SPAN
-_SWEPT = SWING_DISPLACEMENT_RAD * p.SWING_REDUCTION  # m^3 per radian of the upper structure
+SWING_SWEPT = SWING_DISPLACEMENT_RAD * p.SWING_REDUCTION  # m^3 per radian of the upper structure
 _SHARE = p.SWING_MOTOR_EXTERNAL_LEAK_SHARE
 _STICK = FUNCTIONS.index("stick")
+
+
+def compression_flows(volumes: np.ndarray, pressures: np.ndarray, pressure_rates: np.ndarray) -> np.ndarray:
+    """The oil (m^3/s) each node's compression takes, ``V / beta(p) dp/dt`` (any leading shape)."""
+    return volumes * compliance(pressures)[0] * pressure_rates
+
+
+def nfc_orifice_flow(signal_pa: np.ndarray | float) -> np.ndarray:
+    """The flow (m^3/s) through a pump's NFC orifice at its signal pressure: the end of its centre bypass."""
+    return p.DISCHARGE_COEFFICIENT * p.NFC_ORIFICE_AREA * orifice_law(np.asarray(signal_pa, dtype=float))[0]
+
+
+def swing_port_leak(p_port: np.ndarray | float, p_other: np.ndarray | float) -> np.ndarray | float:
+    """The oil (m^3/s) leaving a swing motor port through the motor's leaks: to the other port and to the case
+    drain (the circuit's ``swing_internal_leak`` and ``swing_drain_*`` branches)."""
+    return (1.0 - _SHARE) * p.SWING_MOTOR_LEAKAGE * (p_port - p_other) + 0.5 * _SHARE * p.SWING_MOTOR_LEAKAGE * p_port
 
 
 def _area(q: float, dp: float, min_drop: float = MIN_DROP_PA) -> float:
@@ -135,10 +151,8 @@ def _swing(u: float, rate: float, pa: float, pb: float, compression: np.ndarray,
     if abs(pa - pb) > relief - RELIEF_MARGIN_PA:
         return None
     positive = u > 0.0
-    cross = (1.0 - _SHARE) * p.SWING_MOTOR_LEAKAGE * (pa - pb)
-    drain = 0.5 * _SHARE * p.SWING_MOTOR_LEAKAGE
-    into_a = _SWEPT * rate + cross + drain * pa + compression[0]  # what must enter port a
-    into_b = -_SWEPT * rate - cross + drain * pb + compression[1]
+    into_a = SWING_SWEPT * rate + swing_port_leak(pa, pb) + compression[0]  # what must enter port a
+    into_b = -SWING_SWEPT * rate + swing_port_leak(pb, pa) + compression[1]
     q_in, q_out = (into_a, -into_b) if positive else (into_b, -into_a)
     p_in, p_out = (pa, pb) if positive else (pb, pa)
     q_in = q_in if p_in > MIN_PORT_PA else math.nan  # the inlet's continuity, unless make-up oil enters
@@ -187,7 +201,7 @@ def identify_areas(
     the signal pressure, the machine's data) is its one open section's. A regeneration passage's flow is what the
     inlet takes beyond the sections'.
     """
-    compression = volumes * compliance(pressures)[0] * pressure_rates  # m^3/s into each node's oil
+    compression = compression_flows(volumes, pressures, pressure_rates)
     out = {spec.output: math.nan for spec in valve_tables(layout).values()}
     functions = _functions(pressures, compression, spools_m, ext_m, vel_mps, swing_rate, reliefs)
     near_main = pressures[:2] > reliefs.main - RELIEF_MARGIN_PA
@@ -258,8 +272,7 @@ def _pump_meter_in(k: int, pressures: np.ndarray, compression: np.ndarray, pump_
     signal = pressures[2 + k]
     if near_main or signal > p.NFC_RELIEF:
         return math.nan
-    bypass = p.DISCHARGE_COEFFICIENT * p.NFC_ORIFICE_AREA * float(orifice_law(np.array(signal))[0])
-    return pump_flows[k] - compression[k] - bypass - compression[2 + k]
+    return pump_flows[k] - compression[k] - float(nfc_orifice_flow(signal)) - compression[2 + k]
 
 
 def _outlet_and_regeneration(layout: ValveLayout, fn: _Function, regen: float | None, pressures) -> dict[str, float]:

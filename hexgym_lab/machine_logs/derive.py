@@ -32,11 +32,18 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import savgol_filter
 
-from hexgym.hydraulics.circuit import DEFAULT_LAYOUT, NODES, HydraulicCircuit, compliance, orifice_law
+from hexgym.hydraulics.circuit import DEFAULT_LAYOUT, NODES, HydraulicCircuit
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
 from hexgym.mbl.table import load_tables
-from hexgym.mbl.valve import PACKAGED_RELIEFS, LearnedValve, ReliefSettings, identify_areas
+from hexgym.mbl.valve import (
+    PACKAGED_RELIEFS,
+    LearnedValve,
+    ReliefSettings,
+    compression_flows,
+    identify_areas,
+    nfc_orifice_flow,
+)
 from hexgym_lab.machine_logs import signals as s
 
 SMOOTH_S = 0.15  # s: the Savitzky-Golay window (quadratic); wider rounds off the ~2 Hz modes (tests)
@@ -211,15 +218,24 @@ def pump_flow_rows(rows: LogRows) -> np.ndarray:
     ext, stroke = rows.ext[:, 2], p.CYLINDERS["bucket"].stroke
     clear = (ext > p.CUSHION_LENGTH + 0.02) & (ext < stroke - p.CUSHION_LENGTH - 0.02)
     pick = np.flatnonzero(run & below & clear)
-    cyl, circuit = p.CYLINDERS["bucket"], HydraulicCircuit(layout=DEFAULT_LAYOUT)
+    cyl = p.CYLINDERS["bucket"]
     extending = u[pick, 3] > 0
     area = np.where(extending, cyl.head_area, cyl.rod_area) * cyl.count
     inlet = np.where(extending, NODES.index("bucket_head"), NODES.index("bucket_rod"))
-    volumes = np.array([circuit.volumes(rows.ext[k]) for k in pick]).reshape(-1, len(NODES))
-    compression = volumes * compliance(rows.pressures[pick])[0] * rows.rates[pick]  # m^3/s into each node's oil
-    nfc = p.DISCHARGE_COEFFICIENT * p.NFC_ORIFICE_AREA * orifice_law(rows.pressures[pick, 2])[0]
+    compression = node_compression(rows, pick)
     chamber = compression[np.arange(len(pick)), inlet]
+    nfc = nfc_orifice_flow(rows.pressures[pick, 2])
     return area * np.abs(rows.vel[pick, 2]) + chamber + compression[:, 0] + compression[:, 2] + nfc
+
+
+def node_compression(rows: LogRows, pick: np.ndarray | None = None) -> np.ndarray:
+    """(rows, nodes) m^3/s each node's compression takes at ``rows``' rows ``pick`` (default: all): the oil volumes
+    at the cylinders' extensions (:meth:`~hexgym.hydraulics.circuit.HydraulicCircuit.volumes`) through
+    :func:`hexgym.mbl.valve.compression_flows`."""
+    pick = np.arange(len(rows.t)) if pick is None else pick
+    circuit = HydraulicCircuit(layout=DEFAULT_LAYOUT)
+    volumes = np.array([circuit.volumes(rows.ext[k]) for k in pick]).reshape(-1, len(NODES))
+    return compression_flows(volumes, rows.pressures[pick], rows.rates[pick])
 
 
 def identify_pump_max_flow(all_rows: list[LogRows]) -> dict[str, object]:

@@ -30,7 +30,7 @@ from hexgym.machine import parameters as p
 from hexgym.mbl.schema import TABLE_SETS
 from hexgym.mbl.table import MBLTable, load_tables, packaged_tables_dir
 from hexgym.mbl.valve import ReliefSettings
-from hexgym_lab.machine_logs import derive
+from hexgym_lab.machine_logs import MCAP_SUFFIXES, derive
 from hexgym_lab.machine_logs.checks import check_log, trusted
 from hexgym_lab.machine_logs.reliefs import identify_reliefs, relief_hydraulics
 from hexgym_lab.mbl.fit import HOLDOUT_FRACTION, MAX_POINTS, TableData, fit_table
@@ -44,7 +44,7 @@ BIN_MM = 0.5  # spool bins of the coverage and of the packaged stand-in points
 MIN_BIN_SAMPLES = 3  # a bin with fewer measured samples is a gap (the packaged table's points fill it)
 PRIOR_PER_BIN = 3  # the packaged table's points per gap bin
 POOR_HOLDOUT = 0.10  # a table whose held-out error exceeds this share of its range is warned of
-LOG_SUFFIXES = (".csv", ".mcap")
+LOG_SUFFIXES = (".csv", *MCAP_SUFFIXES)
 TOE_MM = 1.0  # mm of spool past the dead band where the packaged table's shape stands in (see _past_toe)
 LEAKAGE_NOT_IDENTIFIED = "not determined by the logs: the packaged leaks stand"
 

@@ -30,15 +30,13 @@ import numpy as np
 from hexgym.hydraulics.circuit import (
     DEFAULT_LAYOUT,
     NODES,
-    SWING_DISPLACEMENT_RAD,
-    HydraulicCircuit,
-    compliance,
     orifice_law,
     relief_area,
     smoothstep,
 )
 from hexgym.machine import kinematics
 from hexgym.machine import parameters as p
+from hexgym.mbl.valve import SWING_SWEPT, nfc_orifice_flow, swing_port_leak
 from hexgym_lab.machine_logs import derive
 
 NEAR_SETTING = 0.8  # a pressure above this share of the data sheet's setting may be the relief's
@@ -50,8 +48,6 @@ MIN_ROWS = 20  # fewer rows: not identified
 MIN_LOGS = 2  # ... or from fewer logs
 PLAUSIBLE = 0.25  # an estimate further than this share from the data sheet's setting is not trusted
 MAX_STANDARD_ERROR = 0.5e6  # Pa: logs that disagree more than this (seen only in transients) are not trusted
-_SWEPT = SWING_DISPLACEMENT_RAD * p.SWING_REDUCTION  # m^3 per radian of the upper structure
-_SHARE = p.SWING_MOTOR_EXTERNAL_LEAK_SHARE
 _CLEAR = p.CUSHION_LENGTH + 0.02  # m from a stroke end: the stops' and cushions' spikes are not the relief's
 
 
@@ -70,13 +66,6 @@ def setting_from_flow(dp: np.ndarray, q: np.ndarray, rated_flow: float) -> np.nd
     return 0.5 * (lo + hi)
 
 
-def _compression(rows: derive.LogRows) -> np.ndarray:
-    """(n, nodes) m^3/s into each node's oil (volume x compliance x pressure rate)."""
-    circuit = HydraulicCircuit(layout=DEFAULT_LAYOUT)
-    volumes = np.array([circuit.volumes(e) for e in rows.ext])
-    return volumes * compliance(rows.pressures)[0] * rows.rates
-
-
 def _closed(rows: derive.LogRows, function: str) -> np.ndarray:
     return np.abs(rows.spools_m[:, kinematics.JOINTS.index(function)]) < p.SPOOL_DEAD_BAND
 
@@ -90,8 +79,7 @@ def swing_rows(rows: derive.LogRows, compression: np.ndarray) -> tuple[np.ndarra
     p_in = np.where(forward, rows.pressures[:, a], rows.pressures[:, b])
     c_out = np.where(forward, compression[:, b], compression[:, a])
     dp = p_out - p_in
-    leak = (1.0 - _SHARE) * p.SWING_MOTOR_LEAKAGE * dp + 0.5 * _SHARE * p.SWING_MOTOR_LEAKAGE * p_out
-    q = _SWEPT * np.abs(rate) - leak - c_out
+    q = SWING_SWEPT * np.abs(rate) - swing_port_leak(p_out, p_in) - c_out
     pick = rows.usable & _closed(rows, "swing") & (np.abs(rate) >= MIN_SWING_RATE)
     pick &= (dp > NEAR_SETTING * p.SWING_RELIEF) & (q > MIN_RELIEF_FLOW * p.LINE_RELIEF_RATED_FLOW)
     return dp[pick], q[pick]
@@ -134,8 +122,7 @@ def main_rows(rows: derive.LogRows, compression: np.ndarray, max_flow: float) ->
                 moving = np.abs(rows.vel[:, kinematics.FRONT_CYLINDERS.index(f)]) >= MIN_MOTION
                 pick &= ~(open_ & moving)
         pick &= np.any([~_closed(rows, f) for f in fed if f != "swing"], axis=0)  # something pushes on the pump
-        bypass = p.DISCHARGE_COEFFICIENT * p.NFC_ORIFICE_AREA * orifice_law(rows.pressures[:, 2 + k])[0]
-        q = flows[:, k] - compression[:, k] - compression[:, 2 + k] - bypass
+        q = flows[:, k] - compression[:, k] - compression[:, 2 + k] - nfc_orifice_flow(rows.pressures[:, 2 + k])
         pick &= q > MIN_RELIEF_FLOW * p.MAIN_RELIEF_RATED_FLOW
         dps.append(rows.pressures[pick, k])
         qs.append(q[pick])
@@ -168,7 +155,7 @@ def identify_reliefs(all_rows: list[derive.LogRows], max_flow: float) -> dict[st
     summary with ``identified`` and, where it is, ``value_pa`` and ``standard_error_pa``."""
     found: dict[str, list[np.ndarray]] = {"main": [], "swing": []} | {f"line_{c}": [] for c in p.LINE_RELIEF}
     for rows in all_rows:
-        compression = _compression(rows)
+        compression = derive.node_compression(rows)
         dp, q = main_rows(rows, compression, max_flow)
         found["main"].append(setting_from_flow(dp, q, p.MAIN_RELIEF_RATED_FLOW))
         dp, q = swing_rows(rows, compression)
