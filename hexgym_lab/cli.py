@@ -25,6 +25,7 @@ import os
 import sys
 from pathlib import Path
 
+from hexgym.agents import POLICY_NAMES  # names only: no MuJoCo
 from hexgym.hydraulics.circuit import DEFAULT_VALVE, VALVE_LAYOUTS  # names only: no MuJoCo
 from hexgym.mbl.schema import DEFAULT_TABLE_SET, TABLE_SETS  # names only: no MuJoCo
 
@@ -557,7 +558,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     seeds = parse_seeds(args.seeds) if args.seeds is not None else [args.seed]
     result = run_plan(args.task, seeds, w_fuel=args.w_fuel, budget=args.budget, nthread=args.threads,
                       json_out=args.json, margin_m=args.margin, ray=args.ray, check=not args.no_check,
-                      swing=args.swing, search=args.search, workers=args.workers)  # fmt: skip
+                      swing=args.swing, workers=args.workers, population=args.population)  # fmt: skip
     shown = result.get("summary", {k: v for k, v in result.items() if not k.endswith("_mm") and k != "paths"})
     print(json.dumps(shown, indent=2))
     if args.plot:
@@ -990,28 +991,26 @@ def _add_planning_parsers(sub: argparse._SubParsersAction) -> None:
         "--seeds", default=None, metavar="A-B", help="plan on seeds A..B and summarise (overrides --seed)"
     )
     plan.add_argument("--w-fuel", type=float, default=1.0, help="seconds per litre in the cost (default: 1)")
-    plan.add_argument("--budget", type=int, default=2000, help="rollouts the planner may simulate (default: 2000)")
-    plan.add_argument("--threads", type=int, default=2, help="rollout threads; with --search circuit, processes "
-                      "(default: 2)")  # fmt: skip
+    plan.add_argument("--budget", type=int, default=600, help="rollouts the planner may simulate (default: 600)")
+    plan.add_argument("--population", type=int, default=30, help="candidates per batch of the search (default: 30)")
+    plan.add_argument("--threads", type=int, default=2, help="rollout threads (default: 2)")
     plan.add_argument("--workers", type=int, default=1, help="seeds planned at once, one process each (default: 1; "
-                      "plans sharing cores miss the 2 s wall: more for --search circuit)")  # fmt: skip
+                      "plans sharing cores miss the 2 s wall)")  # fmt: skip
     plan.add_argument("--plot", metavar="PNG", default=None, help="also plot the (first) seed's plan to this PNG")
     plan.add_argument("--video", metavar="MP4", default=None, help="also film the (first) seed's planned move and "
                       "the scripted loader's (the learned model, chase camera) to this MP4")  # fmt: skip
     plan.add_argument("--margin", type=float, default=None, help="clearance (m) the plan keeps from truck and ground "
-                      "(default: 0.8 with a load, 0.5 without; 0.2 with --search circuit)")  # fmt: skip
+                      "(default: 0.2)")  # fmt: skip
     plan.add_argument(
         "--no-check",
         action="store_true",
-        help="plan in one round on the fast model alone (default: two rounds, each plan checked on the circuit model)",
+        help="plan in one round on the native batch alone (default: two rounds, each plan checked on the circuit model "
+        "in Python, trimmed and mended there)",
     )
     plan.add_argument("--swing", choices=("knots", "bang-bang"), default=None, help="the swing searched per knot "
                       "as the other spools, or turned as fast as it can (full spool, then closed: the crossover "
                       "reliefs brake it) with its switch fitted to the circuit model (default: knots for dump, "
                       "bang-bang for return)")  # fmt: skip
-    plan.add_argument("--search", choices=("fast", "circuit"), default="fast", help="roll the candidates out on the "
-                      "fast native model (default; within 2 s) or on the circuit model itself (an offline plan: about "
-                      "a minute, a margin of 0.2 m)")  # fmt: skip
     plan.add_argument("--json", metavar="OUT", default=None, help="also write the figures to this JSON file")
     add_ray_option(plan, "the seeds (each with --threads cores)")
     plan.set_defaults(func=_cmd_plan)
@@ -1019,7 +1018,10 @@ def _add_planning_parsers(sub: argparse._SubParsersAction) -> None:
 
 def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
     """``train``, ``clone``, ``evaluate`` and ``video``: agents for HexLoading-v0."""
-    policy_help = "'shipped' (packaged agent), 'scripted' (the scripted loader) or a model .zip"
+    policy_help = (
+        "'shipped' (packaged agent), 'scripted' (the scripted loader), 'planner' (the scripted dig with "
+        "planned dumps and returns) or a model .zip"
+    )
     train = sub.add_parser("train", help="train a PPO or SAC agent (rl-zoo3 hyperparameters; resumes checkpoints)")
     train.add_argument("--framework", choices=("sb3", "rllib"), default="sb3", help="Stable-Baselines3, or RLlib's "
                        "PPO with env runners on Ray (needs hexgym[cluster]) (default: sb3)")  # fmt: skip
@@ -1172,7 +1174,6 @@ _EXCLUSIVE = {
 }  # fmt: skip
 _INPUT_DIRS = {("fit", "data"), ("tables", "dir"), ("tables", "bench"), ("fit", "logs"), ("validate", "logs"),
                ("validate", "model"), ("excitation", "model"), ("simulate", "tables_dir")}  # fmt: skip
-_POLICY_NAMES = ("shipped", "scripted")
 
 
 def check_arguments(args: argparse.Namespace, given: set[str] | None = None) -> None:
@@ -1216,7 +1217,7 @@ def check_arguments(args: argparse.Namespace, given: set[str] | None = None) -> 
         if cmd == command and {first, second} <= (given or set()) and values.get(first) is not None:
             raise ValueError(f"--{second} does not apply with --{first}: the Ray cluster's cores run the tasks")
     policy = values.get("policy")  # checked where it is loaded, which says what a policy may be
-    inputs = [policy] if policy is not None and policy not in _POLICY_NAMES else []
+    inputs = [policy] if policy is not None and policy not in POLICY_NAMES else []
     for (cmd, name), check, what in (
         *((k, check_input_file, "input file") for k in _INPUT_FILES),
         *((k, check_input_dir, "input directory") for k in _INPUT_DIRS),

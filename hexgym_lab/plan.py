@@ -1,14 +1,17 @@
-"""``hexgym plan``: plan a loading move on the fast model, replay it on the reference, compare with the scripted loader.
+"""``hexgym plan``: plan a loading move on the native learned model, replay it on the reference, compare with the
+scripted loader.
 
 For a seed of ``HexLoading-v0``'s layout, the scripted loader runs its first cycle to find the two
-start states: ``dump``, the loaded, curled bucket as it leaves the pile (the scripted ``to_truck``
-phase begins); ``return``, the emptied bucket over the truck (its ``to_pile`` phase begins). The move
-starts from rest at those angles. Then:
+start states: ``dump``, the loaded, curled bucket once it has left the pile (in the scripted ``to_truck``
+phase, :func:`hexgym.agents.planning_loader.out_of_the_pile`, as the planning loader plans its dumps: the plans'
+model has no digging force, and the scripted loader spends its phase's first 2-3 s pulling the bucket out);
+``return``, the emptied bucket over the truck (its ``to_pile`` phase begins). The move starts from rest at those
+angles. Then:
 
-- the planner (:func:`hexgym.planning.planner.plan_motion`) plans on the native learned model (``search="fast"``)
-  or, offline, on the circuit model (``search="circuit"``), its search started from the scripted loader's move
-  (``warm_start``): ``predicted_*`` are its final rollout's figures; ``target_margin_m`` is the clearance from truck
-  and ground the search aims to keep (every period closer costs: a target, not a bound), ``predicted_margin_kept``
+- the planner (:func:`hexgym.planning.planner.plan_motion`) plans on the native learned model (the circuit model's
+  batched rollouts by default), its search started from the scripted loader's move (``warm_start``):
+  ``predicted_*`` are its final rollout's figures; ``target_margin_m`` is the clearance from truck and ground the
+  search aims to keep (every period closer costs: a target, not a bound), ``predicted_margin_kept``
   whether the final rollout kept it (its least clearance is ``predicted_min_clearance_m``);
 - by default the plan is checked, trimmed and if need be mended on the circuit model
   (:func:`~hexgym.planning.planner.plan_checked`): ``checked_*`` are the check's figures (time to the goal,
@@ -40,19 +43,22 @@ from typing import Any
 
 import numpy as np
 
+from hexgym.agents.planning_loader import out_of_the_pile
 from hexgym.agents.scripted import ScriptedLoader
 from hexgym.envs.loading import STEP_PERIOD, HexLoadingEnv
 from hexgym.files import save_figure, write_json
 from hexgym.machine import parameters as p
 from hexgym.parallel import executor
 from hexgym.planning.check import ROW_S, PlanCheck, replay_plan
-from hexgym.planning.circuit_search import CIRCUIT_MARGIN_M, CircuitRolloutModel
 from hexgym.planning.goals import Goal, dump_goal, margin_for, return_goal
 from hexgym.planning.planner import (
+    BUDGET,
     HORIZON_S,
     KNOT_S,
+    POPULATION,
     Plan,
     knot_means,
+    noise_spread,
     plan_checked,
     plan_motion,
     swing_bang_bang,
@@ -63,14 +69,16 @@ from hexgym_lab.progress import track
 
 TASKS = ("dump", "return")
 SWINGS = ("knots", "bang-bang")
-SEARCHES = ("fast", "circuit")  # the model the planner's candidates are rolled out on
 DEFAULT_SWING = {"dump": "knots", "return": "bang-bang"}  # loaded, a fastest swing reaches the truck before the lift
 _SCRIPTED_LIMIT_S = 30.0  # s: the scripted move's limit
 _CYCLE_LIMIT_S = 120.0  # s: the scripted first cycle's limit (to find the start states)
 
 
-def start_states(seed: int) -> dict[str, tuple[MachineState, Goal]]:
-    """The ``dump`` and ``return`` start states (at rest) and goals of seed ``seed`` (see the module docstring)."""
+def start_states(seed: int, model: RolloutModel | None = None) -> dict[str, tuple[MachineState, Goal]]:
+    """The ``dump`` and ``return`` start states (at rest) and goals of seed ``seed`` (see the module docstring);
+    ``model`` measures the bucket's clearance (default: one made here)."""
+    own = model is None
+    model = RolloutModel(contacts=False) if model is None else model
     env = HexLoadingEnv(backend="native")
     env.reset(seed=seed)
     loader = ScriptedLoader()
@@ -80,7 +88,7 @@ def start_states(seed: int) -> dict[str, tuple[MachineState, Goal]]:
         action = loader.act(env)
         phase = loader.phase
         q, payload = env.physics.joint_positions().copy(), float(env.earth.bucket_kg)
-        if phase == "to_truck" and "dump" not in out:
+        if phase == "to_truck" and "dump" not in out and out_of_the_pile(env, model):
             out["dump"] = (MachineState(q, np.zeros(4), payload, env.layout), dump_goal(env.layout))
         if phase == "dump":
             dumped = True
@@ -89,6 +97,8 @@ def start_states(seed: int) -> dict[str, tuple[MachineState, Goal]]:
             out["return"] = (state, return_goal(env.layout, env.fullest_cut_direction()))
         env.step(action)
     env.close()
+    if own:
+        model.close()
     if len(out) < 2:
         raise RuntimeError(f"seed {seed}: the scripted loader did not finish a cycle in {_CYCLE_LIMIT_S:.0f} s")
     return out
@@ -178,65 +188,59 @@ def plan_task(
     task: str,
     seed: int,
     w_fuel: float = 1.0,
-    budget: int = 2000,
+    budget: int = BUDGET,
     nthread: int = 2,
     horizon_s: float = HORIZON_S,
     warm_start: bool = True,
     margin_m: float | None = None,
     check: bool = True,
     swing: str | None = None,
-    search: str = "fast",
+    population: int = POPULATION,
 ) -> dict[str, Any]:
     """Plan ``task`` on seed ``seed``, replay it on the reference and in the environment, run the scripted loader:
     the figures. ``warm_start``: start the search from the scripted loader's move (its actions averaged per knot).
     ``check``: plan in two rounds, each plan checked on the circuit model (:func:`plan_checked`; ``checked_*``);
     else in one (:func:`plan_motion`). ``swing``: ``knots`` (searched per knot as the other spools) or
     ``bang-bang`` (the fastest turn to the goal's bearing, fitted to the circuit model: ``plan_checked``'s
-    ``fit_swing``; without the check, the search model's own); default :data:`DEFAULT_SWING`. ``search``: the
-    model the candidates are rolled out on, ``fast`` (the native learned model, batched) or ``circuit`` (the circuit
-    model, :class:`~hexgym.planning.circuit_search.CircuitRolloutModel`, its candidates split over ``nthread``
-    processes: about a minute per plan on one; its margin defaults to ``CIRCUIT_MARGIN_M``). The horizon is
+    ``fit_swing``; without the check, the search model's own); default :data:`DEFAULT_SWING`. ``population``:
+    candidates per batch of the search. The horizon is
     ``horizon_s`` or, shorter, the scripted move's time plus 0.5 s (rounded up to 0.5 s, >= 3 s)."""
     swing = _swing_of(task, swing)
-    _search_of(search)
-    states = start_states(seed)
-    state, goal = states[task]
-    if margin_m is None:
-        margin_m = CIRCUIT_MARGIN_M if search == "circuit" else margin_for(state)
     model = RolloutModel(nthread=nthread, contacts=False)  # the plans reject every contact
-    searched: RolloutModel | CircuitRolloutModel = model
     try:
+        state, goal = start_states(seed, model)[task]
+        if margin_m is None:
+            margin_m = margin_for(state)
         scripted = scripted_move(seed, state, goal, model)
         scripted_reference = scripted_move(seed, state, goal, model, "reference")
         initial = scripted_knots(scripted["actions"]) if warm_start else None
         if scripted["time_s"] is not None:  # no longer than the scripted move and a margin: less to simulate
             horizon_s = min(horizon_s, max(3.0, math.ceil(2.0 * (scripted["time_s"] + 0.5)) / 2.0))
         options = {"w_fuel": w_fuel, "budget": budget, "horizon_s": horizon_s, "seed": seed, "initial": initial,
-                   "margin_m": margin_m}  # fmt: skip
+                   "margin_m": margin_m, "population": population}  # fmt: skip
         checked = None
-        check_model = PlanCheck(model) if check or search == "circuit" else None
-        if search == "circuit":  # its candidates split over nthread processes
-            searched = CircuitRolloutModel(model, check_model.machine, workers=nthread)
         if check:
+            check_model = PlanCheck(model)
             fit_swing = check_model.fit_swing if swing == "bang-bang" else None
-            plan, checked = plan_checked(state, goal, searched, check_model, correct=check_model.correct,
+            plan, checked = plan_checked(state, goal, model, check_model, correct=check_model.correct,
                                          fit_swing=fit_swing, **options)  # fmt: skip
         elif swing == "bang-bang":  # the search model's own fastest turn, not fitted
-            swing_m, switch, _ = swing_bang_bang(searched, state, swing_target(state, goal, model), horizon_s)
-            plan = dataclasses.replace(plan_motion(state, goal, searched, swing_m=swing_m, **options),
+            swing_m, switch, _, _ = swing_bang_bang(model, state, swing_target(state, goal, model), horizon_s)
+            plan = dataclasses.replace(plan_motion(state, goal, model, swing_m=swing_m, **options),
                                        fast_swing_switch=switch)  # fmt: skip
         else:
-            plan = plan_motion(state, goal, searched, **options)
+            plan = plan_motion(state, goal, model, **options)
+        noisy = noise_spread(plan, state, goal, model)
+        stop = swing_bang_bang(model, state, swing_target(state, goal, model), horizon_s)[2]
+        swing_limit_s = stop * model.control_period  # the swing's quickest turn alone: no move is shorter
         reference = reference_replay(plan, state, goal, model)
         learned = learned_replay(seed, state, goal, plan, model)
     finally:
-        if searched is not model:
-            searched.close()
         model.close()
     return {
         "task": task, "seed": seed, "w_fuel": w_fuel, "horizon_s": horizon_s, "swing": swing,
         "target_margin_m": margin_m, "predicted_margin_kept": bool(plan.min_clearance_m >= margin_m),
-        "search": search, "tables": model.table_set,
+        "tables": model.table_set,
         "plan_message": checked.message if checked else plan.message, "plan_wall_s": plan.wall_s,
         "rollouts": plan.rollouts, "predicted_reached": plan.reached, "predicted_time_s": plan.time_s,
         "predicted_fuel_l": plan.fuel_l, "predicted_min_clearance_m": plan.min_clearance_m,
@@ -249,6 +253,8 @@ def plan_task(
         "checked_clear": checked.clear if checked else None,
         "learned_time_s": learned["time_s"], "learned_fuel_l": learned["fuel_l"],
         "learned_min_clearance_m": learned["min_clearance_m"], "warm_start": warm_start,
+        "swing_limit_s": swing_limit_s, "noise_goal_error_m": float(noisy.max()),
+        "noise_goal_error_median_m": float(np.median(noisy)),
         "reference_time_s": reference["time_s"], "reference_fuel_l": reference["fuel_l"],
         "reference_goal_error_m": reference["goal_error_m"],
         "reference_goal_error_at_plan_end_m": reference["goal_error_at_plan_end_m"],
@@ -274,13 +280,6 @@ def _swing_of(task: str, swing: str | None) -> str:
     if swing not in SWINGS:
         raise ValueError(f"--swing must be one of {SWINGS}, got {swing!r}")
     return swing
-
-
-def _search_of(search: str) -> str:
-    """``search`` if it names a search model (:data:`SEARCHES`), else a ValueError."""
-    if search not in SEARCHES:
-        raise ValueError(f"--search must be one of {SEARCHES}, got {search!r}")
-    return search
 
 
 def _swing_switches(plan: Plan, period: float) -> dict | None:
@@ -355,6 +354,12 @@ def summarise(results: list[dict[str, Any]]) -> dict[str, Any]:
         ),
         "reference_goal_error_le_0.3m": sum(r["reference_goal_error_m"] <= 0.3 for r in results),
         "reference_no_contact": sum(r["reference_min_clearance_m"] >= 0 for r in results),
+        "noise_goal_error_le_0.3m": sum(r["noise_goal_error_m"] <= 0.3 for r in results),
+        # seeds whose scripted move on the reference is within 1/0.85 of the swing's quickest turn alone
+        "swing_limited": sum(
+            r["scripted_reference_time_s"] is not None and r["scripted_reference_time_s"] * 0.85 < r["swing_limit_s"]
+            for r in results
+        ),
     }
     return out | {"targets_met_of": len(results), "targets": targets}
 
@@ -363,15 +368,15 @@ def run_plan(
     task: str,
     seeds: list[int],
     w_fuel: float = 1.0,
-    budget: int = 2000,
+    budget: int = BUDGET,
     nthread: int = 2,
     json_out: str | Path | None = None,
     margin_m: float | None = None,
     ray: str | None = None,
     check: bool = True,
     swing: str | None = None,
-    search: str = "fast",
     workers: int = 1,
+    population: int = POPULATION,
 ) -> dict[str, Any]:
     """Plan on each seed; one seed's figures, or with several a summary and the per-seed figures.
 
@@ -389,9 +394,10 @@ def run_plan(
     if margin_m is not None and not (math.isfinite(margin_m) and 0 <= margin_m <= 2.0):
         raise ValueError(f"--margin must be within 0 and 2 m, got {margin_m}")
     _swing_of(task, swing)  # before any seed runs
-    _search_of(search)
     start = time.perf_counter()
-    jobs = [(task, s, w_fuel, budget, nthread, margin_m, check, swing, search) for s in seeds]
+    if population < 2:
+        raise ValueError(f"--population must be >= 2 candidates, got {population}")
+    jobs = [(task, s, w_fuel, budget, nthread, margin_m, check, swing, population) for s in seeds]
     with executor(workers, ray, cpus_per_task=nthread) as pool:  # as they finish (the progress), then in seed order
         done = track(pool.map_unordered(_plan_job, jobs), f"plan {task}", "seed", total=len(jobs))
         results = sorted(done, key=lambda result: seeds.index(result["seed"]))
@@ -404,9 +410,10 @@ def run_plan(
     return out
 
 
-def _plan_job(job: tuple[str, int, float, int, int, float | None, bool, str | None, str]) -> dict[str, Any]:
-    task, seed, w_fuel, budget, nthread, margin_m, check, swing, search = job
-    return plan_task(task, seed, w_fuel, budget, nthread, margin_m=margin_m, check=check, swing=swing, search=search)
+def _plan_job(job: tuple[str, int, float, int, int, float | None, bool, str | None, int]) -> dict[str, Any]:
+    task, seed, w_fuel, budget, nthread, margin_m, check, swing, population = job
+    return plan_task(task, seed, w_fuel, budget, nthread, margin_m=margin_m, check=check, swing=swing,
+                     population=population)  # fmt: skip
 
 
 def plot_plan(result: dict[str, Any], out: str | Path) -> Path:
@@ -420,8 +427,7 @@ def plot_plan(result: dict[str, Any], out: str | Path) -> Path:
     paths = {k: np.array(v) for k, v in result["paths"].items()}
     planned_dt, reference_dt, scripted_dt = 0.025, ROW_S, STEP_PERIOD
     fig, axes = plt.subplots(2, 2, figsize=(11, 7.5))
-    searched = "circuit model" if result.get("search") == "circuit" else "learned model"
-    styles = (("planned_tip", f"planned ({searched})", planned_dt, "C0"),
+    styles = (("planned_tip", "planned (learned model)", planned_dt, "C0"),
               ("reference_tip", "planned, on the reference", reference_dt, "C3"),
               ("scripted_tip", "scripted loader", scripted_dt, "C2"))  # fmt: skip
     for key, label, dt, colour in styles:

@@ -222,12 +222,20 @@ def load_policy(
     loader_settings: str | Path | None = None,
     env_kwargs: Mapping[str, Any] | None = None,
 ) -> Policy:
-    """``"scripted"``, ``"shipped"``, a model path or an RLlib checkpoint directory -> a policy for ``env_id``
+    """``"scripted"``, ``"planner"`` (:class:`~hexgym.agents.planning_loader.PlanningLoader`), ``"shipped"``, a model
+    path or an RLlib checkpoint directory -> a policy for ``env_id``
     (another task than HexLoading-v0: ``"scripted"`` or a model trained on it). ``loader_settings``: a JSON
-    file of the scripted loader's settings (``"scripted"`` only). ``env_kwargs``: those the environment is made
+    file of the scripted loader's settings (``"scripted"`` and ``"planner"`` only). ``env_kwargs``: those the
+    environment is made
     with (its ``tables`` and ``model``: a trained model is checked against them, :func:`check_trained_on`)."""
     if spec == "scripted":
         return ScriptedPolicy(loader_settings)
+    if spec == "planner":
+        if env_id != ENV_ID:
+            raise ValueError(f"the planning loader loads trucks ({ENV_ID}), not {env_id}")
+        from hexgym.agents.planning_loader import PlanningLoader
+
+        return PlanningLoader(settings_path=loader_settings)
     if loader_settings is not None:
         raise ValueError(f"--loader-settings {loader_settings}: only for the scripted policy, not {spec}")
     if env_id != ENV_ID:

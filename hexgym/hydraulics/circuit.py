@@ -405,14 +405,42 @@ def _validate_mechanics(ext: np.ndarray, vel: np.ndarray, swing_rate: float) -> 
 # Fuel.
 def fuel_rate(brake_power_w: float) -> float:
     """Fuel rate (L/h) at rated speed from the BSFC map (g/kWh vs load fraction)."""
-    load = max(brake_power_w, 0.0) / p.ENGINE_POWER
+    return float(fuel_rates(np.asarray([brake_power_w], float))[0])
+
+
+def fuel_rates(brake_power_w: np.ndarray) -> np.ndarray:
+    """:func:`fuel_rate` of an array of brake powers (W), elementwise."""
+    power = np.maximum(np.asarray(brake_power_w, float), 0.0)
+    load = power / p.ENGINE_POWER
     first = p.BSFC_LOAD_FRACTION[0]
-    if load >= first:
-        kg_per_h = np.interp(load, p.BSFC_LOAD_FRACTION, p.BSFC_MAP) * brake_power_w / 3.6e9 * 3600.0
-    else:  # below the map: linear from the no-load fuel rate (Willans line)
-        at_first = p.BSFC_MAP[0] * first * p.ENGINE_POWER / 1e6
-        kg_per_h = p.ENGINE_NO_LOAD_FUEL + (at_first - p.ENGINE_NO_LOAD_FUEL) * load / first
-    return float(kg_per_h / p.DIESEL_DENSITY)
+    mapped = np.interp(load, p.BSFC_LOAD_FRACTION, p.BSFC_MAP) * power / 3.6e9 * 3600.0
+    at_first = p.BSFC_MAP[0] * first * p.ENGINE_POWER / 1e6  # below the map: linear from the no-load fuel rate
+    willans = p.ENGINE_NO_LOAD_FUEL + (at_first - p.ENGINE_NO_LOAD_FUEL) * load / first  # (Willans line)
+    return np.where(load >= first, mapped, willans) / p.DIESEL_DENSITY
+
+
+def regulated_flows(
+    p_pumps: np.ndarray, displacement: np.ndarray, max_flow: float | None = None, power_limit: float | None = None
+) -> np.ndarray:
+    """The pumps' flows (m^3/s; (..., 2)) by the cross-sensing horsepower regulator at pump pressures (..., 2) and
+    displacements (..., 2): ``Q_i = Q_max min(d_i, P_lim / (Q_max (p1 + p2)))``; ``Q_max`` and ``P_lim`` default to
+    ``PUMP_MAX_FLOW`` and ``PUMP_POWER_LIMIT``."""
+    q_max = p.PUMP_MAX_FLOW if max_flow is None else max_flow
+    p_lim = p.PUMP_POWER_LIMIT if power_limit is None else power_limit
+    total = np.sum(p_pumps, axis=-1, keepdims=True)
+    positive = total > 0.0
+    horsepower = np.where(positive, p_lim / np.where(positive, total, 1.0), np.inf)
+    return np.minimum(q_max * np.clip(displacement, 0.0, 1.0), horsepower)
+
+
+def engine_fuel_rates(states: np.ndarray) -> np.ndarray:
+    """The engine's fuel rate (L/h) at circuit states (..., STATE_SIZE), as :meth:`HydraulicCircuit.pump_power` and
+    :func:`fuel_rate` give it one state at a time: the pumps' pressures times their flows by the regulator's law."""
+    states = np.asarray(states, float)
+    pressures = states[..., 0:2]
+    flows = regulated_flows(pressures, states[..., N_NODES:])
+    hydraulic = (pressures * flows).sum(axis=-1)
+    return fuel_rates(p.ACCESSORY_POWER + np.maximum(hydraulic, 0.0) / p.PUMP_OVERALL_EFFICIENCY)
 
 
 # --------------------------------------------------------------------------------------------
@@ -704,12 +732,9 @@ class HydraulicCircuit:
         """
         q_max = p.PUMP_MAX_FLOW if max_flow is None else max_flow
         p_lim = p.PUMP_POWER_LIMIT if power_limit is None else power_limit
-        d = np.minimum(np.maximum(displacement, 0.0), 1.0)
         total = p_pumps[0] + p_pumps[1]
-        q_hp = p_lim / total if total > 0.0 else np.inf
-        nfc = q_max * d
-        limited = nfc > q_hp
-        q = np.where(limited, q_hp, nfc)
+        q = regulated_flows(p_pumps, displacement, q_max, p_lim)
+        limited = q_max * np.clip(displacement, 0.0, 1.0) > q
         dq_dd = np.where(limited, 0.0, q_max)
         dq_dp = np.zeros((2, 2))
         dq_dp[limited, :] = -p_lim / total**2 if total > 0.0 else 0.0

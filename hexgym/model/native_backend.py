@@ -127,6 +127,8 @@ class NativeLearnedModel(LearnedModelBase):
         self._hydraulics = self._state.start + STATE["hydraulics"] + np.arange(CIRCUIT_STATE_SIZE)
         layout = valve_layout(VALVE_OF_TABLE_SET[self.table_set]) if self.table_set in CIRCUIT_TABLE_SETS else None
         self._circuit = None if layout is None else HydraulicCircuit(layout=layout)
+        # the circuit's state's indices in plugin_state (None: a table model, no circuit)
+        self.hydraulic_slots: np.ndarray | None = None if layout is None else self._hydraulics
 
     @property
     def control_period(self) -> float:

@@ -1,4 +1,4 @@
-"""Planning and prediction on batched rollouts of the fast learned model (the paper's two uses of it).
+"""Planning and prediction on batched rollouts of the native learned model (the paper's two uses of it).
 
 - :mod:`hexgym.planning.rollouts`: :class:`RolloutModel`, batched ``mujoco.rollout`` runs of the native
   learned model on the loading site (truck, ground) from a :class:`MachineState`, returning the teeth's
@@ -8,7 +8,8 @@
 - :mod:`hexgym.planning.goals`: the vocabulary: a :class:`Goal` (``dump``, ``return``, a teeth target), its
   builders and the clearance a plan keeps.
 - :mod:`hexgym.planning.planner`: :func:`plan_motion`, time-and-fuel-optimal spool sequences to a
-  :class:`Goal` by the cross-entropy method on batched rollouts.
+  :class:`Goal` by the cross-entropy method on batched rollouts; :func:`~hexgym.planning.planner.plan_checked`,
+  with each plan checked, trimmed and mended on the circuit model in Python (:mod:`hexgym.planning.check`).
 
 Needs the native plugin (``hexgym.mbl``). Imports nothing above the environments' layer.
 """

@@ -1,21 +1,22 @@
-"""Time-and-fuel motion planning on batched rollouts of the fast learned model (the paper's first use of it).
+"""Time-and-fuel motion planning on batched rollouts of the native learned model (the paper's first use of it).
 
 :func:`plan_motion` searches spool sequences held piecewise constant between knots (every ``knot_s``,
 0.5 s by default) that bring the machine from a :class:`~hexgym.planning.rollouts.MachineState` to a
 :class:`Goal` in least ``time + w_fuel x fuel``, with no contact of bucket or stick with truck or ground
 (clearance >= ``margin_m``) and, while loaded, the mouth within the material's repose angle of facing up
-(no spill). Candidates are rolled out in batches on the native model (:class:`RolloutModel`) and
-improved by the cross-entropy method (a Gaussian per knot refitted to the best tenth, seeded with a
-heuristic move towards the goal or a given one). Fuel is the environment's account (the actuators' power
-from the machine's joint loads, :meth:`RolloutModel.actuator_power`); it needs a forward pass per sample,
-so each batch is ranked by time and penalties and only its best few are re-ranked with ``w_fuel x fuel``
-(power sampled every ``FUEL_SAMPLE_S``).
+(no spill). Candidates are rolled out in batches on the native model (:class:`RolloutModel`: by default the circuit
+model, which shares the pumps and the engine's power as the machine does) and improved by the cross-entropy method
+(a Gaussian per knot refitted to the best tenth, seeded with a heuristic move towards the goal or a given one).
+Fuel is the engine's for the circuit's pump pressures and flows (:attr:`RolloutBatch.fuel_l_per_h`), every
+candidate's; on a table model, which has no pumps, the environment's account (the actuators' power from the joint
+loads, a forward pass per sample: only each batch's best few are re-ranked with it, the power sampled every
+``FUEL_SAMPLE_S``).
 
 Goals and the margins a plan keeps are the planning vocabulary of :mod:`hexgym.planning.goals`.
 
-A move can instead turn the swing as fast as it can (:func:`plan_checked`'s ``fit_swing``): the fast model's
-swing table brakes far more weakly than the machine, so a switch found on it stops the machine's swing well short;
-the switch is fitted on the accurate model and the search finds the rest.
+A move can instead turn the swing as fast as it can (:func:`plan_checked`'s ``fit_swing``): the search holds the
+swing at its model's quickest turn (full spool, then full counter-spool), the switch of a turn braked by the
+crossover reliefs alone is fitted on the circuit model's replays, and the search finds the rest.
 
 A plan that found no collision-free motion says so (:attr:`Plan.collision_free` False, its clearance):
 it is never reported as safe.
@@ -35,13 +36,17 @@ import numpy as np
 from hexgym.envs.loading import STEP_PERIOD
 from hexgym.hydraulics import fuel
 from hexgym.machine import parameters as p
-from hexgym.planning.check import CheckResult, release_at_stops
+from hexgym.planning.check import SETTLE_S, SWING_STOPPED, CheckResult, release_at_stops
 from hexgym.planning.goals import LOADED_KG, MARGIN_M, Goal, margin_for
-from hexgym.planning.rollouts import MachineState, RolloutBatch, RolloutModel, bang_bang
+from hexgym.planning.rollouts import MachineState, RolloutBatch, RolloutModel, bang_bang, off_the_toe
 
 FUEL_SAMPLE_S = 1.0  # s between power samples when ranking candidates by fuel (the final plan: every 0.1 s)
 MAX_HORIZON_S = 30.0  # s: a longer move is no single loading motion
 HORIZON_S = 8.0  # s: the default horizon of a plan
+# rollouts per plan and per batch of the search: chosen on the selection seeds 20-29 (budget 600 / 800, populations
+# 30 / 50 / 100: docs/planning.md); 600 rollouts of a 5 s move take ~1.3 s on 2 cores
+BUDGET = 600
+POPULATION = 30
 KNOT_S = 0.5  # s: the default spacing of a plan's spool knots
 _UNREACHED_S = 10.0  # s added to the cost of a rollout that does not reach the goal, plus 5 s per metre short
 _SHORTFALL_COST = 20.0  # s per metre-second of clearance short of the margin
@@ -50,6 +55,8 @@ _SPILL_COST = 20.0  # s per rad-second of tilt beyond the repose angle while loa
 # s: a checked plan that touches or misses the goal is tried with its swing started this much later (the loaded boom
 # rises slower on the machine than on the fast model: later, the bucket comes to the truck higher)
 MEND_DELAYS_S = (0.15, 0.3, 0.45)
+NOISE_M = 20e-6  # m: the spool error per control period a plan's goal figure is checked under (noise_spread)
+NOISE_COPIES = 16  # noisy executions of a plan noise_spread makes
 
 
 @dataclasses.dataclass(frozen=True)
@@ -90,7 +97,7 @@ class Plan:
 
 def _knot_spools(params: np.ndarray, periods_per_knot: int, periods: int) -> np.ndarray:
     """(B, K*4) knot fractions -> (B, T, 4) spools (m) per control period."""
-    knots = np.clip(params, -1.0, 1.0).reshape(len(params), -1, 4) * p.SPOOL_STROKE
+    knots = off_the_toe(np.clip(params, -1.0, 1.0).reshape(len(params), -1, 4) * p.SPOOL_STROKE)
     return np.repeat(knots, periods_per_knot, axis=1)[:, :periods]
 
 
@@ -133,6 +140,13 @@ def evaluate(batch: RolloutBatch, goal: Goal, loaded: bool, margin_m: float = MA
             "spill": np.asarray(spill) * np.ones(nbatch), "end": end}  # fmt: skip
 
 
+def batch_fuel_l(batch: RolloutBatch, end: np.ndarray) -> np.ndarray:
+    """(B,) diesel (L) of each rollout up to its period ``end`` (B,), from the fuel rates its model reports."""
+    assert batch.fuel_l_per_h is not None
+    upto = np.arange(batch.fuel_l_per_h.shape[1]) <= np.asarray(end)[:, None]
+    return (batch.fuel_l_per_h * upto).sum(axis=1) * float(batch.times_s[0]) / 3600.0
+
+
 def move_fuel_l(model: RolloutModel, batch: RolloutBatch, index: int, end: int, sample_s: float = STEP_PERIOD) -> float:
     """Diesel (L) of rollout ``index`` up to period ``end``: the fuel rate its model reports for each period, else
     its power sampled every ``sample_s`` (as the environment accounts it: the power at the end of each interval,
@@ -160,25 +174,26 @@ def swing_target(state: MachineState, goal: Goal, model: RolloutModel) -> float:
 
 def swing_bang_bang(
     model: RolloutModel, state: MachineState, target_rad: float, horizon_s: float
-) -> tuple[np.ndarray, int, int]:
-    """The fast model's quickest swing alone to ``target_rad``: full spool, then full counter-spool until it stops,
-    the switch (each control period of the horizon's first two thirds, one batch of rollouts) the one that stops
-    it nearest the target. Returns its spools (T,) per control period over ``horizon_s``, the switch (period)
-    and the rollouts made."""
+) -> tuple[np.ndarray, int, int, int]:
+    """The rollouts' quickest swing alone to ``target_rad``: full spool, then closed (the crossover reliefs brake it,
+    as on the machine: a full counter-spool stops it barely sooner, with the pump at full pressure), the switch
+    (each control period of the horizon's first two thirds, one batch of rollouts) the one that stops it nearest
+    the target. Returns its spools (T,) per control period over ``horizon_s``, the switch (period), the period it
+    has stopped by (``SWING_STOPPED``; the horizon's end if it has not) and the rollouts made."""
     sign = 1.0 if target_rad >= state.q[0] else -1.0
     periods = _periods_of(horizon_s, model)
     switches = np.arange(1, max(2, 2 * periods // 3))
     spools = np.zeros((len(switches), periods, 4))
     for i, k in enumerate(switches):
-        spools[i, :, 0] = bang_bang(sign, k, periods, periods)
+        spools[i, :, 0] = bang_bang(sign, k, k, periods)
     batch = model.rollout(state, spools, horizon_s)
     best = (math.inf, periods, periods)
     for i, k in enumerate(switches):
-        stopped = np.nonzero(sign * batch.qd[i, k:, 0] <= 0.0)[0]
+        stopped = np.nonzero(sign * batch.qd[i, k:, 0] <= SWING_STOPPED)[0]
         if len(stopped):
             end = k + stopped[0]
             best = min(best, (abs(batch.q[i, end, 0] - target_rad), k, end + 1))
-    return bang_bang(sign, best[1], best[2], periods), best[1], len(switches)
+    return bang_bang(sign, best[1], best[1], periods), best[1], best[2], len(switches)
 
 
 def _periods_of(horizon_s: float, model: RolloutModel) -> int:
@@ -209,10 +224,10 @@ def plan_motion(
     goal: Goal,
     model: RolloutModel,
     w_fuel: float = 1.0,
-    budget: int = 2000,
+    budget: int = BUDGET,
     horizon_s: float = HORIZON_S,
     knot_s: float = KNOT_S,
-    population: int = 100,
+    population: int = POPULATION,
     seed: int = 0,
     margin_m: float | None = None,
     initial: np.ndarray | None = None,
@@ -273,7 +288,10 @@ def plan_motion(
         figures = evaluate(batch, goal, loaded, margin_m)
         scores = figures["cost"]
         order = np.argsort(scores)
-        if w_fuel > 0:  # the fuel (a forward pass per sample) only for the best few: re-ranked with it
+        if w_fuel > 0 and batch.fuel_l_per_h is not None:  # the model's own fuel rates: every rollout's fuel
+            scores = scores + w_fuel * batch_fuel_l(batch, figures["end"])
+            order = np.argsort(scores)
+        elif w_fuel > 0:  # the fuel (a forward pass per sample) only for the best few: re-ranked with it
             few = order[: 2 * elites]
             scores = scores.copy()
             for i in few:
@@ -303,7 +321,8 @@ def _plan_of(
     return Plan(
         spools_m=spools_m[:kept], time_s=float(figures["time_s"][0]), fuel_l=move_fuel_l(model, final, 0, end),
         min_clearance_m=clearance, goal_error_m=float(figures["error_m"][0]), reached=bool(figures["reached"][0]),
-        collision_free=clearance >= 0.0, spill_free=float(figures["spill"][0]) == 0.0, rollouts=rollouts,
+        collision_free=clearance >= 0.0, spill_free=float(figures["spill"][0]) == 0.0,
+        rollouts=rollouts,
         wall_s=time.perf_counter() - start, tip=final.tip[0, :kept], mouth=final.mouth[0, :kept], q=final.q[0, :kept],
     )  # fmt: skip
 
@@ -313,7 +332,7 @@ def plan_checked(
     goal: Goal,
     model: RolloutModel,
     check: Callable[[np.ndarray, MachineState, Goal], CheckResult],
-    budget: int = 2000,
+    budget: int = BUDGET,
     margin_m: float | None = None,
     initial: np.ndarray | None = None,
     correct: Callable[[np.ndarray, MachineState, Goal, CheckResult], tuple[np.ndarray, CheckResult, int]] | None = None,
@@ -347,7 +366,7 @@ def plan_checked(
     swing_m, switch, rollouts = None, None, 0
     if fit_swing is not None:
         target = swing_target(state, goal, model)
-        swing_m, switch, rollouts = swing_bang_bang(model, state, target, search.get("horizon_s", HORIZON_S))
+        swing_m, switch, _, rollouts = swing_bang_bang(model, state, target, search.get("horizon_s", HORIZON_S))
 
     def for_machine(plan: Plan) -> Plan:
         """The plan with the swing the accurate model needs (when the swing is fitted)."""
@@ -399,6 +418,23 @@ def plan_checked(
                 plan, checked = adopt(spools, released)
     wall_s = time.perf_counter() - start
     return dataclasses.replace(plan, rollouts=rollouts, wall_s=wall_s, fast_swing_switch=switch), checked
+
+
+def noise_spread(
+    plan: Plan, state: MachineState, goal: Goal, model: RolloutModel, sigma_m: float = NOISE_M,
+    copies: int = NOISE_COPIES, seed: int = 0,
+) -> np.ndarray:  # fmt: skip
+    """Goal errors (m, ``copies``) where the machine comes to rest when the plan's spools are executed with a
+    Gaussian error of ``sigma_m`` on every spool every control period (a valve's servo is no better), each copy run on
+    ``SETTLE_S`` with the spools closed, on ``model``: whether the plan's goal figure holds under small spool noise
+    (a plan trimmed into a valve's toe would not)."""
+    rng = np.random.default_rng(seed)
+    settle = np.zeros((round(SETTLE_S / model.control_period), 4))
+    spools = np.vstack([plan.spools_m, settle])
+    noisy = spools + sigma_m * rng.standard_normal((copies, *spools.shape))
+    noisy[:, len(plan.spools_m) :] = 0.0
+    batch = model.rollout(state, np.clip(noisy, -p.SPOOL_STROKE, p.SPOOL_STROKE), len(spools) * model.control_period)
+    return goal.error_m(batch.mouth[:, -1], batch.tip[:, -1])
 
 
 def delay_swing(spools_m: np.ndarray, periods: int) -> np.ndarray:

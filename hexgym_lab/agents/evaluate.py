@@ -50,6 +50,7 @@ class Episode:
     dug_kg: float = 0.0
     total_return: float = 0.0
     terminated: bool = False
+    planner: dict[str, Any] | None = None  # a planning policy's figures (PlanningLoader.episode_figures)
 
     def dumps(self) -> list[tuple[float, float]]:
         """(start time s, delivered kg) of each dump: runs of deliveries with gaps under DUMP_MERGE_GAP_S."""
@@ -79,7 +80,7 @@ class Episode:
             "cycle_intervals_s": [float(dt) for dt in np.diff(full)],
             "return": self.total_return,
             "terminated": self.terminated,
-        }
+        } | ({} if self.planner is None else {"planner": self.planner})
 
 
 StepCallback = Callable[[Any, dict], None]
@@ -105,6 +106,8 @@ def run_episode(env: gym.Env, policy: Policy, seed: int, on_step: StepCallback |
             on_step(env, info)
     episode.spilled_kg, episode.fuel_l = info["spilled_kg"], info["fuel_l"]
     episode.dug_kg = pile_start - info["pile_kg"]
+    if hasattr(policy, "episode_figures"):
+        episode.planner = policy.episode_figures()
     return episode
 
 
@@ -154,8 +157,25 @@ def aggregate(episodes: list[Episode]) -> dict[str, Any]:
         "delivered_t_per_episode": delivered_t / len(episodes),
         "mean_return": float(np.mean([s["return"] for s in summaries])),
         "full_enough_kg": FULL_ENOUGH_KG,
+        **_planner_figures(summaries),
         "per_episode": summaries,
     }
+
+
+def _planner_figures(summaries: list[dict[str, Any]]) -> dict[str, Any]:
+    """A planning policy's figures over the episodes (none for other policies): plans made, their wall time
+    (median, 95th percentile, worst), moves fallen back to the scripted loader's, plans made again."""
+    planned = [s["planner"] for s in summaries if "planner" in s]
+    if not planned:
+        return {}
+    walls = np.array([w for e in planned for w in e["plan_walls_s"]])
+    return {"planner": {
+        "plans": len(walls), "fallbacks": sum(e["fallbacks"] for e in planned),
+        "replans": sum(e["replans"] for e in planned),
+        "plan_wall_s_median": float(np.median(walls)) if len(walls) else None,
+        "plan_wall_s_p95": float(np.quantile(walls, 0.95)) if len(walls) else None,
+        "plan_wall_s_max": float(walls.max()) if len(walls) else None,
+    }}  # fmt: skip
 
 
 def evaluate(

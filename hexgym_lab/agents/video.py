@@ -14,6 +14,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from hexgym.agents import POLICY_NAMES
 from hexgym.agents.policies import Policy, load_policy
 from hexgym.checks import check_count, check_positive, check_seed
 from hexgym.envs import DIG_ENV_ID, ENV_ID
@@ -81,7 +82,7 @@ def record_video(
         check_positive("seconds", seconds, "s")
     if not str(out).endswith(".mp4"):
         raise ValueError(f"the video must be an .mp4 file, got {out}")
-    policy_file = None if policy_spec in ("scripted", "shipped") else policy_spec
+    policy_file = None if policy_spec in POLICY_NAMES else policy_spec
     check_output_file(out, "video", inputs=(policy_file,))
     if snapshot is not None:
         check_output_file(snapshot, "snapshot", inputs=(policy_file, out))
