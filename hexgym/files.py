@@ -211,10 +211,21 @@ def run_lock(directory: str | Path, what: str = "run directory") -> Iterator[Pat
 
 
 def write_json(path: str | Path, data: object) -> Path:
-    """Write ``data`` as indented JSON, atomically."""
+    """Write ``data`` as indented JSON, atomically (numpy's scalars as the numbers they hold). The text is made
+    before the file is touched: data that cannot be written leaves no file."""
+    text = json.dumps(data, indent=2, default=_json_scalar)
     with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(data, indent=2))
+        tmp.write_text(text)
     return Path(path)
+
+
+def _json_scalar(value: object) -> object:
+    """A numpy scalar as its Python number (``json.dumps``'s ``default``); anything else is refused as json does."""
+    import numpy as np
+
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"Object of type {type(value).__name__} is not JSON serializable")
 
 
 def save_figure(fig: object, path: str | Path, dpi: int = 90) -> Path:

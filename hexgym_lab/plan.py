@@ -232,7 +232,7 @@ def plan_task(
             plan = plan_motion(state, goal, model, **options)
         noisy = noise_spread(plan, state, goal, model)
         stop = swing_bang_bang(model, state, swing_target(state, goal, model), horizon_s)[2]
-        swing_limit_s = stop * model.control_period  # the swing's quickest turn alone: no move is shorter
+        swing_limit_s = float(stop * model.control_period)  # the swing's quickest turn alone
         reference = reference_replay(plan, state, goal, model)
         learned = learned_replay(seed, state, goal, plan, model)
     finally:

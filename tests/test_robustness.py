@@ -2313,3 +2313,16 @@ if __name__ == "__main__":
     for kind, n in sorted(counts.items()):
         print(f"{kind:12s} {n:4d}")
     print(f"{'total':12s} {sum(counts.values()):4d}")
+
+
+def test_json_figures_write_numpy_scalars_and_refuse_other_objects_without_touching_the_file(tmp_path):
+    """Figures computed with numpy (an int64 count, a float64 time, a bool_) are written as the numbers they hold;
+    an object json cannot write leaves the existing file as it was."""
+    from hexgym.files import write_json
+
+    out = tmp_path / "figures.json"
+    write_json(out, {"count": np.int64(3), "time_s": np.float64(1.5), "ok": np.bool_(True)})
+    assert json.loads(out.read_text()) == {"count": 3, "time_s": 1.5, "ok": True}
+    with pytest.raises(TypeError, match="not JSON serializable"):
+        write_json(out, {"bad": object()})
+    assert json.loads(out.read_text())["count"] == 3

@@ -11,8 +11,9 @@ model (:func:`hexgym.planning.planner.plan_motion` on batched native rollouts, :
   (:func:`hexgym.planning.goals.return_goal`).
 
 Each search starts from the last move of its kind (the executed actions averaged per knot; the first one from a
-heuristic move, and after a fallback from the scripted loader's move). Each step executes the plan's spools for
-the time since it was made (the environment holds an action for its 0.1 s step: the spools at the step's start).
+heuristic move, and after a fallback from the scripted loader's move), its horizon 1 s longer than that move took.
+Each step executes the plan's spools for the time since it was made (the environment holds an action for its 0.1 s
+step: the spools at the step's start).
 Closed loop, not a replay: when the teeth stray more than ``REPLAN_M`` from where the plan predicted them, the move
 is planned again from the state there (at most ``MAX_REPLANS`` times a move). When the plan has run out, the
 scripted loader finishes the phase by its own rules (its dump opens the bucket; its dig starts where it sees the
@@ -23,6 +24,7 @@ phase and is counted (``fallbacks``). :meth:`episode_figures` gives an episode's
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Any
 
@@ -40,7 +42,8 @@ CLEAR_OF_PILE_M = 0.3  # m: a dump is planned once the teeth are this far above 
 CLEAR_OF_GROUND_M = 0.1  # m: ... and the bucket this far above the ground (the rollouts have no digging force)
 REPLAN_M = 0.3  # m the teeth may stray from the plan's prediction before the move is planned again
 MAX_REPLANS = 2  # plans made again per move at most (then the plan runs out as it is)
-HORIZON_S = {"dump": 7.0, "return": 6.0}  # s a plan may take (the scripted moves take 3-6 s out of the pile)
+HORIZON_S = {"dump": 7.0, "return": 6.0}  # s a plan may take (the scripted moves take 3-6 s out of the pile) ...
+MIN_HORIZON_S = 3.0  # s: ... at most 1 s more than the last move of its kind took, and at least this
 MOVES = {"to_truck": "dump", "to_pile": "return"}  # the scripted phase a planned move replaces
 
 
@@ -71,6 +74,7 @@ class PlanningLoader:
         self._model: RolloutModel | None = None
         self._tables: str | None = None
         self._initial: dict[str, np.ndarray] = {}  # per move, the last one done (knot means): the next search's start
+        self._last_s: dict[str, float] = {}  # per move, how long the last one took (s)
         self.reset()
 
     def reset(self) -> None:
@@ -100,6 +104,7 @@ class PlanningLoader:
         if move != self._move:  # a new phase: the last move's actions start the next search of its kind
             if self._move is not None and self._done:
                 self._initial[self._move] = knot_means(np.array(self._done), round(KNOT_S / STEP_PERIOD))
+                self._last_s[self._move] = len(self._done) * STEP_PERIOD
             self._move, self._plan, self._replanned, self._fallen_back, self._done = move, None, 0, False, []
         action = scripted if move is None or self._fallen_back else self._planned_action(env, move, scripted)
         if move is not None:
@@ -134,9 +139,9 @@ class PlanningLoader:
         back to the scripted move."""
         start = time.perf_counter()
         state = MachineState.from_env(env)
-        plan = plan_motion(state, self._goal(env, move), self.model(env), budget=self.budget,
-                           horizon_s=HORIZON_S[move], seed=self.seed,
-                           initial=self._initial.get(move))  # fmt: skip
+        horizon_s = min(HORIZON_S[move], max(MIN_HORIZON_S, self._last_s.get(move, math.inf) + 1.0))
+        plan = plan_motion(state, self._goal(env, move), self.model(env), budget=self.budget, horizon_s=horizon_s,
+                           seed=self.seed, initial=self._initial.get(move))  # fmt: skip
         self.plan_walls_s.append(time.perf_counter() - start)
         model = self.model(env)
         # a move out of a contact (the bucket scraping the ground at the pile's foot) may start there, no deeper

@@ -191,8 +191,8 @@ def swing_bang_bang(
     for i, k in enumerate(switches):
         stopped = np.nonzero(sign * batch.qd[i, k:, 0] <= SWING_STOPPED)[0]
         if len(stopped):
-            end = k + stopped[0]
-            best = min(best, (abs(batch.q[i, end, 0] - target_rad), k, end + 1))
+            end = int(k + stopped[0])
+            best = min(best, (abs(batch.q[i, end, 0] - target_rad), int(k), end + 1))
     return bang_bang(sign, best[1], best[1], periods), best[1], best[2], len(switches)
 
 
