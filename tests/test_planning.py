@@ -733,3 +733,34 @@ def test_a_plans_goal_figure_is_checked_under_spool_noise(env, model):
     noisy = noise_spread(plan, state, goal, model, copies=4)
     assert quiet.shape == (3,) and np.ptp(quiet) == 0.0
     assert noisy.shape == (4,) and np.isfinite(noisy).all() and not np.array_equal(noisy, np.full(4, quiet[0]))
+
+
+def test_the_planner_counts_what_the_tilt_would_spill():
+    """The spill the planner charges is the environment's law: the payload beyond what the bucket retains at the
+    most tilt so far (``retained_volumes`` is ``retained_volume`` elementwise)."""
+    from types import SimpleNamespace
+
+    from hexgym.envs.earthwork import retained_volume, retained_volumes
+    from hexgym.planning.planner import evaluate
+
+    tilts = np.linspace(-0.2, 3.0, 97)
+    np.testing.assert_allclose(retained_volumes(tilts), [retained_volume(t) for t in tilts], rtol=1e-12)
+
+    class Near:  # a goal every period reaches, at no error
+        task = "tip"
+
+        def reached(self, batch):
+            return np.ones(batch.tilt.shape, bool)
+
+        def error_m(self, mouth, tip):
+            return np.zeros(mouth.shape[:-1])
+
+    tilt = np.array([[0.0, 0.0], [0.0, 0.5]])
+    batch = SimpleNamespace(tilt=tilt, times_s=np.array([0.025, 0.05]), clearance_m=np.ones((2, 2, 4)),
+                            mouth=np.zeros((2, 2, 3)), tip=np.zeros((2, 2, 3)))  # fmt: skip
+    heaped = retained_volume(0.0) * p.MATERIAL_DENSITY
+    spill = evaluate(batch, Near(), heaped, margin_m=0.0)["spill"]
+    assert spill[0] == 0.0 and spill[1] == 0.0  # both end at the first period: no tilt yet
+    batch.tilt = np.array([[0.5, 0.5], [0.0, 0.0]])
+    spill = evaluate(batch, Near(), heaped, margin_m=0.0)["spill"]
+    assert spill[0] == pytest.approx(heaped - retained_volume(0.5) * p.MATERIAL_DENSITY) and spill[1] == 0.0

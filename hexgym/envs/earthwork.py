@@ -145,6 +145,11 @@ def retained_volume(tilt: float) -> float:
     return 0.0
 
 
+def retained_volumes(tilt: np.ndarray) -> np.ndarray:
+    """:func:`retained_volume` of an array of tilts (rad), elementwise (m^3; its three straight pieces)."""
+    return np.interp(tilt, (0.0, _REPOSE, math.pi / 2.0 + _REPOSE), (_HEAPED, _STRUCK, 0.0))
+
+
 @jit
 def spill_out(bucket_kg: float, tilt: float, dt: float, density: float = _DENSITY) -> float:
     """Material (kg) that runs out of a bucket holding ``bucket_kg`` at ``tilt`` over ``dt`` s: the excess over

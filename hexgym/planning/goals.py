@@ -31,7 +31,6 @@ REST_RATE = 0.1  # rad/s: the swing slower than this is at rest
 # m of clearance a plan keeps from truck and ground, loaded or not: chosen over 0.1 / 0.2 / 0.3 m on the selection
 # seeds 20-29 (docs/planning.md); the circuit model follows the reference within centimetres
 MARGIN_M = 0.2
-LOADED_KG = 100.0  # kg in the bucket: a loaded move (its margin and the spill count)
 MAX_REACH_M = 10.5  # m from the swing axis: beyond the teeth's reach (Cat 325 class: ~10.2 m at full reach)
 MAX_HEIGHT_M = 10.0  # m: above the teeth's highest point (~9.5 m)
 

@@ -3,10 +3,11 @@
 :func:`plan_motion` searches spool sequences held piecewise constant between knots (every ``knot_s``,
 0.5 s by default) that bring the machine from a :class:`~hexgym.planning.rollouts.MachineState` to a
 :class:`Goal` in least ``time + w_fuel x fuel``, with no contact of bucket or stick with truck or ground
-(clearance >= ``margin_m``) and, while loaded, the mouth within the material's repose angle of facing up
-(no spill). Candidates are rolled out in batches on the native model (:class:`RolloutModel`: by default the circuit
-model, which shares the pumps and the engine's power as the machine does) and improved by the cross-entropy method
-(a Gaussian per knot refitted to the best tenth, seeded with a heuristic move towards the goal or a given one).
+(clearance >= ``margin_m``) and, while loaded, as little spilled as the time it saves is worth (the bucket holds
+less the more its mouth tilts from facing up: a heaped load starts to run out at once). Candidates are rolled out
+in batches on the native model (:class:`RolloutModel`: by default the circuit model, which shares the pumps and the
+engine's power as the machine does) and improved by the cross-entropy method (a Gaussian per knot refitted to the
+best tenth, seeded with a heuristic move towards the goal or a given one).
 Fuel is the engine's for the circuit's pump pressures and flows (:attr:`RolloutBatch.fuel_l_per_h`), every
 candidate's; on a table model, which has no pumps, the environment's account (the actuators' power from the joint
 loads, a forward pass per sample: only each batch's best few are re-ranked with it, the power sampled every
@@ -33,11 +34,12 @@ from typing import Any
 
 import numpy as np
 
+from hexgym.envs.earthwork import retained_volumes
 from hexgym.envs.loading import STEP_PERIOD
 from hexgym.hydraulics import fuel
 from hexgym.machine import parameters as p
 from hexgym.planning.check import SETTLE_S, SWING_STOPPED, CheckResult, release_at_stops
-from hexgym.planning.goals import LOADED_KG, MARGIN_M, Goal, margin_for
+from hexgym.planning.goals import MARGIN_M, Goal, margin_for
 from hexgym.planning.rollouts import MachineState, RolloutBatch, RolloutModel, bang_bang, off_the_toe
 
 FUEL_SAMPLE_S = 1.0  # s between power samples when ranking candidates by fuel (the final plan: every 0.1 s)
@@ -51,7 +53,9 @@ KNOT_S = 0.5  # s: the default spacing of a plan's spool knots
 _UNREACHED_S = 10.0  # s added to the cost of a rollout that does not reach the goal, plus 5 s per metre short
 _SHORTFALL_COST = 20.0  # s per metre-second of clearance short of the margin
 _CONTACT_COST = 100.0  # s per metre of penetration
-_SPILL_COST = 20.0  # s per rad-second of tilt beyond the repose angle while loaded
+# s per kg the bucket's tilt would spill (the excess over what it retains at the most tilt so far): a scripted cycle
+# takes ~18 s per ~1,600 kg, so a kilogram spilled costs about this much loading time to dig again
+_SPILL_S_PER_KG = 18.0 / 1600.0
 # s: a checked plan that touches or misses the goal is tried with its swing started this much later (the loaded boom
 # rises slower on the machine than on the fast model: later, the bucket comes to the truck higher)
 MEND_DELAYS_S = (0.15, 0.3, 0.45)
@@ -117,9 +121,11 @@ def _with_swing(spools: np.ndarray, swing_m: np.ndarray | None) -> np.ndarray:
     return spools
 
 
-def evaluate(batch: RolloutBatch, goal: Goal, loaded: bool, margin_m: float = MARGIN_M) -> dict[str, np.ndarray]:
+def evaluate(batch: RolloutBatch, goal: Goal, payload_kg: float, margin_m: float = MARGIN_M) -> dict[str, np.ndarray]:
     """Per rollout: cost without fuel (time + penalties), time (s), clearance (m), goal error (m) up to the goal
-    (or the horizon), and the period it ends at."""
+    (or the horizon), the kilograms of ``payload_kg`` the bucket's tilt would spill (``spill``: what it cannot retain
+    at its most tilt so far; the environment lets that excess run out over about a second), and the period it ends
+    at."""
     reached = goal.reached(batch)
     nbatch, nper = reached.shape
     dt = batch.times_s[0]
@@ -131,13 +137,14 @@ def evaluate(batch: RolloutBatch, goal: Goal, loaded: bool, margin_m: float = MA
     # every period short of the margin costs (not only the least: a start near the ground must not make the
     # rest of the move free to pass close), a contact much more
     shortfall = np.where(upto, np.maximum(margin_m - least, 0.0), 0.0).sum(axis=1) * dt
-    spill = np.where(upto, np.maximum(batch.tilt - p.MATERIAL_REPOSE_ANGLE, 0.0), 0.0).sum(axis=1) * dt if loaded else 0
+    most_tilt = np.maximum.accumulate(np.where(upto, batch.tilt, -np.inf), axis=1)[:, -1]
+    spill = np.maximum(payload_kg - retained_volumes(most_tilt) * p.MATERIAL_DENSITY, 0.0)
     error = goal.error_m(batch.mouth, batch.tip)[np.arange(nbatch), end]
     time_s = batch.times_s[end]
-    cost = time_s + _SHORTFALL_COST * shortfall + _CONTACT_COST * np.maximum(-clearance, 0.0) + _SPILL_COST * spill
+    cost = time_s + _SHORTFALL_COST * shortfall + _CONTACT_COST * np.maximum(-clearance, 0.0) + _SPILL_S_PER_KG * spill
     cost = cost + np.where(hit, 0.0, _UNREACHED_S + 5.0 * error)
     return {"cost": cost, "time_s": time_s, "clearance_m": clearance, "error_m": error, "reached": hit,
-            "spill": np.asarray(spill) * np.ones(nbatch), "end": end}  # fmt: skip
+            "spill": spill, "end": end}  # fmt: skip
 
 
 def batch_fuel_l(batch: RolloutBatch, end: np.ndarray) -> np.ndarray:
@@ -255,7 +262,6 @@ def plan_motion(
     margin_m = margin_for(state) if margin_m is None else margin_m
     periods = _periods_of(horizon_s, model)
     knots = math.ceil(periods / periods_per_knot)
-    loaded = state.payload_kg > LOADED_KG
     rng = np.random.default_rng(seed)
     if initial is not None:
         initial = np.asarray(initial, float)
@@ -285,7 +291,7 @@ def plan_motion(
         spools = _with_swing(_knot_spools(params, periods_per_knot, simulated), swing_m)
         batch = model.rollout(state, spools, simulated * model.control_period)
         used += n
-        figures = evaluate(batch, goal, loaded, margin_m)
+        figures = evaluate(batch, goal, state.payload_kg, margin_m)
         scores = figures["cost"]
         order = np.argsort(scores)
         if w_fuel > 0 and batch.fuel_l_per_h is not None:  # the model's own fuel rates: every rollout's fuel
@@ -314,7 +320,7 @@ def _plan_of(
     """The :class:`Plan` of spools (T, 4) per control period: their rollout's figures on the fast model, up to the
     goal (``truncate``: the spools too; else all of them), with ``rollouts`` and the wall time since ``start``."""
     final = model.rollout(state, spools_m[None], len(spools_m) * model.control_period)
-    figures = evaluate(final, goal, state.payload_kg > LOADED_KG, margin_m)
+    figures = evaluate(final, goal, state.payload_kg, margin_m)
     end = int(figures["end"][0])
     kept = end + 1 if truncate else len(spools_m)
     clearance = float(figures["clearance_m"][0])
