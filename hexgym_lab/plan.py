@@ -283,8 +283,8 @@ def _swing_of(task: str, swing: str | None) -> str:
 
 
 def _swing_switches(plan: Plan, period: float) -> dict | None:
-    """When a fastest-turn swing leaves full spool (s): the fast model's own turn's (:func:`swing_bang_bang`) and the
-    plan's (fitted on the circuit model when checked): how much more weakly the fast model brakes, per move. None
+    """When a fastest-turn swing leaves full spool (s): the rollouts' own turn's alone (:func:`swing_bang_bang`) and
+    the plan's (refitted on the circuit model under the plan's other spools when checked), per move. None
     for a swing searched per knot."""
     if plan.fast_swing_switch is None:
         return None

@@ -359,11 +359,10 @@ def plan_checked(
     that ranks better.
 
     ``fit_swing`` (e.g. :meth:`PlanCheck.fit_swing`): the swing is not searched but turns as fast as it can to the
-    goal's bearing (:func:`swing_target`). The search holds it at the fast model's own fastest turn (full spool,
-    then full counter-spool until it stops: :func:`swing_bang_bang`) and finds the other spools; each round's plan
-    then gets the swing ``fit_swing`` fits on the accurate model under them (its switch later: the fast model's
-    swing brakes more weakly, and the same switch would stop the machine's well short) before it is checked. The
-    plan's predicted figures are the fast model's with its own swing. ``search``: :func:`plan_motion`'s other
+    goal's bearing (:func:`swing_target`). The search holds it at the rollouts' own fastest turn alone (full spool,
+    then closed: :func:`swing_bang_bang`) and finds the other spools; each round's plan then gets the swing
+    ``fit_swing`` fits on the circuit model's replays under them (they share the pumps with it) before it is checked.
+    The plan's predicted figures are the rollouts' with their own swing. ``search``: :func:`plan_motion`'s other
     options."""
     if isinstance(budget, bool) or not isinstance(budget, int | np.integer) or budget < 2:
         raise ValueError(f"planner budget must be an integer >= 2 rollouts (two rounds), got {budget!r}")
