@@ -368,7 +368,7 @@ def test_circuit_rollouts_are_the_checks_replays_with_its_fuel(env, model, paper
     """The native circuit model's rollouts follow the check's replay of the same spools on the circuit model in Python,
     with the teeth and clearances of the site's geometry, and carry the engine's fuel rate from the circuit's pump
     pressures and flows (as the replay reports it, one state at a time); a table model's rollouts carry none."""
-    from hexgym.hydraulics.circuit import STATE_SIZE, HydraulicCircuit, engine_fuel_rates, fuel_rate
+    from hexgym.hydraulics.circuit import STATE_SIZE, HydraulicCircuit, engine_fuel_rates, fuel_rate, regulated_flows
     from hexgym.planning import MachineState
     from hexgym.planning.check import PlanCheck, replay_plan
     from hexgym.planning.goals import dump_goal
@@ -379,6 +379,8 @@ def test_circuit_rollouts_are_the_checks_replays_with_its_fuel(env, model, paper
     states[0, :2] = 0.0
     one_by_one = [fuel_rate(HydraulicCircuit().pump_power(s)[2]) for s in states]
     np.testing.assert_allclose(engine_fuel_rates(states), one_by_one, rtol=1e-12)
+    flows = [HydraulicCircuit.pump_flows(s[:2], s[-2:], 0.004, 1.2e5)[0] for s in states]  # the law, two ways
+    np.testing.assert_array_equal(regulated_flows(states[:, :2], states[:, -2:], 0.004, 1.2e5), flows)
 
     layout = env.unwrapped.layout
     state = MachineState(env.unwrapped.physics.joint_positions(), np.zeros(4), 1500.0, layout)
