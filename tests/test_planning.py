@@ -766,3 +766,36 @@ def test_the_planner_counts_what_the_tilt_would_spill():
     batch.tilt = np.array([[0.5, 0.5], [0.0, 0.0]])
     spill = evaluate(batch, Near(), heaped, margin_m=0.0)["spill"]
     assert spill[0] == pytest.approx(heaped - retained_volume(0.5) * p.MATERIAL_DENSITY) and spill[1] == 0.0
+
+
+def test_a_prediction_from_a_reference_environment_starts_from_its_circuit_state():
+    """From ``HexLoading-v0(model="reference")`` the state carries the reference's circuit state (pressures, pump
+    displacements), and the circuit model's rollouts start from it: the swing turning at full spool is predicted
+    where the reference takes it (without it the rollout starts its circuit at rest and lags by a tenth of a rad)."""
+    import dataclasses
+
+    from hexgym.planning import MachineState, RolloutModel
+
+    env = gym.make("HexLoading-v0", model="reference")
+    env.reset(seed=0)
+    action = np.array([0.5, 0.8, 0.3, 0.2], np.float32)
+    for _ in range(30):
+        env.step(action)
+    state = MachineState.from_env(env)
+    assert state.hydraulic_state is not None and state.hydraulic_state.shape == (14,) and state.qd[0] > 0.3
+    model = RolloutModel(contacts=False)
+    try:
+        spools = np.tile(action * p.SPOOL_STROKE, (40, 1))
+        carried = model.rollout(state, spools, 1.0).q[0, 3::4]
+        at_rest = model.rollout(dataclasses.replace(state, hydraulic_state=None), spools, 1.0).q[0, 3::4]
+    finally:
+        model.close()
+    moved = []
+    for _ in range(10):
+        env.step(action)
+        moved.append(env.unwrapped.physics.joint_positions().copy())
+    env.close()
+    assert np.abs(carried - np.array(moved)).max() < 0.02
+    assert np.abs(at_rest[:, 0] - np.array(moved)[:, 0]).max() > 0.05
+    with pytest.raises(ValueError, match="hydraulic state must be 14 finite numbers"):
+        model.machine.set_hydraulic_state(np.full(14, np.nan), np.zeros(4))

@@ -159,6 +159,20 @@ class NativeLearnedModel(LearnedModelBase):
         d.time = 0.0
         self._periods = self._steps = 0
 
+    def set_hydraulic_state(self, hydraulic_state: np.ndarray, rates: np.ndarray) -> None:
+        """Start the circuit model from a given circuit state (pressures and pump displacements, ``STATE_NAMES``: e.g.
+        the reference's, whose circuit has the same nodes) and joint rates (rad/s) instead of the one that holds the
+        loads at rest (after :meth:`reset`)."""
+        if self.hydraulic_slots is None:
+            raise ValueError(f"table set {self.table_set!r} has no circuit: no hydraulic state to set")
+        hydraulic_state, rates = np.asarray(hydraulic_state, float), np.asarray(rates, float)
+        if hydraulic_state.shape != (CIRCUIT_STATE_SIZE,) or not np.isfinite(hydraulic_state).all():
+            raise ValueError(f"hydraulic state must be {CIRCUIT_STATE_SIZE} finite numbers ({CIRCUIT_STATE_NAMES})")
+        d, start = self.physics.data, self._state.start
+        d.plugin_state[self.hydraulic_slots] = hydraulic_state
+        d.plugin_state[start + STATE["rates"] : start + STATE["rates"] + 4] = rates
+        d.plugin_state[start + STATE["circuit_ready"]] = 1.0
+
     def step(self, spools_m: np.ndarray, n: int = 1) -> None:
         """Advance ``n`` control periods with the spools (m; swing, boom, stick, bucket) held."""
         self.spools_m = validate_spools(spools_m).copy()

@@ -73,13 +73,15 @@ _OBSTACLE_GEOMS = {TRUCK_BODY: _TRUCK_GEOMS, GROUND_GEOM: (GROUND_GEOM,)}
 class MachineState:
     """The machine on its site: joint angles (rad) and rates (rad/s) in the order swing, boom, stick,
     bucket; the payload (kg); the site's layout; optionally the full physics state of a native
-    environment's model (``mjSTATE_FULLPHYSICS``), which then stands for the rest."""
+    environment's model (``mjSTATE_FULLPHYSICS``), which then stands for the rest, or the circuit's state of a
+    reference environment (its pressures and pump displacements), which a circuit model's rollouts start from."""
 
     q: np.ndarray
     qd: np.ndarray
     payload_kg: float
     layout: Layout
     physics_state: np.ndarray | None = None
+    hydraulic_state: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         q, qd = np.asarray(self.q, float), np.asarray(self.qd, float)
@@ -110,7 +112,10 @@ class MachineState:
             kind = mujoco.mjtState.mjSTATE_FULLPHYSICS
             physics_state = np.empty(mujoco.mj_stateSize(ph.model, kind))
             mujoco.mj_getState(ph.model, ph.data, physics_state, kind)
-        return cls(ph.joint_positions().copy(), ph.joint_velocities().copy(), ph.payload_kg, env.layout, physics_state)
+        reference = getattr(env.machine, "reference", None)  # the reference environment's machine: its circuit
+        hydraulic = None if reference is None else np.array(reference.state, float)
+        return cls(ph.joint_positions().copy(), ph.joint_velocities().copy(), ph.payload_kg, env.layout, physics_state,
+                   hydraulic)  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)
@@ -308,6 +313,8 @@ class RolloutModel:
         self.machine.reset(state.q, payload_kg=state.payload_kg)
         ph.set_joint_state(state.q, state.qd)
         d.act[self._swing_act] = state.qd[0]  # the lean swing servo's rate target
+        if state.hydraulic_state is not None and self.machine.hydraulic_slots is not None:
+            self.machine.set_hydraulic_state(state.hydraulic_state, state.qd)
         self.world.place(d, state.layout)
         mujoco.mj_forward(m, d)
         mujoco.mj_getState(m, d, x0, self._kind)
