@@ -138,12 +138,11 @@ class PlanningLoader:
         """Plan ``move`` from the environment's state; a plan that is not clear or does not reach the goal falls
         back to the scripted move."""
         start = time.perf_counter()
-        state = MachineState.from_env(env)
+        state, model = MachineState.from_env(env), self.model(env)
         horizon_s = min(HORIZON_S[move], max(MIN_HORIZON_S, self._last_s.get(move, math.inf) + 1.0))
-        plan = plan_motion(state, self._goal(env, move), self.model(env), budget=self.budget, horizon_s=horizon_s,
+        plan = plan_motion(state, self._goal(env, move), model, budget=self.budget, horizon_s=horizon_s,
                            seed=self.seed, initial=self._initial.get(move))  # fmt: skip
         self.plan_walls_s.append(time.perf_counter() - start)
-        model = self.model(env)
         # a move out of a contact (the bucket scraping the ground at the pile's foot) may start there, no deeper
         allowed = min(0.0, float(model.clearance_at(model.initial_state(state)).min()))
         if not (plan.reached and plan.min_clearance_m >= allowed):

@@ -438,8 +438,13 @@ def engine_fuel_rates(states: np.ndarray) -> np.ndarray:
     states = np.asarray(states, float)
     pressures = states[..., 0:2]
     flows = regulated_flows(pressures, states[..., N_NODES:])
-    hydraulic = (pressures * flows).sum(axis=-1)
-    return fuel_rates(p.ACCESSORY_POWER + np.maximum(hydraulic, 0.0) / p.PUMP_OVERALL_EFFICIENCY)
+    return fuel_rates(engine_brake_power((pressures * flows).sum(axis=-1)))
+
+
+def engine_brake_power(hydraulic_w: np.ndarray | float) -> np.ndarray:
+    """The engine's brake power (W) for the pumps' hydraulic power (W): through their overall efficiency, and the
+    accessories."""
+    return p.ACCESSORY_POWER + np.maximum(hydraulic_w, 0.0) / p.PUMP_OVERALL_EFFICIENCY
 
 
 # --------------------------------------------------------------------------------------------
@@ -929,7 +934,7 @@ class HydraulicCircuit:
         accessories)."""
         q_pump, _, _ = self.pump_flows(state[0:2], state[N_NODES:])
         hyd = float(state[0] * q_pump[0] + state[1] * q_pump[1])
-        return q_pump, hyd, p.ACCESSORY_POWER + max(hyd, 0.0) / p.PUMP_OVERALL_EFFICIENCY
+        return q_pump, hyd, float(engine_brake_power(hyd))
 
     def outputs(
         self,

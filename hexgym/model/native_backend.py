@@ -127,8 +127,6 @@ class NativeLearnedModel(LearnedModelBase):
         self._hydraulics = self._state.start + STATE["hydraulics"] + np.arange(CIRCUIT_STATE_SIZE)
         layout = valve_layout(VALVE_OF_TABLE_SET[self.table_set]) if self.table_set in CIRCUIT_TABLE_SETS else None
         self._circuit = None if layout is None else HydraulicCircuit(layout=layout)
-        # the circuit's state's indices in plugin_state (None: a table model, no circuit)
-        self.hydraulic_slots: np.ndarray | None = None if layout is None else self._hydraulics
 
     @property
     def control_period(self) -> float:
@@ -158,6 +156,11 @@ class NativeLearnedModel(LearnedModelBase):
         d.plugin_state[self._state.start + STATE["circuit_ready"]] = 0.0
         d.time = 0.0
         self._periods = self._steps = 0
+
+    @property
+    def hydraulic_slots(self) -> np.ndarray | None:
+        """The circuit's state's indices in ``plugin_state`` (None: a table model, no circuit)."""
+        return None if self._circuit is None else self._hydraulics
 
     def set_hydraulic_state(self, hydraulic_state: np.ndarray, rates: np.ndarray) -> None:
         """Start the circuit model from a given circuit state (pressures and pump displacements, ``STATE_NAMES``: e.g.

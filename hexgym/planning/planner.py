@@ -16,8 +16,8 @@ loads, a forward pass per sample: only each batch's best few are re-ranked with 
 Goals and the margins a plan keeps are the planning vocabulary of :mod:`hexgym.planning.goals`.
 
 A move can instead turn the swing as fast as it can (:func:`plan_checked`'s ``fit_swing``): the search holds the
-swing at its model's quickest turn (full spool, then full counter-spool), the switch of a turn braked by the
-crossover reliefs alone is fitted on the circuit model's replays, and the search finds the rest.
+swing at its model's quickest turn alone (full spool, then closed: the crossover reliefs brake it), the search finds
+the rest, and the switch is refitted on the circuit model's replays under the other spools (they share the pumps).
 
 A plan that found no collision-free motion says so (:attr:`Plan.collision_free` False, its clearance):
 it is never reported as safe.
