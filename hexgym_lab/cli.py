@@ -83,12 +83,14 @@ def _cmd_scripted(args: argparse.Namespace) -> int:
 def _cmd_tune_loader(args: argparse.Namespace) -> int:
     from dataclasses import asdict
 
+    from hexgym.agents.scripted import load_settings
     from hexgym.checks import parse_seeds
     from hexgym_lab.agents.loader_search import tune_loader
 
+    start = load_settings(args.loader_settings)
     settings, score = tune_loader(args.out, parse_seeds(args.seeds), generations=args.generations,
                                   population=args.population, spill_target=args.spill_target,
-                                  seed=args.seed)  # fmt: skip
+                                  seed=args.seed, start=start)  # fmt: skip
     from hexgym_lab.progress import wrote
 
     print(json.dumps({"settings": asdict(settings), "score": asdict(score)}, indent=2))
@@ -752,6 +754,9 @@ def build_parser() -> argparse.ArgumentParser:
     tune.add_argument("--spill-target", type=float, default=0.05, help="spilled fraction above which the score "
                       "is penalised (default: 0.05)")  # fmt: skip
     tune.add_argument("--seed", type=int, default=1, help="the search's own seed (default: 1)")
+    tune.add_argument("--loader-settings", dest="loader_settings", default=None, metavar="FILE",
+                      help="the search's start (JSON, e.g. an earlier search's --out; default: the hand-set "
+                      "settings); its settings for teaching are held, not searched")  # fmt: skip
     tune.set_defaults(func=_cmd_tune_loader)
 
     model = sub.add_parser("model", help="print the machine model's masses, joint ranges and cylinders: a table")
@@ -1154,7 +1159,8 @@ _OUTPUT_DIRS = {("demo", "out"), ("reference-report", "out"), ("validate", "out"
                 ("fit", "out"), ("build-assets", "dir"), ("clone", "rounds_dir"), ("train", "log_dir")}  # fmt: skip
 _INPUT_FILES = {("simulate", "commands"), ("train", "hyperparams"), ("train", "init_from"), ("clone", "hyperparams"),
                 ("convert-normalizer", "pkl"), ("scripted", "loader_settings"), ("evaluate", "loader_settings"),
-                ("clone", "loader_settings"), ("simulate", "hydraulics"), ("simulate", "start_from"),
+                ("clone", "loader_settings"), ("tune-loader", "loader_settings"), ("simulate", "hydraulics"),
+                ("simulate", "start_from"),
                 ("simulate", "mapping"), ("check-log", "mapping"), ("compare", "mapping"), ("compare", "a"),
                 ("compare", "b"), ("fit", "mapping"), ("validate", "mapping")}  # fmt: skip
 # Options that apply only in one mode: (command, option) -> (the mode's option, its value, what the option is for).

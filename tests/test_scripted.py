@@ -207,12 +207,16 @@ def test_a_loader_with_other_settings_loads_differently():
 
 
 def test_the_settings_search_keeps_the_best_candidate_it_met(tmp_path):
+    """From a given start (an earlier search's, or a teacher's): the start is a candidate, its settings for teaching
+    are held."""
     from hexgym_lab.agents.loader_search import episode_figures, tune_loader
 
     lines = []
-    settings, score = tune_loader(tmp_path / "tuned.json", seeds=[3], generations=1, population=4, log=lines.append)
-    assert LoaderSettings.load(tmp_path / "tuned.json") == settings
-    assert lines[0].startswith("defaults: objective") and lines[1].startswith("generation 0: best so far")
+    start = LoaderSettings(carry_blend=0.3, full_fraction=0.7)
+    settings, score = tune_loader(tmp_path / "tuned.json", seeds=[3], generations=1, population=4, log=lines.append,
+                                  start=start)  # fmt: skip
+    assert LoaderSettings.load(tmp_path / "tuned.json") == settings and settings.carry_blend == 0.3
+    assert lines[0].startswith("start: objective") and lines[1].startswith("generation 0: best so far")
     delivered, spilled, seconds, contact = episode_figures(settings, 3)  # the score is the episode's figures
     assert score.tonnes_per_hour == pytest.approx(delivered / seconds * 3600.0)
     assert score.spilled_fraction == pytest.approx(spilled / (spilled + delivered)) and contact <= 0.0

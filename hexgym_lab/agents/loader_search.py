@@ -95,12 +95,14 @@ def tune_loader(
     seed: int = 1,
     workers: int | None = None,
     log: Callable[[str], None] | None = None,
+    start: LoaderSettings | None = None,
 ) -> tuple[LoaderSettings, Score]:
-    """CMA-ES over the loader's settings from the defaults; the best met is written to ``out`` (JSON) after each
-    generation and returned. Ctrl-C stops the workers at once; ``out`` then holds the best of the generations
-    finished (or its old content, before the first). ``population``: candidates per generation, at least
-    :data:`MIN_POPULATION`. Progress (:mod:`hexgym_lab.progress`): a count of candidates scored, and a line per
-    generation (to ``log`` where given)."""
+    """CMA-ES over the loader's settings from ``start`` (default: the hand-set ones; its settings for teaching are
+    held, not searched); the best met is written to ``out`` (JSON) after each generation and returned. Ctrl-C
+    stops the workers at once; ``out`` then holds the best of the generations finished (or its old content,
+    before the first). ``population``: candidates per generation, at least :data:`MIN_POPULATION`. Progress
+    (:mod:`hexgym_lab.progress`): a count of candidates scored, and a line per generation (to ``log`` where
+    given)."""
     try:
         from cmaes import CMA
     except ImportError:
@@ -111,14 +113,14 @@ def tune_loader(
     if not seeds:
         raise ValueError("seeds: give at least one episode seed")
     check_output_file(out, "loader settings")
-    start = LoaderSettings()
+    start = start or LoaderSettings()
     optimiser = CMA(mean=_to_unit(start), sigma=START_SIGMA, bounds=np.array([[0.0, 1.0]] * len(SEARCHED)),
                     seed=seed, population_size=population)  # fmt: skip
     workers = max(1, min(workers or os.cpu_count() or 1, len(seeds)))
     with LocalPool(workers) as pool, Progress(1 + generations * population, "tune-loader", "candidate") as progress:
         say = log or progress.note
         best = (start, score(start, seeds, pool, spill_target))
-        say(f"defaults: {_describe(best[1])}")
+        say(f"start: {_describe(best[1])}")
         progress.update(best_t_per_h=f"{best[1].tonnes_per_hour:.1f}")
         for generation in range(generations):
             told = []
