@@ -475,6 +475,24 @@ def _cmd_clone(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_select(args: argparse.Namespace) -> int:
+    from hexgym.agents.policy_files import normalizer_path
+    from hexgym.checks import parse_seeds
+    from hexgym.files import write_json
+    from hexgym_lab.agents.select import select_checkpoint
+    from hexgym_lab.progress import wrote
+
+    sets = [parse_seeds(part) for part in args.seeds.split(",")]
+    rows = select_checkpoint(args.checkpoints, args.out, [(seeds[0], len(seeds)) for seeds in sets])
+    kept = next(row for row in rows if row["selected"])
+    print(json.dumps({"selected": kept, "checkpoints": rows}, indent=2))
+    wrote(args.out, f"the selected checkpoint ({kept['steps']} steps)")
+    wrote(normalizer_path(args.out), "its observation normaliser")
+    if args.json:
+        wrote(write_json(args.json, {"selected": kept, "checkpoints": rows}), "every checkpoint's figures")
+    return 0
+
+
 def _cmd_evaluate(args: argparse.Namespace) -> int:
     from hexgym.envs import ENV_ID
     from hexgym.files import write_json
@@ -1080,6 +1098,16 @@ def _add_agent_parsers(sub: argparse._SubParsersAction) -> None:
     clone.add_argument("--loader-settings", **_LOADER_SETTINGS_OPTION)
     clone.set_defaults(func=_cmd_clone)
 
+    select = sub.add_parser("select", help="keep the checkpoint of a training run that loads most on selection seeds")
+    select.add_argument("checkpoints", metavar="DIR", help="a run's checkpoints (<log-dir>/<algo>_<env>/checkpoints)")
+    select.add_argument("--out", required=True, metavar="FILE.zip", help="output file: the selected model (its "
+                        "observation normaliser beside it, <name>_vecnormalize.json)")  # fmt: skip
+    select.add_argument("--seeds", default="0-19,100-109", metavar="A-B[,C-D]", help="selection seed sets, each "
+                        "evaluated deterministically; the highest mean t/h over the sets is kept (default: "
+                        "0-19,100-109)")  # fmt: skip
+    select.add_argument("--json", default=None, metavar="OUT", help="also write every checkpoint's figures here")
+    select.set_defaults(func=_cmd_select)
+
     curves = sub.add_parser("curves", help="learning curves of hexgym train runs (seeds): figure and summary")
     curves.add_argument("runs", nargs="+", help="run directories (<log-dir>/<algo>_<env>) or their curve.csv")
     curves.add_argument("--out", required=True, metavar="FILE.png", help="output file: the figure, mean and "
@@ -1154,7 +1182,7 @@ _OUTPUT_FILES = {("simulate", "out"), ("video", "out"), ("video", "snapshot"), (
                  ("convert-normalizer", "out"), ("shield", "json"), ("shield", "plot"),
                  ("plan", "json"), ("plan", "plot"), ("plan", "video"), ("curves", "out"),
                  ("curves", "json"), ("simulate", "machine_log"), ("compare", "out"),
-                ("excitation", "out")}  # fmt: skip
+                ("excitation", "out"), ("select", "out"), ("select", "json")}  # fmt: skip
 _OUTPUT_DIRS = {("demo", "out"), ("reference-report", "out"), ("validate", "out"), ("collect", "out"),
                 ("fit", "out"), ("build-assets", "dir"), ("clone", "rounds_dir"), ("train", "log_dir")}  # fmt: skip
 _INPUT_FILES = {("simulate", "commands"), ("train", "hyperparams"), ("train", "init_from"), ("clone", "hyperparams"),
@@ -1179,7 +1207,8 @@ _EXCLUSIVE = {
     ("plan", "ray", "workers"),
 }  # fmt: skip
 _INPUT_DIRS = {("fit", "data"), ("tables", "dir"), ("tables", "bench"), ("fit", "logs"), ("validate", "logs"),
-               ("validate", "model"), ("excitation", "model"), ("simulate", "tables_dir")}  # fmt: skip
+               ("validate", "model"), ("excitation", "model"), ("simulate", "tables_dir"),
+               ("select", "checkpoints")}  # fmt: skip
 
 
 def check_arguments(args: argparse.Namespace, given: set[str] | None = None) -> None:

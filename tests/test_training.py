@@ -1,6 +1,7 @@
 """hexgym train and clone: rl-zoo3 hyperparameters, short runs that save, reload and resume."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -228,3 +229,22 @@ def test_cloning_runs_its_episodes_on_the_tables_asked_for(tmp_path, tiny_yaml, 
     assert seen["hp"]["env_kwargs"]["tables"] == "circuit"
     with pytest.raises(ValueError, match="tables"):
         clone_scripted(tmp_path / "bc2.zip", hyperparams=tiny_yaml, tables="nope", log=lambda _: None)
+
+
+def test_select_keeps_the_checkpoint_that_loads_most_on_the_selection_seeds(tmp_path, tiny_yaml):
+    from hexgym_lab.agents.select import checkpoints, select_checkpoint
+
+    path = train("ppo", timesteps=256, seed=0, log_dir=tmp_path, hyperparams=tiny_yaml, n_envs=2,
+                 checkpoint_every=128, progress_bar=False, report=False)  # fmt: skip
+    directory = path.parent / "checkpoints"
+    assert [p.name for p in checkpoints(directory)] == ["rl_model_128_steps.zip", "rl_model_256_steps.zip"]
+    out = tmp_path / "kept" / "agent.zip"
+    rows = select_checkpoint(directory, out, seed_sets=[(3, 1)])
+    kept = [row for row in rows if row["selected"]]
+    assert [row["steps"] for row in rows] == [128, 256] and len(kept) == 1
+    assert kept[0]["mean_tonnes_per_hour"] == max(row["mean_tonnes_per_hour"] for row in rows)
+    source = Path(kept[0]["checkpoint"])
+    assert out.read_bytes() == source.read_bytes()
+    assert normalizer_path(out).read_bytes() == normalizer_path(source).read_bytes()
+    with pytest.raises(ValueError, match="no checkpoints"):
+        select_checkpoint(tmp_path / "kept", tmp_path / "other.zip")
