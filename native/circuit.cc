@@ -684,18 +684,44 @@ void InitialState(const Circuit& k, const double* holding, double* y) {
   }
 }
 
+bool Diverged(const Circuit& k, const double* state, const double* rates, const double* travel) {
+  for (int i = 0; i < k.nodes; ++i) {
+    if (!(std::fabs(state[i]) <= k.law[kLawFaultPressure])) return true;  // NaN too
+  }
+  for (int i = k.nodes; i < k.state_size; ++i) {
+    if (!std::isfinite(state[i])) return true;
+  }
+  for (int j = 0; j < 4; ++j) {
+    if (!std::isfinite(rates[j]) || !std::isfinite(travel[j])) return true;
+  }
+  return false;
+}
+
 int ControlPeriod(const Circuit& k, const double* spools, double* state, double* rates, double* ext,
                   const double* arms, const double* mass, const double* load, double h, int substeps,
                   double* travel) {
   ValveAreas valve = Valve(k, spools);
   Workspace w;
+  double state0[kMaxState], rates0[4], ext0[kNumCylinders];
+  std::memcpy(state0, state, sizeof(double) * k.state_size);
+  std::memcpy(rates0, rates, sizeof(rates0));
+  std::memcpy(ext0, ext, sizeof(ext0));
   int splits = 0;
-  for (int j = 0; j < 4; ++j) travel[j] = 0.0;
-  for (int s = 0; s < substeps; ++s) {
-    splits += Substep(k, valve, h, state, rates, ext, arms, mass, load, w);
-    for (int j = 0; j < 4; ++j) travel[j] += rates[j] * h;
+  // A period that diverges (its linearised steps overshoot where the oil's stiffness jumps) is run again from
+  // its start in steps kRefine times shorter, up to kMaxRefine: the caller meets a diverged state only if
+  // that fails too.
+  for (int refine = 1;; refine *= kRefine) {
+    double dt = h / refine;
+    for (int j = 0; j < 4; ++j) travel[j] = 0.0;
+    for (int s = 0; s < substeps * refine; ++s) {
+      splits += Substep(k, valve, dt, state, rates, ext, arms, mass, load, w);
+      for (int j = 0; j < 4; ++j) travel[j] += rates[j] * dt;
+    }
+    if (refine >= kMaxRefine || !Diverged(k, state, rates, travel)) return splits;
+    std::memcpy(state, state0, sizeof(double) * k.state_size);
+    std::memcpy(rates, rates0, sizeof(rates0));
+    std::memcpy(ext, ext0, sizeof(ext0));
   }
-  return splits;
 }
 
 void BranchAreasAt(const Circuit& k, const double* spools, const double* ext, double* area) {

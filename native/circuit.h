@@ -89,10 +89,17 @@ struct Circuit {
 // The circuit's state at rest with idle pumps and chamber pressures holding `holding` (N per cylinder).
 void InitialState(const Circuit& k, const double* holding, double* state);
 
+// Whether a period's end is no state of the machine: a node's pressure beyond the fault pressure, or anything not
+// finite.
+bool Diverged(const Circuit& k, const double* state, const double* rates, const double* travel);
+
+constexpr int kRefine = 8, kMaxRefine = 64;  // a diverged period's retries: steps 8 and 64 times shorter
+
 // One control period: `substeps` circuit steps of `h` s at `spools` (m), the joints' rates implicit in the
 // oil's torques, with moment arms `arms` (3), the main joints' mass matrix `mass` (4x4, row-major) and loads
 // `load` (4). `state` (state_size), `rates` (4: swing, boom, stick, bucket) and `ext` (3) advance in place;
-// `travel` (4) gets each joint's travel (rad). Returns the steps split.
+// `travel` (4) gets each joint's travel (rad); a period that diverges is run again in shorter steps
+// (kRefine, kMaxRefine). Returns the steps split.
 int ControlPeriod(const Circuit& k, const double* spools, double* state, double* rates, double* ext,
                   const double* arms, const double* mass, const double* load, double h, int substeps,
                   double* travel);

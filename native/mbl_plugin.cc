@@ -468,11 +468,7 @@ class MblPlugin {
       double y[kHydraulicsSize];
       std::memcpy(y, next_hydraulics, sizeof(y));
       ControlPeriod(*circuit, spools, y, rates, ext, arms, mass, load, period / substeps, substeps, travel);
-      bool finite = true;  // and within the reliefs' reach: a pressure far beyond them is a diverged state
-      for (int i = 0; i < circuit->nodes; ++i) finite = finite && std::fabs(y[i]) <= circuit->law[kLawFaultPressure];
-      for (double v : y) finite = finite && std::isfinite(v);
-      for (int k = 0; k < 4; ++k) finite = finite && std::isfinite(rates[k]) && std::isfinite(travel[k]);
-      if (finite) {
+      if (!Diverged(*circuit, y, rates, travel)) {
         std::memcpy(next_hydraulics, y, sizeof(y));
       } else {  // the machine holds still; the Python side raises, naming the state
         next_fault = 1.0;  // said once on stderr (mju_warning would write MUJOCO_LOG.TXT into the working directory)
