@@ -39,8 +39,9 @@ lint: $(STAMP)
 	$(BIN)/ruff check hexgym hexgym_lab experiments tests assets setup.py
 	$(BIN)/ruff format --check hexgym hexgym_lab experiments tests assets setup.py
 
-# the shipped agent's recipe (docs/agents.md#the-shipped-agent), ~40 min on 2 cores: the tuned loader cloned with
-# DAgger, PPO on the task's reward from the clone, the checkpoint that loads most on the selection seeds kept
+# the shipped agent's recipe (docs/agents.md#the-shipped-agent), ~40 min on 2 cores: the loader with its searched
+# settings cloned with DAgger, PPO on the task's reward from the clone, the checkpoint that loads most on the
+# selection seeds kept
 AGENT := out/agent
 agent: $(STAMP)
 	$(BIN)/hexgym clone --out $(AGENT)/clone.zip --episodes 16 --dagger-rounds 12 --dagger-episodes 16 --noise 0.2 \
