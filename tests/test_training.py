@@ -232,12 +232,14 @@ def test_cloning_runs_its_episodes_on_the_tables_asked_for(tmp_path, tiny_yaml, 
 
 
 def test_select_keeps_the_checkpoint_that_loads_most_on_the_selection_seeds(tmp_path, tiny_yaml):
-    from hexgym_lab.agents.select import checkpoints, select_checkpoint
+    from hexgym_lab.agents.select import select_checkpoint
+    from hexgym_lab.agents.training import checkpoints
 
     path = train("ppo", timesteps=256, seed=0, log_dir=tmp_path, hyperparams=tiny_yaml, n_envs=2,
                  checkpoint_every=128, progress_bar=False, report=False)  # fmt: skip
     directory = path.parent / "checkpoints"
-    assert [p.name for p in checkpoints(directory)] == ["rl_model_128_steps.zip", "rl_model_256_steps.zip"]
+    assert [(n, p.name) for n, p in checkpoints(directory)] == [(128, "rl_model_128_steps.zip"),
+                                                                (256, "rl_model_256_steps.zip")]  # fmt: skip
     out = tmp_path / "kept" / "agent.zip"
     rows = select_checkpoint(directory, out, seed_sets=[(3, 1)])
     kept = [row for row in rows if row["selected"]]

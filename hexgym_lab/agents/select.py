@@ -7,7 +7,6 @@ seed sets chosen for selection, never the seeds its figures are reported on.
 
 from __future__ import annotations
 
-import re
 import shutil
 from collections.abc import Sequence
 from pathlib import Path
@@ -17,16 +16,10 @@ from hexgym.agents.policy_files import normalizer_path
 from hexgym.checks import check_count, check_seed
 from hexgym.files import atomic_paths, check_input_dir, check_output_file
 from hexgym_lab.agents.evaluate import evaluate
+from hexgym_lab.agents.training import checkpoints
 from hexgym_lab.progress import Progress
 
 SELECTION_SEEDS = ((0, 20), (100, 10))  # (first seed, episodes): the shipped agent's selection sets
-
-
-def checkpoints(directory: str | Path) -> list[Path]:
-    """The checkpoints (``*_<steps>_steps.zip``) in ``directory``, by their step count."""
-    found = [(int(m[1]), path) for path in Path(directory).glob("*_steps.zip")
-             if (m := re.fullmatch(r".*_(\d+)_steps", path.stem))]  # fmt: skip
-    return [path for _, path in sorted(found)]
 
 
 def select_checkpoint(
@@ -44,12 +37,12 @@ def select_checkpoint(
         check_count("episodes", episodes)
     found = checkpoints(directory)
     if not found:
-        raise ValueError(f"{directory}: no checkpoints (*_<steps>_steps.zip) to select from")
+        raise ValueError(f"{directory}: no checkpoints (rl_model_<steps>_steps.zip) to select from")
     rows = []
     with Progress(len(found), "select", "checkpoint") as progress:
-        for path in found:
+        for steps, path in found:
             sets = [evaluate(str(path), episodes=n, seed=first) for first, n in seed_sets]
-            row = {"checkpoint": str(path), "steps": int(path.stem.split("_")[-2]),
+            row = {"checkpoint": str(path), "steps": steps,
                    "tonnes_per_hour": [s["tonnes_per_hour"] for s in sets],
                    "spilled_fraction": [s["spilled_fraction"] for s in sets],
                    "success_rate": [s["success_rate"] for s in sets]}  # fmt: skip

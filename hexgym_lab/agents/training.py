@@ -263,14 +263,20 @@ def _rollout_report_callback(print_line: Callable[[str], None] | None = print, c
     return RolloutReport()
 
 
-def latest_checkpoint(run_dir: str | Path) -> Path | None:
-    """The checkpoint with the most steps in ``run_dir/checkpoints`` (None when there is none)."""
+def checkpoints(directory: str | Path) -> list[tuple[int, Path]]:
+    """The checkpoints (``rl_model_<steps>_steps.zip``) in ``directory`` as (steps, path), fewest steps first."""
     found = []
-    for path in (Path(run_dir) / "checkpoints").glob("rl_model_*_steps.zip"):
+    for path in Path(directory).glob("rl_model_*_steps.zip"):
         match = re.fullmatch(r"rl_model_(\d+)_steps", path.stem)
         if match:
             found.append((int(match[1]), path))
-    return max(found)[1] if found else None
+    return sorted(found)
+
+
+def latest_checkpoint(run_dir: str | Path) -> Path | None:
+    """The checkpoint with the most steps in ``run_dir/checkpoints`` (None when there is none)."""
+    found = checkpoints(Path(run_dir) / "checkpoints")
+    return found[-1][1] if found else None
 
 
 def _load_into(path: Path, algo_class: type, venv: Any, update_statistics: bool = True, **kwargs: Any) -> Any:
